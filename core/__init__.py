@@ -1,0 +1,27 @@
+"""patchcloud.core: normals, curvature and quadric patch models of one in-memory cloud.
+
+Numpy arrays in, numpy arrays out; no files and no dask here.
+
+>>> import numpy as np
+>>> from patchcloud.core import estimate_normals
+>>> xy = np.random.default_rng(0).uniform(0, 10, (5000, 2))
+>>> res = estimate_normals(np.column_stack([xy, 0.1 * xy[:, 0]]))
+>>> res.normals.shape, res.normals.dtype
+((5000, 3), dtype('float32'))
+"""
+
+from .errors import PatchcloudError, PatchcloudIOError, PatchcloudValueError
+from .normals import Method, NormalsParameters, NormalsResult, estimate_normals
+from .patches import PatchKind, PatchTable
+
+__all__ = [
+    "estimate_normals",
+    "NormalsResult",
+    "NormalsParameters",
+    "Method",
+    "PatchTable",
+    "PatchKind",
+    "PatchcloudError",
+    "PatchcloudValueError",
+    "PatchcloudIOError",
+]

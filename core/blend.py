@@ -1,0 +1,71 @@
+"""Blending of normals and curvatures across leaf faces (paper section 2.4).
+
+Within ``r = min(d1, d2) / 3`` of a face shared by two leaves of edges
+``d1`` and ``d2``, a point's value is the weighted mean of its own patch's
+value (weight 1) and of each neighbouring patch's value at the same point
+(weight ``wendland(dist / r)``, paper eq. 7, with the distance relative to
+``r`` so the weight falls to 0 at ``r``).  At the face both sides weigh the
+same, so the blended field is continuous across it.  A neighbouring surface
+takes part only where it passes within ``r`` of the point, so unrelated
+surfaces that happen to share a node face (a wall above a road) do not bleed
+into each other.  Values blended: the normal (renormalised), the surface
+variation and the principal curvatures; the k1 direction is re-projected on
+the blended tangent plane.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _kernels
+from .morton import MAX_DEPTH
+from .octree import Octree
+
+__all__ = ["wendland", "blend_across_faces"]
+
+
+def wendland(t: np.ndarray) -> np.ndarray:
+    """Wendland C2 weight ``(1 - t)^4 (4 t + 1)`` for ``t`` in [0, 1], 0 beyond.
+
+    Examples
+    --------
+    >>> wendland(np.array([0.0, 0.5, 1.0, 2.0]))
+    array([1.    , 0.1875, 0.    , 0.    ])
+    """
+    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)
+    return (1.0 - t) ** 4 * (4.0 * t + 1.0)
+
+
+def blend_across_faces(
+    tree: Octree,
+    frames: np.ndarray,
+    coeffs: np.ndarray,
+    normals: np.ndarray,
+    scalars: np.ndarray,
+    dir1: np.ndarray,
+) -> np.ndarray:
+    """Blend the values of the points of surface leaves, in place.
+
+    Parameters
+    ----------
+    tree : Octree
+    frames, coeffs : (P, 3, 3), (P, 6)
+        Oriented patch frames and quadrics (centroid origin).
+    normals, scalars, dir1 : (N, 3) float64, sorted order
+        Own-patch normals, (surface variation, k1, k2) and k1 directions;
+        rows of points outside surface leaves are left as they are.
+
+    Returns
+    -------
+    (N,) bool: True where at least one neighbouring surface contributed.
+    """
+    shift = (3 * (MAX_DEPTH - tree.level)).astype(np.uint64)
+    lo_key = tree.cell << shift
+    hi_key = (tree.cell + np.uint64(1)) << shift
+    blended = np.zeros(tree.local.shape[0], dtype=np.bool_)
+    _kernels.blend_points(
+        tree.local, tree.q, tree.start, tree.count, tree.level, tree.ijk, lo_key, hi_key, tree.lower,
+        tree.leaf_edge, tree.kind, tree.centroid, frames, coeffs, tree.fit.sigma3,
+        normals, scalars, dir1, blended,
+    )
+    return blended

@@ -1,0 +1,22 @@
+"""Exception hierarchy shared by every patchcloud package.
+
+Every error patchcloud raises on purpose derives from :class:`PatchcloudError`
+and also from the matching built-in exception, so ``except ValueError`` keeps
+working for callers who do not know patchcloud.
+"""
+
+from __future__ import annotations
+
+__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError"]
+
+
+class PatchcloudError(Exception):
+    """Root of every exception raised by patchcloud."""
+
+
+class PatchcloudValueError(PatchcloudError, ValueError):
+    """An argument (points, parameter) is not acceptable; the message says why."""
+
+
+class PatchcloudIOError(PatchcloudError, OSError):
+    """A file or store cannot be read or written; the message names it."""

@@ -1,0 +1,91 @@
+"""Morton (Z-order) keys of integer octree coordinates.
+
+A key interleaves the bits of three unsigned integer coordinates of at most
+:data:`MAX_DEPTH` bits each (x in bit 0, y in bit 1, z in bit 2 of every
+triple), so sorting points by key groups them node by node at every octree
+level: the node of a point at level ``L`` is ``key >> 3 * (MAX_DEPTH - L)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["MAX_DEPTH", "encode", "decode", "quantize"]
+
+#: Bits per axis; 3 * 21 = 63 bits fit an unsigned 64-bit key.
+MAX_DEPTH = 21
+
+_M = np.uint64
+
+
+def _spread(v: np.ndarray) -> np.ndarray:
+    """Insert two zero bits between each of the low 21 bits of ``v``."""
+    x = v.astype(np.uint64) & _M(0x1FFFFF)
+    x = (x | (x << _M(32))) & _M(0x1F00000000FFFF)
+    x = (x | (x << _M(16))) & _M(0x1F0000FF0000FF)
+    x = (x | (x << _M(8))) & _M(0x100F00F00F00F00F)
+    x = (x | (x << _M(4))) & _M(0x10C30C30C30C30C3)
+    x = (x | (x << _M(2))) & _M(0x1249249249249249)
+    return x
+
+
+def _compact(x: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_spread`."""
+    x = x.astype(np.uint64) & _M(0x1249249249249249)
+    x = (x | (x >> _M(2))) & _M(0x10C30C30C30C30C3)
+    x = (x | (x >> _M(4))) & _M(0x100F00F00F00F00F)
+    x = (x | (x >> _M(8))) & _M(0x1F0000FF0000FF)
+    x = (x | (x >> _M(16))) & _M(0x1F00000000FFFF)
+    x = (x | (x >> _M(32))) & _M(0x1FFFFF)
+    return x
+
+
+def encode(ijk: np.ndarray) -> np.ndarray:
+    """Morton keys of integer coordinates.
+
+    Parameters
+    ----------
+    ijk : (N, 3) integer array
+        Coordinates in ``[0, 2**21)``.
+
+    Returns
+    -------
+    (N,) uint64 array
+
+    Examples
+    --------
+    >>> encode(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]]))
+    array([1, 2, 4], dtype=uint64)
+    """
+    ijk = np.asarray(ijk)
+    return _spread(ijk[:, 0]) | (_spread(ijk[:, 1]) << _M(1)) | (_spread(ijk[:, 2]) << _M(2))
+
+
+def decode(keys: np.ndarray) -> np.ndarray:
+    """Integer coordinates ``(N, 3)`` int64 of Morton keys (inverse of :func:`encode`)."""
+    keys = np.asarray(keys, dtype=np.uint64)
+    out = np.empty((keys.shape[0], 3), dtype=np.int64)
+    out[:, 0] = _compact(keys)
+    out[:, 1] = _compact(keys >> _M(1))
+    out[:, 2] = _compact(keys >> _M(2))
+    return out
+
+
+def quantize(local: np.ndarray, edge: float) -> np.ndarray:
+    """Integer coordinates at depth :data:`MAX_DEPTH` of points in a root cube.
+
+    Parameters
+    ----------
+    local : (N, 3) float64
+        Coordinates relative to the root cube's minimum corner, in metres.
+    edge : float
+        Edge of the root cube, in metres.
+
+    Returns
+    -------
+    (N, 3) int64 in ``[0, 2**21)``; points on the upper faces go to the last cell.
+    """
+    n = 1 << MAX_DEPTH
+    q = np.floor(local * (n / edge)).astype(np.int64)
+    np.clip(q, 0, n - 1, out=q)
+    return q

@@ -1,0 +1,396 @@
+"""``estimate_normals``: normals and curvature of one in-memory cloud.
+
+The pipeline of the anisotropic-octrees paper, extended so that every point
+gets a normal:
+
+1. sort the points by Morton key in a local float64 frame and build the
+   anisotropic octree (:mod:`.octree`), which fits a PCA plane and a quadric
+   to every leaf;
+2. give every point of a surface leaf the normal and principal curvatures of
+   its projection on the leaf's quadric (:mod:`.quadric`);
+3. orient the patches consistently by face sampling and apply a global rule
+   (:mod:`.orient`);
+4. blend normals and curvatures across leaf faces (:mod:`.blend`);
+5. give the points of edge and sparse leaves a k-nearest-neighbour PCA
+   normal, oriented like their neighbours (:mod:`.fallback`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from . import _kernels
+from .blend import blend_across_faces
+from .errors import PatchcloudValueError
+from .fallback import knn_normals
+from .octree import CRITERIA, KIND_SURFACE, Octree, build_octree, estimate_spacing, sort_points
+from .orient import (
+    ORIENT_RULES,
+    component_rule_signs,
+    face_agreement,
+    face_neighbours,
+    point_rule_signs,
+    propagate_signs,
+)
+from .patches import PatchTable
+
+__all__ = ["Method", "NormalsParameters", "NormalsResult", "estimate_normals"]
+
+
+class Method(IntEnum):
+    """Which computation gave a point its normal."""
+
+    #: The quadric of the point's own patch, at the point's projection.
+    QUADRIC = 1
+    #: The own quadric blended with neighbouring patches' (near a leaf face).
+    BLENDED = 2
+    #: PCA of the k nearest neighbours (points of edge and sparse leaves).
+    KNN = 3
+
+
+@dataclass(frozen=True)
+class NormalsParameters:
+    """The parameters a run used, defaults resolved (lengths in metres)."""
+
+    criterion: str
+    threshold: float
+    d_min: float
+    n_min: int
+    min_sigma2: float
+    k_fallback: int
+    orient: str
+    viewpoint: tuple[float, float, float] | None
+    blend: bool
+    spacing: float
+    root_corner: tuple[float, float, float]
+    root_edge: float
+
+
+@dataclass(frozen=True)
+class NormalsResult:
+    """Per-point normals and curvature of a cloud, in input order (N points).
+
+    Attributes
+    ----------
+    normals : (N, 3) float32
+        Unit normals, oriented by the rule in ``parameters.orient``.
+    curvature : (N,) float32
+        Surface variation ``lambda3 / (lambda1 + lambda2 + lambda3)`` in
+        [0, 1/3] (dimensionless): of the point's patch, blended near leaf
+        faces, or of its k neighbours for ``Method.KNN`` points.  This is
+        what PDAL and PCL call "curvature".
+    k1, k2 : (N,) float32
+        Principal curvatures ``k1 >= k2`` (1/metre) of the fitted quadric at
+        the point, positive where the surface is convex seen from the side the
+        normal points to (a sphere with outward normals has ``+1/R``).
+    dir1 : (N, 3) float32
+        Unit direction of ``k1`` (tangent); the ``k2`` direction is
+        ``cross(normals, dir1)``.
+    method : (N,) uint8
+        :class:`Method` that gave each normal.
+    patch : (N,) int32
+        Row of :attr:`patches` whose leaf holds the point.
+    patches : PatchTable
+        The quadric patch models, oriented.
+    parameters : NormalsParameters
+        What was used, defaults resolved.
+    """
+
+    normals: np.ndarray
+    curvature: np.ndarray
+    k1: np.ndarray
+    k2: np.ndarray
+    dir1: np.ndarray
+    method: np.ndarray
+    patch: np.ndarray
+    patches: PatchTable
+    parameters: NormalsParameters
+
+    @property
+    def mean_curvature(self) -> np.ndarray:
+        """(N,) ``(k1 + k2) / 2`` (1/metre)."""
+        return 0.5 * (self.k1.astype(np.float64) + self.k2)
+
+    @property
+    def surface_variation(self) -> np.ndarray:
+        """(N,) same as :attr:`curvature`, under its geometric name."""
+        return self.curvature
+
+
+def _validate_points(points) -> np.ndarray:
+    arr = np.asarray(points)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise PatchcloudValueError(f"points must be a real numeric array (float or int), got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise PatchcloudValueError(f"points must have shape (N, 3), got {arr.shape}")
+    arr = arr.astype(np.float64, copy=False)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise PatchcloudValueError(
+            f"points contain {int(bad.sum())} rows with NaN or infinite coordinates (first at row {first})"
+        )
+    return arr
+
+
+def _positive(name: str, value, integer: bool = False):
+    if value is None:
+        return None
+    if integer:
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise PatchcloudValueError(f"{name} must be a positive integer, got {value!r}")
+        return int(value)
+    if not np.isfinite(value) or value <= 0:
+        raise PatchcloudValueError(f"{name} must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+def _root_cube(points: np.ndarray, root) -> tuple[np.ndarray, float]:
+    if root is not None:
+        corner, edge = root
+        corner = np.asarray(corner, dtype=np.float64).reshape(3)
+        edge = _positive("root edge", edge)
+        if np.any(points < corner) or np.any(points > corner + edge):
+            raise PatchcloudValueError("points lie outside the given root cube")
+        return corner, edge
+    lo = points.min(axis=0)
+    hi = points.max(axis=0)
+    extent = float((hi - lo).max())
+    scale = max(extent, float(np.abs(lo).max()) * 1e-12, 1e-9)
+    edge = extent + 1e-6 * scale if extent > 0 else scale
+    corner = (lo + hi) / 2.0 - edge / 2.0
+    return corner, edge
+
+
+def estimate_normals(
+    points: np.ndarray,
+    criterion: str = "rmse",
+    *,
+    threshold: float | None = None,
+    d_min: float | None = None,
+    n_min: int = 12,
+    min_sigma2: float = 0.01,
+    k_fallback: int = 16,
+    orient: str = "up",
+    viewpoint: Sequence[float] | None = None,
+    blend: bool = True,
+    root: tuple[Sequence[float], float] | None = None,
+) -> NormalsResult:
+    """Normals, curvatures and quadric patch models of one cloud.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float or int
+        Coordinates (metres, or any unit: the defaults scale with the data).
+        Large offsets such as UTM are fine: everything is computed in float64
+        relative to the root cube's corner.
+    criterion : {"rmse", "sigma3"}
+        When a node is uniform: its quadric fit RMSE is at most
+        ``threshold`` metres ("rmse"), or its surface variation sigma3 is at
+        most ``threshold`` ("sigma3", dimensionless).
+    threshold : float, optional
+        Default for "rmse": 2.5 times the median fit RMSE of the smallest
+        nodes (the scanner noise) and at least 1/20 of the point spacing;
+        for "sigma3": 0.005.
+    d_min : float, optional
+        Minimum leaf edge (metres). Default: 4 times the point spacing
+        estimated from the octree occupancy.
+    n_min : int
+        Nodes with fewer points are not split and get no surface (default 12).
+    min_sigma2 : float
+        Leaves with sigma2 (paper eq. 4) below this are 3D curves: edge
+        patches (default 0.01).
+    k_fallback : int
+        Neighbours of the k-NN PCA normal of points in edge and sparse
+        leaves (default 16).
+    orient : {"up", "viewpoint", "outward", "none"}
+        Global orientation rule applied to every connected group of patches
+        after propagation: towards +Z (LiDAR default), towards
+        ``viewpoint``, away from the cloud's centroid (closed objects), or
+        none (consistent but arbitrary sign).
+    viewpoint : (3,) float, optional
+        Required with ``orient="viewpoint"``, in the points' coordinates.
+    blend : bool
+        Blend normals and curvatures across leaf faces (paper 2.4).
+    root : ((3,) float, float), optional
+        Minimum corner and edge of the root cube; default: the bounding cube
+        of the points.  The stream passes a tile's cube so per-tile octrees
+        are subtrees of one global octree.
+
+    Returns
+    -------
+    NormalsResult
+
+    Raises
+    ------
+    PatchcloudValueError (a ValueError)
+        Wrong shape or dtype, NaN or infinite coordinates, fewer points than
+        ``n_min``, or an invalid parameter; the message says which.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from patchcloud.core import estimate_normals
+    >>> rng = np.random.default_rng(1)
+    >>> d = rng.normal(size=(20000, 3))
+    >>> sphere = d / np.linalg.norm(d, axis=1)[:, None]
+    >>> res = estimate_normals(sphere, orient="outward")
+    >>> cos = np.einsum("ij,ij->i", res.normals, sphere)
+    >>> bool(np.median(cos) > 0.9998)
+    True
+    """
+    pts = _validate_points(points)
+    if criterion not in CRITERIA:
+        raise PatchcloudValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
+    if orient not in ORIENT_RULES:
+        raise PatchcloudValueError(f"orient must be one of {', '.join(ORIENT_RULES)}; got {orient!r}")
+    n_min = _positive("n_min", n_min, integer=True)
+    k_fallback = _positive("k_fallback", k_fallback, integer=True)
+    threshold = _positive("threshold", threshold)
+    d_min = _positive("d_min", d_min)
+    if not (0 <= min_sigma2 < 1 / 3 + 1e-12):
+        raise PatchcloudValueError(f"min_sigma2 must be in [0, 1/3), got {min_sigma2!r}")
+    vp = None
+    if orient == "viewpoint":
+        if viewpoint is None:
+            raise PatchcloudValueError('orient="viewpoint" needs a viewpoint (x, y, z)')
+        vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
+        if vp.shape != (3,) or not np.isfinite(vp).all():
+            raise PatchcloudValueError(f"viewpoint must be three finite numbers, got {viewpoint!r}")
+    n = pts.shape[0]
+    if n < n_min:
+        raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")
+
+    corner, edge = _root_cube(pts, root)
+    local = pts - corner
+    sorted_input = sort_points(local, edge)
+    spacing = estimate_spacing(sorted_input[1], edge)
+    if d_min is None:
+        d_min = 4.0 * spacing if spacing > 0 else edge / 2.0**21
+    if threshold is None and criterion == "sigma3":
+        threshold = 0.005
+    tree = build_octree(
+        local, edge, criterion=criterion, threshold=threshold, d_min=d_min, n_min=n_min,
+        min_sigma2=min_sigma2, spacing=spacing, sorted_input=sorted_input,
+    )
+    vp_local = None if vp is None else vp - corner
+    centre_local = tree.local.mean(axis=0)
+    normals, scalars, dir1, method, frames, coeffs = _surface_pass(tree, orient, vp_local, centre_local, blend)
+    _fallback_pass(tree, normals, scalars, dir1, method, k_fallback, orient, vp_local, centre_local)
+
+    inv = tree.order
+    out = lambda a, dt: _unsort(a, inv, dt)  # noqa: E731
+    patch_sorted = tree.point_leaf()
+    table = PatchTable(
+        root_corner=corner.copy(),
+        root_edge=float(edge),
+        level=tree.level.astype(np.uint8),
+        ijk=tree.ijk,
+        count=tree.count,
+        centroid=tree.centroid + corner,
+        frame=frames,
+        eigenvalues=tree.fit.eigenvalues,
+        coeffs=coeffs,
+        rmse=tree.fit.rmse,
+        kind=tree.kind,
+    )
+    params = NormalsParameters(
+        criterion=criterion, threshold=tree.threshold, d_min=float(d_min), n_min=n_min, min_sigma2=float(min_sigma2),
+        k_fallback=k_fallback, orient=orient, viewpoint=None if vp is None else tuple(vp.tolist()), blend=bool(blend),
+        spacing=float(spacing), root_corner=tuple(corner.tolist()), root_edge=float(edge),
+    )
+    return NormalsResult(
+        normals=out(normals, np.float32),
+        curvature=out(scalars[:, 0], np.float32),
+        k1=out(scalars[:, 1], np.float32),
+        k2=out(scalars[:, 2], np.float32),
+        dir1=out(dir1, np.float32),
+        method=out(method, np.uint8),
+        patch=out(patch_sorted, np.int32),
+        patches=table,
+        parameters=params,
+    )
+
+
+def _unsort(values: np.ndarray, order: np.ndarray, dtype) -> np.ndarray:
+    res = np.empty(values.shape, dtype=dtype)
+    res[order] = values
+    return res
+
+
+def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool):
+    """Normals of the points of surface leaves; orientation; blending."""
+    n = tree.local.shape[0]
+    P = tree.level.shape[0]
+    fit = tree.fit
+    frames = fit.frame.copy()
+    coeffs = fit.coeffs.copy()
+    centroid = tree.centroid
+    surface = tree.kind == KIND_SURFACE
+
+    # relative orientation by face sampling over the surface-patch graph
+    i, j, d = face_neighbours(tree)
+    both = surface[i] & surface[j]
+    i, j, d = i[both], j[both], d[both]
+    agreement = face_agreement(tree, frames, coeffs, i, j, d)
+    sign, comp = propagate_signs(P, i, j, agreement, min_reliability=0.5)
+    if orient != "none":
+        e3 = frames[:, :, 2] * sign[:, None]
+        weights = np.where(surface, tree.count, 0).astype(np.float64)
+        sign = sign * component_rule_signs(orient, comp, e3, centroid, weights, vp, centre)
+    flip = sign < 0
+    frames[flip, :, 1:] *= -1.0
+    coeffs[flip] *= np.array([-1.0, 1.0, -1.0, -1.0, 1.0, -1.0])
+
+    normals = np.zeros((n, 3))
+    scalars = np.zeros((n, 3))
+    dir1 = np.zeros((n, 3))
+    _kernels.eval_surface_points(
+        tree.local, tree.start, tree.count, surface, centroid, frames, coeffs, fit.sigma3, normals, scalars, dir1
+    )
+    method = np.repeat(np.where(surface, Method.QUADRIC, 0).astype(np.uint8), tree.count)
+    if blend:
+        was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1)
+        method[was] = Method.BLENDED
+    return normals, scalars, dir1, method, frames, coeffs
+
+
+def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centre, rounds: int = 4) -> None:
+    """k-NN PCA normals for points of edge and sparse leaves, oriented by their neighbours."""
+    query = np.flatnonzero(method == 0)
+    if query.size == 0:
+        return
+    kd = cKDTree(tree.local, balanced_tree=False, compact_nodes=False)
+    nrm, s3, k1, k2, t1, nb = knn_normals(tree.local, query, k, tree=kd)
+    oriented = method != 0
+    normals[query] = nrm
+    scalars[query] = np.column_stack([s3, k1, k2])
+    dir1[query] = t1
+    method[query] = Method.KNN
+    todo = np.ones(query.size, dtype=bool)
+    for _ in range(rounds):
+        if not todo.any():
+            break
+        q = np.flatnonzero(todo)
+        nbq = nb[q]
+        w = oriented[nbq][:, :, None] * normals[nbq]
+        ref = w.sum(axis=1)
+        has = np.einsum("ni,ni->n", ref, ref) > 0
+        q, ref = q[has], ref[has]
+        if q.size == 0:
+            break
+        s = np.where(np.einsum("ni,ni->n", normals[query[q]], ref) < 0, -1.0, 1.0)
+        normals[query[q]] *= s[:, None]
+        scalars[query[q], 1:] *= s[:, None]
+        oriented[query[q]] = True
+        todo[q] = False
+    rest = query[todo]
+    if rest.size and orient != "none":
+        s = point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre)
+        normals[rest] *= s[:, None]
+        scalars[rest, 1:] *= s[:, None]

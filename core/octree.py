@@ -1,0 +1,315 @@
+"""Anisotropic octree subdivision (paper section 2.1), level by level.
+
+The points are sorted once by Morton key.  The moments of every node at
+every level come from one pass over the points at the finest level and
+shifted sums of children's moments above it (:mod:`patchcloud.core.moments`);
+the subdivision then walks the levels from the root down, deciding for all
+active nodes of a level at once whether they are uniform (a leaf) or split.
+No Python loop runs per point or per node.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from .morton import MAX_DEPTH, decode, encode, quantize
+from .moments import point_moments, shift_matrices
+from .quadric import NodeFit, fit_nodes
+
+__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "CRITERIA", "KIND_SURFACE", "KIND_EDGE", "KIND_SPARSE"]
+
+#: Subdivision criteria: "rmse" (quadric fit error, metres) and "sigma3" (surface variation).
+CRITERIA = ("rmse", "sigma3")
+
+#: Leaf kinds: a smooth patch modelled by its quadric, a sharp feature or 3D curve, too few points.
+KIND_SURFACE, KIND_EDGE, KIND_SPARSE = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Octree:
+    """Leaves of an anisotropic octree over points sorted by Morton key.
+
+    All coordinates are relative to the root cube's minimum corner (metres).
+
+    Attributes
+    ----------
+    edge : float
+        Root cube edge (metres).
+    max_level : int
+        Deepest level a leaf may have (set by ``d_min``).
+    order : (N,) int64
+        ``order[k]`` is the input index of the k-th sorted point.
+    local : (N, 3) float64
+        Sorted points.
+    q : (N, 3) int64
+        Integer coordinates of the sorted points at depth ``MAX_DEPTH``.
+    level, cell : (P,) int64, (P,) uint64
+        Level and Morton cell id (at that level) of every leaf, in key order.
+    start, count : (P,) int64
+        Leaves own the sorted points ``start[k]:start[k] + count[k]``.
+    fit : NodeFit
+        PCA and quadric of every leaf (centroids relative to the leaf centre).
+    kind : (P,) uint8
+        ``KIND_SURFACE``, ``KIND_EDGE`` or ``KIND_SPARSE``.
+    threshold : float
+        The uniformity threshold that was used.
+    """
+
+    edge: float
+    max_level: int
+    order: np.ndarray
+    local: np.ndarray
+    q: np.ndarray
+    level: np.ndarray
+    cell: np.ndarray
+    start: np.ndarray
+    count: np.ndarray
+    fit: NodeFit
+    kind: np.ndarray
+    threshold: float
+
+    @cached_property
+    def leaf_edge(self) -> np.ndarray:
+        """(P,) edge of every leaf (metres)."""
+        return self.edge / np.exp2(self.level)
+
+    @cached_property
+    def ijk(self) -> np.ndarray:
+        """(P, 3) integer coordinates of every leaf at its own level."""
+        return decode(self.cell)
+
+    @cached_property
+    def lower(self) -> np.ndarray:
+        """(P, 3) minimum corner of every leaf (metres, root-corner frame)."""
+        return self.ijk * self.leaf_edge[:, None]
+
+    @cached_property
+    def centroid(self) -> np.ndarray:
+        """(P, 3) centroid of every leaf's points (metres, root-corner frame)."""
+        return self.lower + 0.5 * self.leaf_edge[:, None] + self.fit.centroid
+
+    def point_leaf(self) -> np.ndarray:
+        """(N,) leaf index of every sorted point."""
+        return np.repeat(np.arange(len(self.start)), self.count)
+
+    def find_leaf(self, qkeys: np.ndarray) -> np.ndarray:
+        """Leaf containing each depth-``MAX_DEPTH`` key, or -1 where none does."""
+        shift = (3 * (MAX_DEPTH - self.level)).astype(np.uint64)
+        lo = self.cell << shift
+        hi = (self.cell + np.uint64(1)) << shift
+        idx = np.searchsorted(lo, qkeys, side="right") - 1
+        safe = np.maximum(idx, 0)
+        ok = (idx >= 0) & (qkeys < hi[safe])
+        return np.where(ok, idx, -1)
+
+
+def sort_points(local: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sort points by Morton key, ties broken by coordinates.
+
+    The result does not depend on the input order (exact duplicates are
+    interchangeable), which makes every later sum bit-reproducible.
+
+    Returns
+    -------
+    order : (N,) int64, keys : (N,) uint64 sorted, q : (N, 3) int64 sorted.
+    """
+    q = quantize(local, edge)
+    keys = encode(q)
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    tie = np.flatnonzero(keys[1:] == keys[:-1])
+    if tie.size:
+        pos = np.unique(np.concatenate([tie, tie + 1]))
+        sub = local[order[pos]]
+        sub_order = np.lexsort((sub[:, 2], sub[:, 1], sub[:, 0], keys[pos]))
+        order[pos] = order[pos[sub_order]]
+    return order, keys, q[order]
+
+
+def _occupied(keys: np.ndarray, level: int) -> int:
+    c = keys >> np.uint64(3 * (MAX_DEPTH - level))
+    return int(np.count_nonzero(c[1:] != c[:-1])) + 1
+
+
+def estimate_spacing(keys: np.ndarray, edge: float, target: float = 16.0) -> float:
+    """Typical distance between neighbouring points (metres), from octree occupancy.
+
+    Finds the first level whose occupied cells hold fewer than ``target``
+    points on average and treats the cloud as a surface there: a cell of
+    edge ``h`` holding ``m`` points gives a spacing ``h / sqrt(m)``.
+    """
+    n = keys.shape[0]
+    lo, hi = 0, MAX_DEPTH
+    while lo < hi:  # first level with n / occupied < target
+        mid = (lo + hi) // 2
+        if n / _occupied(keys, mid) < target:
+            hi = mid
+        else:
+            lo = mid + 1
+    m = n / _occupied(keys, lo)
+    return edge / 2.0**lo / np.sqrt(max(m, 1.0))
+
+
+@dataclass
+class _Level:
+    cells: np.ndarray
+    starts: np.ndarray
+    moments: np.ndarray
+    parent: np.ndarray | None = None
+
+
+def _bottom_up(local, keys, edge, max_level) -> list[_Level]:
+    n = local.shape[0]
+    shift = np.uint64(3 * (MAX_DEPTH - max_level))
+    c = keys >> shift
+    starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
+    cells = c[starts]
+    counts = np.diff(np.r_[starts, n])
+    h = edge / 2.0**max_level
+    centre = (decode(cells) + 0.5) * h
+    rel = local - np.repeat(centre, counts, axis=0)
+    levels: list[_Level] = [None] * (max_level + 1)  # type: ignore[list-item]
+    levels[max_level] = _Level(cells, starts, point_moments(rel, starts))
+    bits = np.array([[(o >> a) & 1 for a in range(3)] for o in range(8)], dtype=np.float64)
+    for lev in range(max_level - 1, -1, -1):
+        child = levels[lev + 1]
+        pc = child.cells >> np.uint64(3)
+        gstart = np.flatnonzero(np.r_[True, pc[1:] != pc[:-1]])
+        octant = (child.cells & np.uint64(7)).astype(np.int64)
+        hc = edge / 2.0 ** (lev + 1)
+        S = shift_matrices((2.0 * bits - 1.0) * (0.5 * hc))
+        shifted = np.empty_like(child.moments)
+        for o in range(8):
+            m = octant == o
+            if m.any():
+                shifted[m] = child.moments[m] @ S[o].T
+        child.parent = np.repeat(np.arange(len(gstart)), np.diff(np.r_[gstart, len(pc)]))
+        levels[lev] = _Level(pc[gstart], child.starts[gstart], np.add.reduceat(shifted, gstart, axis=0))
+    return levels
+
+
+def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing: float) -> float:
+    """Default RMSE threshold (metres) from the fits of the smallest nodes.
+
+    At the finest level most nodes hold a smooth piece of surface, so the
+    median of their quadric fit RMSE measures the scanner noise; 2.5 times
+    that (or a twentieth of the point spacing on noise-free data, whichever
+    is larger) separates noise from geometry.
+    """
+    keep = moments[:, 0] >= n_min
+    sample = moments[keep]
+    if sample.shape[0] > 20000:  # a deterministic subsample is enough for a median
+        sample = sample[:: sample.shape[0] // 20000]
+    noise = 0.0
+    if sample.shape[0]:
+        fit = fit_nodes(sample, np.full(sample.shape[0], half_edge))
+        noise = float(np.median(fit.rmse))
+    return max(2.5 * noise, 0.05 * spacing)
+
+
+def build_octree(
+    local: np.ndarray,
+    edge: float,
+    *,
+    criterion: str,
+    threshold: float | None,
+    d_min: float,
+    n_min: int,
+    min_sigma2: float,
+    spacing: float,
+    sorted_input: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> Octree:
+    """Anisotropic subdivision of points in a root cube.
+
+    Parameters
+    ----------
+    local : (N, 3) float64
+        Points relative to the root cube's minimum corner (metres).
+    edge : float
+        Root cube edge (metres).
+    criterion : {"rmse", "sigma3"}
+        Uniformity test: quadric fit RMSE (metres) or surface variation.
+    threshold : float or None
+        A node is uniform when its measure is at most this; None picks
+        :func:`default_max_rmse` for "rmse".
+    d_min : float
+        No leaf has an edge below this (metres).
+    n_min : int
+        Nodes with fewer points are not split and have no surface (sparse).
+    min_sigma2 : float
+        Leaves with ``sigma2`` below this hold a 3D curve, not a surface (edge).
+    spacing : float
+        Point spacing (metres), used only for the default threshold.
+    sorted_input : tuple, optional
+        ``sort_points(local, edge)`` when the caller already has it.
+    """
+    order, keys, q = sorted_input if sorted_input is not None else sort_points(local, edge)
+    pts = local[order]
+    max_level = int(np.clip(np.floor(np.log2(edge / d_min)), 0, MAX_DEPTH)) if d_min > 0 else MAX_DEPTH
+    levels = _bottom_up(pts, keys, edge, max_level)
+    if threshold is None:
+        if criterion != "rmse":
+            raise ValueError("threshold None is only resolved for the rmse criterion")
+        threshold = default_max_rmse(levels[max_level].moments, edge / 2.0 ** (max_level + 1), n_min, spacing)
+
+    leaf_level, leaf_node, leaf_uniform = [], [], []
+    active = np.zeros(1, dtype=np.int64)
+    for lev in range(max_level + 1):
+        lv = levels[lev]
+        mom = lv.moments[active]
+        n = mom[:, 0]
+        sparse = n < n_min
+        dense = ~sparse
+        uniform = np.zeros(active.shape[0], dtype=bool)
+        if dense.any():
+            half = np.full(int(dense.sum()), edge / 2.0 ** (lev + 1))
+            fit = fit_nodes(mom[dense], half, quadric=criterion == "rmse")
+            measure = fit.rmse if criterion == "rmse" else fit.sigma3
+            uniform[dense] = measure <= threshold
+        leaf = sparse | uniform | (lev == max_level)
+        leaf_level.append(np.full(int(leaf.sum()), lev))
+        leaf_node.append(active[leaf])
+        leaf_uniform.append(uniform[leaf])
+        if lev == max_level:
+            break
+        split = np.zeros(lv.cells.shape[0], dtype=bool)
+        split[active[~leaf]] = True
+        active = np.flatnonzero(split[levels[lev + 1].parent])
+        if active.size == 0:
+            break
+
+    level = np.concatenate(leaf_level)
+    node = np.concatenate(leaf_node)
+    uniform = np.concatenate(leaf_uniform)
+    cell = np.empty(level.shape[0], dtype=np.uint64)
+    start = np.empty(level.shape[0], dtype=np.int64)
+    moments = np.empty((level.shape[0], levels[0].moments.shape[1]))
+    for lev in np.unique(level).tolist():
+        m = level == lev
+        cell[m] = levels[lev].cells[node[m]]
+        start[m] = levels[lev].starts[node[m]]
+        moments[m] = levels[lev].moments[node[m]]
+    srt = np.argsort(start, kind="stable")
+    level, cell, start, moments, uniform = level[srt], cell[srt], start[srt], moments[srt], uniform[srt]
+    count = np.diff(np.r_[start, pts.shape[0]])
+    fit = fit_nodes(moments, edge / np.exp2(level + 1))
+    kind = np.full(level.shape[0], KIND_SURFACE, dtype=np.uint8)
+    kind[~uniform | (fit.sigma2 < min_sigma2)] = KIND_EDGE
+    kind[count < n_min] = KIND_SPARSE
+    return Octree(
+        edge=float(edge),
+        max_level=max_level,
+        order=order,
+        local=pts,
+        q=q,
+        level=level.astype(np.int64),
+        cell=cell,
+        start=start,
+        count=count,
+        fit=fit,
+        kind=kind,
+        threshold=float(threshold),
+    )

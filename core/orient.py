@@ -1,0 +1,183 @@
+"""Consistent orientation of patch surfaces (paper section 2.3) and global rules.
+
+Two leaves are neighbours when their cubes share (part of) a face.  On the
+shared face a grid of points is sampled; the two quadrics, seen as implicit
+functions ``I(p) = w - S(u, v)``, agree in orientation when their signs agree
+at most samples.  The agreements form a graph over the patches; a maximum
+spanning forest (most reliable agreements first) fixes every patch's sign
+relative to a root, and one global rule then orients each connected
+component as a whole.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+
+from .morton import MAX_DEPTH, encode
+from .octree import KIND_SURFACE, Octree
+from .quadric import implicit_value
+
+__all__ = ["ORIENT_RULES", "face_neighbours", "face_agreement", "propagate_signs", "component_rule_signs", "point_rule_signs"]
+
+#: Global orientation rules: towards +Z, towards a viewpoint, away from the centre, none.
+ORIENT_RULES = ("up", "viewpoint", "outward", "none")
+
+_DIRS = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]], dtype=np.int64)
+
+
+def face_neighbours(tree: Octree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs of leaves whose cubes share a face.
+
+    Every pair is reported once, from its smaller leaf ``i`` (or the one with
+    the lower index when both have the same size), with the direction ``d``
+    (an index into the six axis directions -x, +x, -y, +y, -z, +z) of the
+    face of ``i`` that touches ``j``.
+
+    Returns
+    -------
+    i, j, d : (E,) int64
+    """
+    ijk = tree.ijk
+    level = tree.level
+    P = level.shape[0]
+    ii, jj, dd = [], [], []
+    for d, step in enumerate(_DIRS):
+        nb = ijk + step
+        size = np.left_shift(1, level)
+        ok = np.all((nb >= 0) & (nb < size[:, None]), axis=1)
+        src = np.flatnonzero(ok)
+        shift = (MAX_DEPTH - level[src])[:, None]
+        probe = encode(np.left_shift(nb[src], shift))
+        j = tree.find_leaf(probe)
+        good = j >= 0
+        src, j = src[good], j[good]
+        # the neighbour must contain the whole same-size cell: same level or coarser
+        keep = level[j] <= level[src]
+        same = level[j] == level[src]
+        keep &= ~same | (src < j)
+        ii.append(src[keep])
+        jj.append(j[keep])
+        dd.append(np.full(int(keep.sum()), d))
+    if P == 0:
+        e = np.zeros(0, dtype=np.int64)
+        return e, e, e
+    return np.concatenate(ii), np.concatenate(jj), np.concatenate(dd)
+
+
+def face_agreement(
+    tree: Octree, frames: np.ndarray, coeffs: np.ndarray, i: np.ndarray, j: np.ndarray, d: np.ndarray, samples: int = 4
+) -> np.ndarray:
+    """Mean sign agreement of two patches' implicit quadrics on their shared face.
+
+    Parameters
+    ----------
+    frames, coeffs : per-leaf frames (P, 3, 3) and quadric coefficients (P, 6).
+    i, j, d : pairs from :func:`face_neighbours`.
+    samples : int
+        The face of ``i`` is sampled on a ``samples x samples`` grid.
+
+    Returns
+    -------
+    (E,) float64 in [-1, 1]: +1 when the frames' ``e3`` agree at every sample,
+    -1 when they are opposite at every sample.
+    """
+    E = i.shape[0]
+    if E == 0:
+        return np.zeros(0)
+    axis = d // 2
+    upper = d % 2
+    h = tree.leaf_edge[i]
+    lo = tree.lower[i]
+    g = (np.arange(samples) + 0.5) / samples
+    gu, gv = np.meshgrid(g, g, indexing="ij")
+    gu, gv = gu.ravel(), gv.ravel()
+    m = gu.size
+    pts = np.repeat(lo, m, axis=0)
+    hh = np.repeat(h, m)
+    ax = np.repeat(axis, m)
+    other1 = (ax + 1) % 3
+    other2 = (ax + 2) % 3
+    rows = np.arange(E * m)
+    pts[rows, ax] += np.repeat(upper, m) * hh
+    pts[rows, other1] += np.tile(gu, E) * hh
+    pts[rows, other2] += np.tile(gv, E) * hh
+    cen = tree.centroid
+    ri, rj = np.repeat(i, m), np.repeat(j, m)
+    si = np.sign(implicit_value(pts, cen[ri], frames[ri], coeffs[ri]))
+    sj = np.sign(implicit_value(pts, cen[rj], frames[rj], coeffs[rj]))
+    return (si * sj).reshape(E, m).mean(axis=1)
+
+
+def propagate_signs(n: int, i: np.ndarray, j: np.ndarray, agreement: np.ndarray, min_reliability: float) -> tuple[np.ndarray, np.ndarray]:
+    """Relative signs of ``n`` patches from pairwise agreements.
+
+    Edges whose ``|agreement|`` is below ``min_reliability`` are ignored;
+    over the rest a maximum spanning forest on ``|agreement|`` fixes the
+    sign of every patch relative to the lowest-index patch of its component.
+
+    Returns
+    -------
+    sign : (n,) float64 of +1/-1
+    component : (n,) int64 connected-component label of every patch
+    """
+    keep = np.abs(agreement) >= min_reliability
+    i, j, a = i[keep], j[keep], agreement[keep]
+    if n == 0:
+        return np.ones(0), np.zeros(0, dtype=np.int64)
+    w = 2.0 - np.abs(a)  # positive: csgraph treats zeros as missing edges
+    g = coo_matrix((w, (i, j)), shape=(n, n)).tocsr()
+    forest = minimum_spanning_tree(g).tocoo()
+    fi, fj = forest.row, forest.col
+    # look the sign of each forest edge up (the forest may store (j, i))
+    rel = np.sign(a)
+    key = np.minimum(i, j) * n + np.maximum(i, j)
+    order = np.argsort(key)
+    fkey = np.minimum(fi, fj).astype(np.int64) * n + np.maximum(fi, fj)
+    frel = rel[order[np.searchsorted(key[order], fkey)]]
+    ncomp, comp = connected_components(forest, directed=False)
+    # doubled graph: node v+ is v, v- is v + n
+    pos = frel > 0
+    r = np.concatenate([fi[pos], fi[pos] + n, fi[~pos], fi[~pos] + n])
+    c = np.concatenate([fj[pos], fj[pos] + n, fj[~pos] + n, fj[~pos]])
+    dg = coo_matrix((np.ones(r.size), (r, c)), shape=(2 * n, 2 * n))
+    _, lab = connected_components(dg, directed=False)
+    root = np.full(ncomp, n, dtype=np.int64)
+    np.minimum.at(root, comp, np.arange(n))
+    sign = np.where(lab[:n] == lab[root[comp]], 1.0, -1.0)
+    return sign, comp.astype(np.int64)
+
+
+def _rule_scores(rule: str, normals: np.ndarray, positions: np.ndarray, weights: np.ndarray, viewpoint, centre) -> np.ndarray:
+    if rule == "up":
+        s = normals[:, 2]
+    elif rule == "viewpoint":
+        s = np.einsum("ni,ni->n", normals, np.asarray(viewpoint)[None, :] - positions)
+    elif rule == "outward":
+        s = np.einsum("ni,ni->n", normals, positions - np.asarray(centre)[None, :])
+    else:
+        s = np.zeros(normals.shape[0])
+    return s * weights
+
+
+def component_rule_signs(
+    rule: str, component: np.ndarray, normals: np.ndarray, positions: np.ndarray, weights: np.ndarray, viewpoint=None, centre=None
+) -> np.ndarray:
+    """Sign (+1/-1) per item that makes each component follow the global rule.
+
+    The weighted sum of the rule's score over a component decides for all of
+    it: towards +Z for "up", towards ``viewpoint``, away from ``centre``
+    for "outward"; "none" keeps every sign.
+    """
+    if component.size == 0:
+        return np.ones(0)
+    score = _rule_scores(rule, normals, positions, weights, viewpoint, centre)
+    total = np.bincount(component, weights=score, minlength=int(component.max()) + 1)
+    return np.where(total[component] < 0, -1.0, 1.0)
+
+
+def point_rule_signs(rule: str, normals: np.ndarray, positions: np.ndarray, viewpoint=None, centre=None) -> np.ndarray:
+    """Sign per point that makes each normal follow the global rule on its own."""
+    score = _rule_scores(rule, normals, positions, np.ones(normals.shape[0]), viewpoint, centre)
+    return np.where(score < 0, -1.0, 1.0)
