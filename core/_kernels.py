@@ -177,8 +177,10 @@ def blend_points(
                 gap = w - (a * u * u + b * u * v + c * v * v + d * u + e * v + f)
                 if abs(gap) > r:
                     continue
-                wt = (1.0 - t) ** 4 * (4.0 * t + 1.0)
                 mx, my, mz, su, sv = _normal_at(u, v, j, frames, coeffs)
+                if mx * normals[i, 0] + my * normals[i, 1] + mz * normals[i, 2] <= 0.0:
+                    continue  # opposite orientations never blend
+                wt = (1.0 - t) ** 4 * (4.0 * t + 1.0)
                 k1, k2, E, F, G, L, M, N = _curvatures(su, sv, j, coeffs)
                 nx += wt * mx
                 ny += wt * my

@@ -8,7 +8,8 @@ value (weight 1) and of each neighbouring patch's value at the same point
 same, so the blended field is continuous across it.  A neighbouring surface
 takes part only where it passes within ``r`` of the point, so unrelated
 surfaces that happen to share a node face (a wall above a road) do not bleed
-into each other.  Values blended: the normal (renormalised), the surface
+into each other, nor do two patches whose normals point to opposite sides
+at the point.  Values blended: the normal (renormalised), the surface
 variation and the principal curvatures; the k1 direction is re-projected on
 the blended tangent plane.
 """

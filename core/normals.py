@@ -194,7 +194,7 @@ def estimate_normals(
         ``threshold`` metres ("rmse"), or its surface variation sigma3 is at
         most ``threshold`` ("sigma3", dimensionless).
     threshold : float, optional
-        Default for "rmse": 2.5 times the median fit RMSE of the smallest
+        Default for "rmse": twice the median fit RMSE of the smallest
         nodes (the scanner noise) and at least 1/20 of the point spacing;
         for "sigma3": 0.005.
     d_min : float, optional

@@ -191,11 +191,15 @@ def _bottom_up(local, keys, edge, max_level) -> list[_Level]:
     return levels
 
 
+#: Default RMSE threshold = NOISE_FACTOR x the median fit RMSE of the smallest nodes.
+NOISE_FACTOR = 2.0
+
+
 def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing: float) -> float:
     """Default RMSE threshold (metres) from the fits of the smallest nodes.
 
     At the finest level most nodes hold a smooth piece of surface, so the
-    median of their quadric fit RMSE measures the scanner noise; 2.5 times
+    median of their quadric fit RMSE measures the scanner noise; NOISE_FACTOR times
     that (or a twentieth of the point spacing on noise-free data, whichever
     is larger) separates noise from geometry.
     """
@@ -207,7 +211,7 @@ def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing:
     if sample.shape[0]:
         fit = fit_nodes(sample, np.full(sample.shape[0], half_edge))
         noise = float(np.median(fit.rmse))
-    return max(2.5 * noise, 0.05 * spacing)
+    return max(NOISE_FACTOR * noise, 0.05 * spacing)
 
 
 def build_octree(

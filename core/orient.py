@@ -71,6 +71,10 @@ def face_agreement(
 ) -> np.ndarray:
     """Mean sign agreement of two patches' implicit quadrics on their shared face.
 
+    A sample closer than twice the larger fit RMSE to either surface says
+    nothing (a face parallel to a noisy surface lies inside its noise band,
+    where the two signs are arbitrary) and counts as 0.
+
     Parameters
     ----------
     frames, coeffs : per-leaf frames (P, 3, 3) and quadric coefficients (P, 6).
@@ -105,9 +109,11 @@ def face_agreement(
     pts[rows, other2] += np.tile(gv, E) * hh
     cen = tree.centroid
     ri, rj = np.repeat(i, m), np.repeat(j, m)
-    si = np.sign(implicit_value(pts, cen[ri], frames[ri], coeffs[ri]))
-    sj = np.sign(implicit_value(pts, cen[rj], frames[rj], coeffs[rj]))
-    return (si * sj).reshape(E, m).mean(axis=1)
+    vi = implicit_value(pts, cen[ri], frames[ri], coeffs[ri])
+    vj = implicit_value(pts, cen[rj], frames[rj], coeffs[rj])
+    band = 2.0 * np.repeat(np.maximum(tree.fit.rmse[i], tree.fit.rmse[j]), m)
+    vote = np.sign(vi) * np.sign(vj) * ((np.abs(vi) > band) & (np.abs(vj) > band))
+    return vote.reshape(E, m).mean(axis=1)
 
 
 def propagate_signs(n: int, i: np.ndarray, j: np.ndarray, agreement: np.ndarray, min_reliability: float) -> tuple[np.ndarray, np.ndarray]:

@@ -83,7 +83,7 @@ def fit_nodes(moments: np.ndarray, half_edge: np.ndarray, quadric: bool = True) 
     s = half_edge
     G, b, ww = quadric_normal_equations(moments, frame, s)
     # A tiny ridge keeps degenerate nodes (all points on a line) solvable.
-    ridge = 1e-10 * np.trace(G, axis1=1, axis2=2) / 6.0 + 1e-300
+    ridge = 1e-13 * np.trace(G, axis1=1, axis2=2) / 6.0 + 1e-300
     Gr = G + ridge[:, None, None] * np.eye(6)
     beta = np.linalg.solve(Gr, b[:, :, None])[:, :, 0]
     rss = ww - 2.0 * np.einsum("ni,ni->n", beta, b) + np.einsum("ni,nij,nj->n", beta, G, beta)

@@ -1,0 +1,137 @@
+"""Invariants: frame offset, input order, degenerate clouds, bad input."""
+
+import numpy as np
+import pytest
+
+import synthetic
+from conftest import angles_deg
+from patchcloud.core import Method, PatchcloudError, PatchcloudValueError, estimate_normals
+
+
+@pytest.fixture
+def bumpy(rng):
+    xy = rng.uniform(0, 30, (30000, 2))
+    z = 0.8 * np.sin(xy[:, 0] / 3.0) * np.cos(xy[:, 1] / 4.0)
+    return np.column_stack([xy, z]) + rng.normal(scale=0.005, size=(30000, 3))
+
+
+def test_utm_offset_gives_the_same_normals(bumpy):
+    offset = np.array([512345.678, 5234567.891, 123.4])
+    a = estimate_normals(bumpy)
+    b = estimate_normals(bumpy + offset)
+    assert np.percentile(angles_deg(a.normals, b.normals, signed=True), 99.9) < 1e-3
+    assert np.array_equal(a.patch, b.patch)
+    assert np.allclose(a.patches.centroid + offset, b.patches.centroid, rtol=0, atol=1e-6)
+
+
+def test_result_does_not_depend_on_input_order(bumpy, rng):
+    perm = rng.permutation(len(bumpy))
+    a = estimate_normals(bumpy)
+    b = estimate_normals(bumpy[perm])
+    for name in ("normals", "curvature", "k1", "k2", "dir1", "method", "patch"):
+        assert np.array_equal(getattr(a, name)[perm], getattr(b, name)), name
+
+
+def test_order_independence_with_duplicate_points(rng):
+    p, _ = synthetic.sphere(rng, 5000)
+    p = np.concatenate([p, p[:500], p[:100]])
+    perm = rng.permutation(len(p))
+    a = estimate_normals(p, orient="outward")
+    b = estimate_normals(p[perm], orient="outward")
+    assert np.array_equal(a.normals[perm], b.normals)
+
+
+def test_all_points_identical():
+    p = np.tile([[1.0, 2.0, 3.0]], (50, 1))
+    res = estimate_normals(p)
+    assert np.all(np.isfinite(res.normals))
+    assert np.allclose(np.linalg.norm(res.normals, axis=1), 1, atol=1e-6)
+
+
+def test_collinear_points_get_perpendicular_unit_normals(rng):
+    t = rng.uniform(0, 10, 2000)
+    d = np.array([1.0, 2.0, 0.5]) / np.linalg.norm([1.0, 2.0, 0.5])
+    p = t[:, None] * d
+    res = estimate_normals(p)
+    assert np.all(np.isfinite(res.normals))
+    assert np.allclose(np.linalg.norm(res.normals, axis=1), 1, atol=1e-5)
+    assert np.max(np.abs(res.normals @ d)) < 1e-3
+    assert np.all(res.method == Method.KNN)
+
+
+def test_flat_along_one_axis(rng):
+    xy = rng.uniform(0, 5, (8000, 2))
+    p = np.column_stack([np.full(8000, 7.0), xy])  # x constant: normals along x
+    res = estimate_normals(p, orient="viewpoint", viewpoint=(100.0, 0.0, 0.0))
+    assert np.all(res.normals[:, 0] > 0.9999)
+
+
+def test_viewpoint_orientation(rng):
+    p, _ = synthetic.plane(rng, 10000)
+    res = estimate_normals(p, orient="viewpoint", viewpoint=(0.0, 0.0, -50.0))
+    assert np.all(res.normals[:, 2] < -0.9999)
+
+
+def test_orient_none_is_consistent_on_a_sphere(rng):
+    p, n = synthetic.sphere(rng, 30000)
+    res = estimate_normals(p, orient="none")
+    outward = np.mean(np.einsum("ij,ij->i", res.normals, n) > 0)
+    assert outward >= 0.995 or outward <= 0.005
+
+
+@pytest.mark.parametrize(
+    "points, match",
+    [
+        (np.array([[0.0, 0.0, np.nan]] + [[1.0, 2.0, 3.0]] * 20), "NaN or infinite"),
+        (np.array([[0.0, np.inf, 0.0]] + [[1.0, 2.0, 3.0]] * 20), "NaN or infinite"),
+        (np.zeros((20, 2)), r"shape \(N, 3\)"),
+        (np.zeros((20, 3, 1)), r"shape \(N, 3\)"),
+        (np.zeros((20, 3), dtype=complex), "real numeric"),
+        (np.array([["a", "b", "c"]] * 20), "real numeric"),
+        (np.zeros((5, 3)), "fewer than n_min"),
+        (np.zeros((0, 3)), "fewer than n_min"),
+    ],
+)
+def test_bad_points_raise_clear_value_errors(points, match):
+    with pytest.raises(PatchcloudValueError, match=match) as info:
+        estimate_normals(points)
+    assert isinstance(info.value, ValueError) and isinstance(info.value, PatchcloudError)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"criterion": "angle"}, "criterion must be one of rmse, sigma3"),
+        ({"orient": "down"}, "orient must be one of up, viewpoint, outward, none"),
+        ({"orient": "viewpoint"}, "needs a viewpoint"),
+        ({"orient": "viewpoint", "viewpoint": (1, 2)}, "three finite numbers"),
+        ({"threshold": -1.0}, "threshold must be a positive"),
+        ({"d_min": 0.0}, "d_min must be a positive"),
+        ({"n_min": 0}, "n_min must be a positive integer"),
+        ({"k_fallback": 2.5}, "k_fallback must be a positive integer"),
+        ({"min_sigma2": 0.5}, "min_sigma2"),
+        ({"root": ((10.0, 10.0, 10.0), 1.0)}, "outside the given root cube"),
+    ],
+)
+def test_bad_parameters_raise(kwargs, match, rng):
+    p, _ = synthetic.plane(rng, 200)
+    with pytest.raises(ValueError, match=match):
+        estimate_normals(p, **kwargs)
+
+
+def test_integer_points_are_accepted(rng):
+    p = np.column_stack([rng.integers(0, 100, (3000, 2)), np.zeros(3000, dtype=int)])
+    res = estimate_normals(p)
+    assert np.all(np.abs(res.normals[:, 2]) > 0.999)
+
+
+def test_explicit_root_cube_aligns_leaves(rng):
+    p, _ = synthetic.plane(rng, 20000, size=10.0, noise=0.002)
+    root = ((-8.0, -8.0, -8.0), 16.0)
+    res = estimate_normals(p, root=root)
+    t = res.patches
+    lo = t.lower
+    # every leaf is a cell of the global grid rooted at the given cube
+    cells = (lo - np.array(root[0])) / t.edge[:, None]
+    assert np.allclose(cells, np.round(cells))
+    assert res.parameters.root_edge == 16.0
