@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["eval_surface_points", "blend_points"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca"]
 
 _KIND_SURFACE = 0
 _MAX_DEPTH = 21
@@ -54,6 +54,28 @@ def _curvatures(su, sv, l, coeffs):
     disc = H * H - K
     disc = np.sqrt(disc) if disc > 0.0 else 0.0
     return H + disc, H - disc, E, F, G, L, M, N
+
+
+@njit(cache=True, inline="always")
+def _k1_direction(su, sv, k1, E, F, G, L, M, N, l, frames):
+    """Unit 3D tangent of principal curvature k1 from the fundamental forms."""
+    r1u, r1v = M - k1 * F, -(L - k1 * E)
+    r2u, r2v = N - k1 * G, -(M - k1 * F)
+    if r2u * r2u + r2v * r2v > r1u * r1u + r1v * r1v:
+        du, dv = r2u, r2v
+    else:
+        du, dv = r1u, r1v
+    nrm = np.sqrt(du * du + dv * dv)
+    if nrm < 1e-12 * (abs(k1) + 1e-300) + 1e-300:
+        du, dv = 1.0, 0.0
+    else:
+        du, dv = du / nrm, dv / nrm
+    tl = su * du + sv * dv
+    tx = frames[l, 0, 0] * du + frames[l, 0, 1] * dv + frames[l, 0, 2] * tl
+    ty = frames[l, 1, 0] * du + frames[l, 1, 1] * dv + frames[l, 1, 2] * tl
+    tz = frames[l, 2, 0] * du + frames[l, 2, 1] * dv + frames[l, 2, 2] * tl
+    tn = np.sqrt(tx * tx + ty * ty + tz * tz)
+    return tx / tn, ty / tn, tz / tn
 
 
 @njit(cache=True)
@@ -101,23 +123,7 @@ def eval_surface_points(local, start, count, surface, centroid, frames, coeffs, 
             normals[i, 0], normals[i, 1], normals[i, 2] = nx, ny, nz
             k1, k2, E, F, G, L, M, N = _curvatures(su, sv, l, coeffs)
             scalars[i, 0], scalars[i, 1], scalars[i, 2] = sigma3[l], k1, k2
-            r1u, r1v = M - k1 * F, -(L - k1 * E)
-            r2u, r2v = N - k1 * G, -(M - k1 * F)
-            if r2u * r2u + r2v * r2v > r1u * r1u + r1v * r1v:
-                du, dv = r2u, r2v
-            else:
-                du, dv = r1u, r1v
-            nrm = np.sqrt(du * du + dv * dv)
-            if nrm < 1e-12 * (abs(k1) + 1e-300) + 1e-300:
-                du, dv = 1.0, 0.0
-            else:
-                du, dv = du / nrm, dv / nrm
-            tl = su * du + sv * dv
-            tx = frames[l, 0, 0] * du + frames[l, 0, 1] * dv + frames[l, 0, 2] * tl
-            ty = frames[l, 1, 0] * du + frames[l, 1, 1] * dv + frames[l, 1, 2] * tl
-            tz = frames[l, 2, 0] * du + frames[l, 2, 1] * dv + frames[l, 2, 2] * tl
-            tn = np.sqrt(tx * tx + ty * ty + tz * tz)
-            dir1[i, 0], dir1[i, 1], dir1[i, 2] = tx / tn, ty / tn, tz / tn
+            dir1[i, 0], dir1[i, 1], dir1[i, 2] = _k1_direction(su, sv, k1, E, F, G, L, M, N, l, frames)
 
 
 @njit(cache=True, parallel=True)
@@ -203,3 +209,111 @@ def blend_points(
                 if tn > 0:
                     dir1[i, 0], dir1[i, 1], dir1[i, 2] = tx / tn, ty / tn, tz / tn
                 blended[i] = True
+
+
+@njit(cache=True, parallel=True)
+def cell_moments(local, starts, centres, exponents, out):
+    """Moments (:mod:`patchcloud.core.moments`) of runs of points about their cell centres.
+
+    ``out[k, m] = sum over the points of run k of prod_axis (p - centres[k]) ** exponents[m]``;
+    mirrors :func:`patchcloud.core.moments.point_moments`.
+    """
+    M = starts.shape[0]
+    n = local.shape[0]
+    nm = exponents.shape[0]
+    for k in prange(M):
+        hi = starts[k + 1] if k + 1 < M else n
+        acc = np.zeros(nm)
+        px = np.empty(5)
+        py = np.empty(5)
+        pz = np.empty(5)
+        for i in range(starts[k], hi):
+            x = local[i, 0] - centres[k, 0]
+            y = local[i, 1] - centres[k, 1]
+            z = local[i, 2] - centres[k, 2]
+            px[0] = 1.0
+            py[0] = 1.0
+            pz[0] = 1.0
+            for d in range(1, 5):
+                px[d] = px[d - 1] * x
+                py[d] = py[d - 1] * y
+                pz[d] = pz[d - 1] * z
+            for m in range(nm):
+                acc[m] += px[exponents[m, 0]] * py[exponents[m, 1]] * pz[exponents[m, 2]]
+        for m in range(nm):
+            out[k, m] = acc[m]
+
+
+@njit(cache=True, parallel=True)
+def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
+    """PCA normal, surface variation and quadric curvatures of k-neighbourhoods.
+
+    For query ``m`` (point ``query[m]``, neighbours ``nb[m]``): the PCA frame of
+    the neighbours (e3 made to point along (0.001, 0.01, 1)), the quadric
+    ``w = S(u, v)`` fitted to them in that frame, and the curvatures of that
+    quadric at the query point; mirrors :mod:`patchcloud.core.fallback`'s
+    numpy reference.
+    """
+    M, k = nb.shape
+    for m in prange(M):
+        c = np.zeros(3)
+        for j in range(k):
+            for a in range(3):
+                c[a] += points[nb[m, j], a]
+        c /= k
+        cov = np.zeros((3, 3))
+        for j in range(k):
+            for a in range(3):
+                da = points[nb[m, j], a] - c[a]
+                for b in range(3):
+                    cov[a, b] += da * (points[nb[m, j], b] - c[b])
+        cov /= k
+        w, v = np.linalg.eigh(cov)
+        tot = w[0] + w[1] + w[2]
+        sigma3[m] = max(w[0], 0.0) / tot if tot > 0 else 0.0
+        frame = np.empty((1, 3, 3))
+        e3 = v[:, 0].copy()
+        if e3[0] * 1e-3 + e3[1] * 1e-2 + e3[2] < 0:
+            e3 = -e3
+        e1 = v[:, 2].copy()
+        e2 = np.array([e3[1] * e1[2] - e3[2] * e1[1], e3[2] * e1[0] - e3[0] * e1[2], e3[0] * e1[1] - e3[1] * e1[0]])
+        for a in range(3):
+            frame[0, a, 0], frame[0, a, 1], frame[0, a, 2] = e1[a], e2[a], e3[a]
+        normals[m, 0], normals[m, 1], normals[m, 2] = e3[0], e3[1], e3[2]
+        # quadric in the PCA frame, scaled by the neighbourhood's extent
+        s = np.sqrt(max(w[2], 1e-300))
+        G = np.zeros((6, 6))
+        rhs = np.zeros(6)
+        phi = np.empty(6)
+        for j in range(k):
+            dx = points[nb[m, j], 0] - c[0]
+            dy = points[nb[m, j], 1] - c[1]
+            dz = points[nb[m, j], 2] - c[2]
+            u = (e1[0] * dx + e1[1] * dy + e1[2] * dz) / s
+            vv = (e2[0] * dx + e2[1] * dy + e2[2] * dz) / s
+            ww = (e3[0] * dx + e3[1] * dy + e3[2] * dz) / s
+            phi[0], phi[1], phi[2], phi[3], phi[4], phi[5] = u * u, u * vv, vv * vv, u, vv, 1.0
+            for a in range(6):
+                rhs[a] += phi[a] * ww
+                for b in range(6):
+                    G[a, b] += phi[a] * phi[b]
+        tr = 0.0
+        for a in range(6):
+            tr += G[a, a]
+        for a in range(6):
+            G[a, a] += 1e-8 * tr / 6.0 + 1e-300
+        beta = np.linalg.solve(G, rhs)
+        coeffs = np.empty((1, 6))
+        coeffs[0, 0], coeffs[0, 1], coeffs[0, 2] = beta[0] / s, beta[1] / s, beta[2] / s
+        coeffs[0, 3], coeffs[0, 4], coeffs[0, 5] = beta[3], beta[4], beta[5] * s
+        i = query[m]
+        dx = points[i, 0] - c[0]
+        dy = points[i, 1] - c[1]
+        dz = points[i, 2] - c[2]
+        u = e1[0] * dx + e1[1] * dy + e1[2] * dz
+        vv = e2[0] * dx + e2[1] * dy + e2[2] * dz
+        su = 2.0 * coeffs[0, 0] * u + coeffs[0, 1] * vv + coeffs[0, 3]
+        sv = coeffs[0, 1] * u + 2.0 * coeffs[0, 2] * vv + coeffs[0, 4]
+        k1, k2, E, F, G_, L, M_, N = _curvatures(su, sv, 0, coeffs)
+        k1s[m], k2s[m] = k1, k2
+        dir1[m, 0], dir1[m, 1], dir1[m, 2] = _k1_direction(su, sv, k1, E, F, G_, L, M_, N, 0, frame)

@@ -11,13 +11,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .quadric import surface_curvatures
+from . import _kernels
 
 __all__ = ["knn_normals"]
 
 
 def knn_normals(
-    points: np.ndarray, query: np.ndarray, k: int, tree: cKDTree | None = None, chunk: int = 65536
+    points: np.ndarray, query: np.ndarray, k: int, near: tuple[np.ndarray, float] | None = None, chunk: int = 65536
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """k-nearest-neighbour PCA normals of some points of a cloud.
 
@@ -29,8 +29,11 @@ def knn_normals(
         Indices of the points that need a normal.
     k : int
         Neighbours per point, the point itself included (capped at N).
-    tree : cKDTree, optional
-        A tree over ``points`` when the caller has one.
+    near : (subset, radius), optional
+        Indices of a subset of ``points`` holding every point within
+        ``radius`` of any query point: the search runs on the subset, and
+        only queries whose k-th neighbour lies farther than ``radius`` are
+        searched again in the whole cloud.  The result is the same.
 
     Returns
     -------
@@ -52,13 +55,35 @@ def knn_normals(
     neighbours = np.zeros((m, k), dtype=np.int64)
     if m == 0:
         return normals, sigma3, k1, k2, dir1, neighbours
-    if tree is None:
-        tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
+    subset, radius = near if near is not None else (np.arange(n), np.inf)
+    tree = cKDTree(points[subset], balanced_tree=False, compact_nodes=False)
+    full = None
     for lo in range(0, m, chunk):
         hi = min(lo + chunk, m)
         qi = query[lo:hi]
-        _, nb = tree.query(points[qi], k=k)
-        nb = nb.reshape(hi - lo, k)
+        dist, nb = tree.query(points[qi], k=k, workers=-1)
+        dist, nb = dist.reshape(hi - lo, k), subset[nb.reshape(hi - lo, k)]
+        far = np.flatnonzero(dist[:, -1] > radius)
+        if far.size:
+            if full is None:
+                full = cKDTree(points, balanced_tree=False, compact_nodes=False)
+            nb[far] = full.query(points[qi[far]], k=k, workers=-1)[1].reshape(far.size, k)
+        neighbours[lo:hi] = nb
+        _kernels.knn_pca(points, qi, nb, normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
+    return normals, sigma3, k1, k2, dir1, neighbours
+    subset, radius = near if near is not None else (np.arange(n), np.inf)
+    tree = cKDTree(points[subset], balanced_tree=False, compact_nodes=False)
+    full = None
+    for lo in range(0, m, chunk):
+        hi = min(lo + chunk, m)
+        qi = query[lo:hi]
+        dist, nb = tree.query(points[qi], k=k, workers=-1)
+        dist, nb = dist.reshape(hi - lo, k), subset[nb.reshape(hi - lo, k)]
+        far = np.flatnonzero(dist[:, -1] > radius)
+        if far.size:
+            if full is None:
+                full = cKDTree(points, balanced_tree=False, compact_nodes=False)
+            nb[far] = full.query(points[qi[far]], k=k, workers=-1)[1].reshape(far.size, k)
         neighbours[lo:hi] = nb
         nbp = points[nb]
         centroid = nbp.mean(axis=1)

@@ -17,17 +17,18 @@ gets a normal:
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from . import _kernels
 from .blend import blend_across_faces
 from .errors import PatchcloudValueError
 from .fallback import knn_normals
+from .morton import MAX_DEPTH, encode
 from .octree import CRITERIA, KIND_SURFACE, Octree, build_octree, estimate_spacing, sort_points
 from .orient import (
     ORIENT_RULES,
@@ -99,6 +100,9 @@ class NormalsResult:
         The quadric patch models, oriented.
     parameters : NormalsParameters
         What was used, defaults resolved.
+    timings : dict[str, float]
+        Wall seconds of each step: sort, octree, orient, evaluate, blend,
+        fallback, output.
     """
 
     normals: np.ndarray
@@ -110,6 +114,7 @@ class NormalsResult:
     patch: np.ndarray
     patches: PatchTable
     parameters: NormalsParameters
+    timings: dict
 
     @property
     def mean_curvature(self) -> np.ndarray:
@@ -129,6 +134,8 @@ def _validate_points(points) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise PatchcloudValueError(f"points must have shape (N, 3), got {arr.shape}")
     arr = arr.astype(np.float64, copy=False)
+    if np.isfinite(arr.sum()):  # fast path: a finite sum means finite values (or an overflow, checked below)
+        return arr
     bad = ~np.isfinite(arr).all(axis=1)
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
@@ -198,7 +205,7 @@ def estimate_normals(
         nodes (the scanner noise) and at least 1/20 of the point spacing;
         for "sigma3": 0.005.
     d_min : float, optional
-        Minimum leaf edge (metres). Default: 4 times the point spacing
+        Minimum leaf edge (metres). Default: 3 times the point spacing
         estimated from the octree occupancy.
     n_min : int
         Nodes with fewer points are not split and get no surface (default 12).
@@ -266,22 +273,26 @@ def estimate_normals(
     if n < n_min:
         raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")
 
+    clock = _Clock()
     corner, edge = _root_cube(pts, root)
     local = pts - corner
     sorted_input = sort_points(local, edge)
     spacing = estimate_spacing(sorted_input[1], edge)
+    clock.lap("sort")
     if d_min is None:
-        d_min = 4.0 * spacing if spacing > 0 else edge / 2.0**21
+        d_min = 3.0 * spacing if spacing > 0 else edge / 2.0**21
     if threshold is None and criterion == "sigma3":
         threshold = 0.005
     tree = build_octree(
         local, edge, criterion=criterion, threshold=threshold, d_min=d_min, n_min=n_min,
         min_sigma2=min_sigma2, spacing=spacing, sorted_input=sorted_input,
     )
+    clock.lap("octree")
     vp_local = None if vp is None else vp - corner
     centre_local = tree.local.mean(axis=0)
-    normals, scalars, dir1, method, frames, coeffs = _surface_pass(tree, orient, vp_local, centre_local, blend)
+    normals, scalars, dir1, method, frames, coeffs = _surface_pass(tree, orient, vp_local, centre_local, blend, clock)
     _fallback_pass(tree, normals, scalars, dir1, method, k_fallback, orient, vp_local, centre_local)
+    clock.lap("fallback")
 
     inv = tree.order
     out = lambda a, dt: _unsort(a, inv, dt)  # noqa: E731
@@ -304,7 +315,7 @@ def estimate_normals(
         k_fallback=k_fallback, orient=orient, viewpoint=None if vp is None else tuple(vp.tolist()), blend=bool(blend),
         spacing=float(spacing), root_corner=tuple(corner.tolist()), root_edge=float(edge),
     )
-    return NormalsResult(
+    outputs = dict(
         normals=out(normals, np.float32),
         curvature=out(scalars[:, 0], np.float32),
         k1=out(scalars[:, 1], np.float32),
@@ -312,9 +323,22 @@ def estimate_normals(
         dir1=out(dir1, np.float32),
         method=out(method, np.uint8),
         patch=out(patch_sorted, np.int32),
-        patches=table,
-        parameters=params,
     )
+    clock.lap("output")
+    return NormalsResult(**outputs, patches=table, parameters=params, timings=dict(clock.laps))
+
+
+class _Clock:
+    """Wall time of consecutive steps."""
+
+    def __init__(self) -> None:
+        self.laps: dict[str, float] = {}
+        self._t = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.laps[name] = self.laps.get(name, 0.0) + now - self._t
+        self._t = now
 
 
 def _unsort(values: np.ndarray, order: np.ndarray, dtype) -> np.ndarray:
@@ -323,7 +347,7 @@ def _unsort(values: np.ndarray, order: np.ndarray, dtype) -> np.ndarray:
     return res
 
 
-def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool):
+def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool, clock: "_Clock"):
     """Normals of the points of surface leaves; orientation; blending."""
     n = tree.local.shape[0]
     P = tree.level.shape[0]
@@ -346,6 +370,7 @@ def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool):
     flip = sign < 0
     frames[flip, :, 1:] *= -1.0
     coeffs[flip] *= np.array([-1.0, 1.0, -1.0, -1.0, 1.0, -1.0])
+    clock.lap("orient")
 
     normals = np.zeros((n, 3))
     scalars = np.zeros((n, 3))
@@ -354,10 +379,30 @@ def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool):
         tree.local, tree.start, tree.count, surface, centroid, frames, coeffs, fit.sigma3, normals, scalars, dir1
     )
     method = np.repeat(np.where(surface, Method.QUADRIC, 0).astype(np.uint8), tree.count)
+    clock.lap("evaluate")
     if blend:
         was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1)
         method[was] = Method.BLENDED
+    clock.lap("blend")
     return normals, scalars, dir1, method, frames, coeffs
+
+
+def _near_points(tree: Octree, query: np.ndarray) -> tuple[np.ndarray, float]:
+    """Sorted points in the finest-level cells around the query points, and that cell edge.
+
+    Any point closer to a query point than the cell edge is among them, so a
+    k-d tree over them answers k-NN queries exactly up to that distance.
+    """
+    shift = MAX_DEPTH - tree.max_level
+    h = tree.edge / 2.0**tree.max_level
+    cells = np.unique(tree.q[query] >> shift, axis=0)
+    steps = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), axis=-1).reshape(-1, 3)
+    around = (cells[:, None, :] + steps[None, :, :]).reshape(-1, 3)
+    around = around[np.all((around >= 0) & (around < (1 << tree.max_level)), axis=1)]
+    wanted = np.unique(encode(around))
+    vkey = tree.keys >> np.uint64(3 * shift)
+    pos = np.minimum(np.searchsorted(wanted, vkey), wanted.size - 1)
+    return np.flatnonzero(wanted[pos] == vkey), h
 
 
 def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centre, rounds: int = 4) -> None:
@@ -365,8 +410,7 @@ def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, 
     query = np.flatnonzero(method == 0)
     if query.size == 0:
         return
-    kd = cKDTree(tree.local, balanced_tree=False, compact_nodes=False)
-    nrm, s3, k1, k2, t1, nb = knn_normals(tree.local, query, k, tree=kd)
+    nrm, s3, k1, k2, t1, nb = knn_normals(tree.local, query, k, near=_near_points(tree, query))
     oriented = method != 0
     normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])

@@ -16,7 +16,8 @@ from functools import cached_property
 import numpy as np
 
 from .morton import MAX_DEPTH, decode, encode, quantize
-from .moments import point_moments, shift_matrices
+from . import _kernels
+from .moments import EXPONENTS, shift_matrices
 from .quadric import NodeFit, fit_nodes
 
 __all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "CRITERIA", "KIND_SURFACE", "KIND_EDGE", "KIND_SPARSE"]
@@ -46,6 +47,8 @@ class Octree:
         Sorted points.
     q : (N, 3) int64
         Integer coordinates of the sorted points at depth ``MAX_DEPTH``.
+    keys : (N,) uint64
+        Their Morton keys (sorted).
     level, cell : (P,) int64, (P,) uint64
         Level and Morton cell id (at that level) of every leaf, in key order.
     start, count : (P,) int64
@@ -63,6 +66,7 @@ class Octree:
     order: np.ndarray
     local: np.ndarray
     q: np.ndarray
+    keys: np.ndarray
     level: np.ndarray
     cell: np.ndarray
     start: np.ndarray
@@ -162,17 +166,16 @@ class _Level:
 
 
 def _bottom_up(local, keys, edge, max_level) -> list[_Level]:
-    n = local.shape[0]
     shift = np.uint64(3 * (MAX_DEPTH - max_level))
     c = keys >> shift
     starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
     cells = c[starts]
-    counts = np.diff(np.r_[starts, n])
     h = edge / 2.0**max_level
     centre = (decode(cells) + 0.5) * h
-    rel = local - np.repeat(centre, counts, axis=0)
+    moments = np.empty((cells.shape[0], EXPONENTS.shape[0]))
+    _kernels.cell_moments(local, starts, centre, EXPONENTS, moments)
     levels: list[_Level] = [None] * (max_level + 1)  # type: ignore[list-item]
-    levels[max_level] = _Level(cells, starts, point_moments(rel, starts))
+    levels[max_level] = _Level(cells, starts, moments)
     bits = np.array([[(o >> a) & 1 for a in range(3)] for o in range(8)], dtype=np.float64)
     for lev in range(max_level - 1, -1, -1):
         child = levels[lev + 1]
@@ -205,8 +208,8 @@ def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing:
     """
     keep = moments[:, 0] >= n_min
     sample = moments[keep]
-    if sample.shape[0] > 20000:  # a deterministic subsample is enough for a median
-        sample = sample[:: sample.shape[0] // 20000]
+    if sample.shape[0] > 8000:  # a deterministic subsample is enough for a median
+        sample = sample[:: sample.shape[0] // 8000]
     noise = 0.0
     if sample.shape[0]:
         fit = fit_nodes(sample, np.full(sample.shape[0], half_edge))
@@ -309,6 +312,7 @@ def build_octree(
         order=order,
         local=pts,
         q=q,
+        keys=keys,
         level=level.astype(np.int64),
         cell=cell,
         start=start,
