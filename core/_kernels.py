@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows"]
 
 _KIND_SURFACE = 0
 _MAX_DEPTH = 21
@@ -317,3 +317,68 @@ def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
         k1, k2, E, F, G_, L, M_, N = _curvatures(su, sv, 0, coeffs)
         k1s[m], k2s[m] = k1, k2
         dir1[m, 0], dir1[m, 1], dir1[m, 2] = _k1_direction(su, sv, k1, E, F, G_, L, M_, N, 0, frame)
+
+
+@njit(cache=True)
+def bounds(points):
+    """Per-axis minimum and maximum of finite points, and whether all are finite."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    finite = True
+    for i in range(points.shape[0]):
+        for a in range(3):
+            v = points[i, a]
+            if not np.isfinite(v):
+                finite = False
+            else:
+                if v < lo[a]:
+                    lo[a] = v
+                if v > hi[a]:
+                    hi[a] = v
+    return lo, hi, finite
+
+
+@njit(cache=True, parallel=True)
+def morton_keys(points, corner, edge, q, keys):
+    """Integer coordinates at depth 21 and Morton keys of ``points - corner`` in a cube of ``edge``.
+
+    Mirrors :func:`patchcloud.core.morton.quantize` and :func:`~patchcloud.core.morton.encode`.
+    """
+    n = 1 << _MAX_DEPTH
+    scale = n / edge
+    for i in prange(points.shape[0]):
+        key = np.uint64(0)
+        for a in range(3):
+            c = np.int64(np.floor((points[i, a] - corner[a]) * scale))
+            if c < 0:
+                c = 0
+            elif c > n - 1:
+                c = n - 1
+            q[i, a] = c
+            key |= _spread(np.uint64(c)) << np.uint64(a)
+        keys[i] = key
+
+
+@njit(cache=True, parallel=True)
+def unsort_outputs(order, normals, scalars, dir1, method, patch, o_normals, o_curv, o_k1, o_k2, o_dir1, o_method, o_patch):
+    """Per-point results from sorted order back to input order (``out[order[i]] = value[i]``)."""
+    for i in prange(order.shape[0]):
+        j = order[i]
+        for a in range(3):
+            o_normals[j, a] = normals[i, a]
+            o_dir1[j, a] = dir1[i, a]
+        o_curv[j] = scalars[i, 0]
+        o_k1[j] = scalars[i, 1]
+        o_k2[j] = scalars[i, 2]
+        o_method[j] = method[i]
+        o_patch[j] = patch[i]
+
+
+@njit(cache=True, parallel=True)
+def take_rows(values, order):
+    """``values[order]`` for a 2-D array, in parallel."""
+    out = np.empty((order.shape[0], values.shape[1]), dtype=values.dtype)
+    for i in prange(order.shape[0]):
+        for j in range(values.shape[1]):
+            out[i, j] = values[order[i], j]
+    return out

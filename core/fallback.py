@@ -12,12 +12,41 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from . import _kernels
+from .morton import MAX_DEPTH, decode, encode
 
-__all__ = ["knn_normals"]
+__all__ = ["knn_normals", "points_near"]
+
+
+def points_near(q: np.ndarray, keys: np.ndarray, level: int, query: np.ndarray, reach: int = 1) -> np.ndarray:
+    """Indices of the sorted points in the cells around the query points.
+
+    Cells are those of octree ``level``; every cell within ``reach`` cells
+    (per axis) of a query point's cell is taken, so any point closer to a
+    query than ``reach`` cell edges is among the result.
+
+    Parameters
+    ----------
+    q : (N, 3) int64 and keys : (N,) uint64
+        Depth-21 integer coordinates and Morton keys of the points, sorted by key.
+    level : int
+    query : (M,) int64 indices of the query points.
+    """
+    shift = MAX_DEPTH - level
+    cells = np.unique(encode(q[query] >> shift))
+    cells = decode(cells)
+    r = np.arange(-reach, reach + 1)
+    steps = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+    around = (cells[:, None, :] + steps[None, :, :]).reshape(-1, 3)
+    around = around[np.all((around >= 0) & (around < (1 << level)), axis=1)]
+    wanted = np.unique(encode(around))
+    vkey = keys >> np.uint64(3 * shift)
+    pos = np.minimum(np.searchsorted(wanted, vkey), wanted.size - 1)
+    return np.flatnonzero(wanted[pos] == vkey)
 
 
 def knn_normals(
-    points: np.ndarray, query: np.ndarray, k: int, near: tuple[np.ndarray, float] | None = None, chunk: int = 65536
+    points: np.ndarray, query: np.ndarray, k: int, grid: tuple[np.ndarray, np.ndarray, int, float] | None = None,
+    chunk: int = 65536,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """k-nearest-neighbour PCA normals of some points of a cloud.
 
@@ -29,11 +58,12 @@ def knn_normals(
         Indices of the points that need a normal.
     k : int
         Neighbours per point, the point itself included (capped at N).
-    near : (subset, radius), optional
-        Indices of a subset of ``points`` holding every point within
-        ``radius`` of any query point: the search runs on the subset, and
-        only queries whose k-th neighbour lies farther than ``radius`` are
-        searched again in the whole cloud.  The result is the same.
+    grid : (q, keys, level, cell_edge), optional
+        The points' depth-21 coordinates and Morton keys (``points`` sorted
+        by key) and an octree level with its cell edge: the search then runs
+        on the points of the cells around the queries only (see
+        :func:`points_near`), widening for the queries whose k-th neighbour
+        lies beyond; the result is the same as a search in the whole cloud.
 
     Returns
     -------
@@ -55,61 +85,34 @@ def knn_normals(
     neighbours = np.zeros((m, k), dtype=np.int64)
     if m == 0:
         return normals, sigma3, k1, k2, dir1, neighbours
-    subset, radius = near if near is not None else (np.arange(n), np.inf)
-    tree = cKDTree(points[subset], balanced_tree=False, compact_nodes=False)
-    full = None
     for lo in range(0, m, chunk):
-        hi = min(lo + chunk, m)
-        qi = query[lo:hi]
-        dist, nb = tree.query(points[qi], k=k, workers=-1)
-        dist, nb = dist.reshape(hi - lo, k), subset[nb.reshape(hi - lo, k)]
-        far = np.flatnonzero(dist[:, -1] > radius)
-        if far.size:
-            if full is None:
-                full = cKDTree(points, balanced_tree=False, compact_nodes=False)
-            nb[far] = full.query(points[qi[far]], k=k, workers=-1)[1].reshape(far.size, k)
-        neighbours[lo:hi] = nb
+        qi = query[lo : lo + chunk]
+        nb = _knn(points, qi, k, grid)
+        neighbours[lo : lo + chunk] = nb
+        hi = lo + qi.size
         _kernels.knn_pca(points, qi, nb, normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
     return normals, sigma3, k1, k2, dir1, neighbours
-    subset, radius = near if near is not None else (np.arange(n), np.inf)
-    tree = cKDTree(points[subset], balanced_tree=False, compact_nodes=False)
-    full = None
-    for lo in range(0, m, chunk):
-        hi = min(lo + chunk, m)
-        qi = query[lo:hi]
+
+
+def _knn(points, qi, k, grid, reach: int = 1) -> np.ndarray:
+    """Exact k nearest neighbours of ``points[qi]``, searched in as few cells as possible."""
+    if grid is None:
+        tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
+        return tree.query(points[qi], k=k, workers=-1)[1].reshape(qi.size, k)
+    q, keys, level, h = grid
+    subset = points_near(q, keys, level, qi, reach)
+    if subset.size < k:
+        dist = np.full((qi.size, k), np.inf)
+        nb = np.zeros((qi.size, k), dtype=np.int64)
+    else:
+        tree = cKDTree(points[subset], balanced_tree=False, compact_nodes=False)
         dist, nb = tree.query(points[qi], k=k, workers=-1)
-        dist, nb = dist.reshape(hi - lo, k), subset[nb.reshape(hi - lo, k)]
-        far = np.flatnonzero(dist[:, -1] > radius)
-        if far.size:
-            if full is None:
-                full = cKDTree(points, balanced_tree=False, compact_nodes=False)
-            nb[far] = full.query(points[qi[far]], k=k, workers=-1)[1].reshape(far.size, k)
-        neighbours[lo:hi] = nb
-        nbp = points[nb]
-        centroid = nbp.mean(axis=1)
-        rel = nbp - centroid[:, None, :]
-        cov = np.einsum("mki,mkj->mij", rel, rel) / k
-        w, v = np.linalg.eigh(cov)
-        tot = w.sum(axis=1)
-        sigma3[lo:hi] = np.where(tot > 0, np.maximum(w[:, 0], 0) / np.where(tot > 0, tot, 1), 0.0)
-        e3 = v[:, :, 0]
-        s = np.where(e3 @ np.array([1e-3, 1e-2, 1.0]) < 0, -1.0, 1.0)
-        e3 = e3 * s[:, None]
-        e1 = v[:, :, 2]
-        e2 = np.cross(e3, e1)
-        frame = np.stack([e1, e2, e3], axis=2)
-        normals[lo:hi] = e3
-        # quadric of the neighbourhood in its PCA frame, scaled to order one
-        uvw = np.einsum("mai,mka->mki", frame, rel)
-        scale = np.sqrt(np.maximum(w[:, 2], 1e-300))[:, None]
-        u, vv, ww = uvw[..., 0] / scale, uvw[..., 1] / scale, uvw[..., 2] / scale
-        phi = np.stack([u * u, u * vv, vv * vv, u, vv, np.ones_like(u)], axis=2)
-        G = np.einsum("mki,mkj->mij", phi, phi)
-        b = np.einsum("mki,mk->mi", phi, ww)
-        G += (1e-8 * np.trace(G, axis1=1, axis2=2) / 6 + 1e-300)[:, None, None] * np.eye(6)
-        beta = np.linalg.solve(G, b[:, :, None])[:, :, 0]
-        sc = scale[:, 0]
-        coeffs = np.column_stack([beta[:, 0] / sc, beta[:, 1] / sc, beta[:, 2] / sc, beta[:, 3], beta[:, 4], beta[:, 5] * sc])
-        kk1, kk2, d1 = surface_curvatures(points[qi], centroid, frame, coeffs)
-        k1[lo:hi], k2[lo:hi], dir1[lo:hi] = kk1, kk2, d1
-    return normals, sigma3, k1, k2, dir1, neighbours
+        dist, nb = dist.reshape(qi.size, k), subset[nb.reshape(qi.size, k)]
+    far = np.flatnonzero(dist[:, -1] > reach * h)
+    if far.size:
+        nxt = reach * 4
+        if nxt * h >= (1 << level) * h or level == 0:  # the whole cloud
+            nb[far] = _knn(points, qi[far], k, None)
+        else:
+            nb[far] = _knn(points, qi[far], k, grid, nxt)
+    return nb

@@ -28,7 +28,6 @@ from . import _kernels
 from .blend import blend_across_faces
 from .errors import PatchcloudValueError
 from .fallback import knn_normals
-from .morton import MAX_DEPTH, encode
 from .octree import CRITERIA, KIND_SURFACE, Octree, build_octree, estimate_spacing, sort_points
 from .orient import (
     ORIENT_RULES,
@@ -41,6 +40,12 @@ from .orient import (
 from .patches import PatchTable
 
 __all__ = ["Method", "NormalsParameters", "NormalsResult", "estimate_normals"]
+
+
+#: Smallest |cos| between the PCA normals of an edge or sparse leaf and a neighbour for them to link.
+DOT_MIN = 0.9
+#: Smallest |agreement| of a face-neighbour pair for it to carry orientation.
+MIN_RELIABILITY = 0.5
 
 
 class Method(IntEnum):
@@ -133,16 +138,15 @@ def _validate_points(points) -> np.ndarray:
         raise PatchcloudValueError(f"points must be a real numeric array (float or int), got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise PatchcloudValueError(f"points must have shape (N, 3), got {arr.shape}")
-    arr = arr.astype(np.float64, copy=False)
-    if np.isfinite(arr.sum()):  # fast path: a finite sum means finite values (or an overflow, checked below)
-        return arr
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    lo, hi, finite = _kernels.bounds(arr)
+    if not finite:
+        bad = ~np.isfinite(arr).all(axis=1)
         first = int(np.flatnonzero(bad)[0])
         raise PatchcloudValueError(
             f"points contain {int(bad.sum())} rows with NaN or infinite coordinates (first at row {first})"
         )
-    return arr
+    return arr, lo, hi
 
 
 def _positive(name: str, value, integer: bool = False):
@@ -157,16 +161,14 @@ def _positive(name: str, value, integer: bool = False):
     return float(value)
 
 
-def _root_cube(points: np.ndarray, root) -> tuple[np.ndarray, float]:
+def _root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
     if root is not None:
         corner, edge = root
         corner = np.asarray(corner, dtype=np.float64).reshape(3)
         edge = _positive("root edge", edge)
-        if np.any(points < corner) or np.any(points > corner + edge):
+        if np.any(lo < corner) or np.any(hi > corner + edge):
             raise PatchcloudValueError("points lie outside the given root cube")
         return corner, edge
-    lo = points.min(axis=0)
-    hi = points.max(axis=0)
     extent = float((hi - lo).max())
     scale = max(extent, float(np.abs(lo).max()) * 1e-12, 1e-9)
     edge = extent + 1e-6 * scale if extent > 0 else scale
@@ -251,7 +253,7 @@ def estimate_normals(
     >>> bool(np.median(cos) > 0.9998)
     True
     """
-    pts = _validate_points(points)
+    pts, lo, hi = _validate_points(points)
     if criterion not in CRITERIA:
         raise PatchcloudValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
     if orient not in ORIENT_RULES:
@@ -274,9 +276,9 @@ def estimate_normals(
         raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")
 
     clock = _Clock()
-    corner, edge = _root_cube(pts, root)
+    corner, edge = _root_cube(lo, hi, root)
     local = pts - corner
-    sorted_input = sort_points(local, edge)
+    sorted_input = sort_points(local, np.zeros(3), edge)
     spacing = estimate_spacing(sorted_input[1], edge)
     clock.lap("sort")
     if d_min is None:
@@ -294,9 +296,6 @@ def estimate_normals(
     _fallback_pass(tree, normals, scalars, dir1, method, k_fallback, orient, vp_local, centre_local)
     clock.lap("fallback")
 
-    inv = tree.order
-    out = lambda a, dt: _unsort(a, inv, dt)  # noqa: E731
-    patch_sorted = tree.point_leaf()
     table = PatchTable(
         root_corner=corner.copy(),
         root_edge=float(edge),
@@ -316,14 +315,11 @@ def estimate_normals(
         spacing=float(spacing), root_corner=tuple(corner.tolist()), root_edge=float(edge),
     )
     outputs = dict(
-        normals=out(normals, np.float32),
-        curvature=out(scalars[:, 0], np.float32),
-        k1=out(scalars[:, 1], np.float32),
-        k2=out(scalars[:, 2], np.float32),
-        dir1=out(dir1, np.float32),
-        method=out(method, np.uint8),
-        patch=out(patch_sorted, np.int32),
+        normals=np.empty((n, 3), np.float32), curvature=np.empty(n, np.float32), k1=np.empty(n, np.float32),
+        k2=np.empty(n, np.float32), dir1=np.empty((n, 3), np.float32), method=np.empty(n, np.uint8),
+        patch=np.empty(n, np.int32),
     )
+    _kernels.unsort_outputs(tree.order, normals, scalars, dir1, method, tree.point_leaf(), *outputs.values())
     clock.lap("output")
     return NormalsResult(**outputs, patches=table, parameters=params, timings=dict(clock.laps))
 
@@ -341,12 +337,6 @@ class _Clock:
         self._t = now
 
 
-def _unsort(values: np.ndarray, order: np.ndarray, dtype) -> np.ndarray:
-    res = np.empty(values.shape, dtype=dtype)
-    res[order] = values
-    return res
-
-
 def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool, clock: "_Clock"):
     """Normals of the points of surface leaves; orientation; blending."""
     n = tree.local.shape[0]
@@ -357,15 +347,24 @@ def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool, clock: "_C
     centroid = tree.centroid
     surface = tree.kind == KIND_SURFACE
 
-    # relative orientation by face sampling over the surface-patch graph
+    # Relative orientation over the leaf adjacency graph: face sampling of the
+    # two quadrics between surface patches (paper 2.3); between a surface and
+    # an edge or sparse leaf, or two of those, the sign of the dot product of
+    # their PCA normals, so groups of patches separated by a sharp feature or
+    # a sparse spot still propagate their orientation through it.
     i, j, d = face_neighbours(tree)
+    usable = tree.count >= 3
+    keep = usable[i] & usable[j]
+    i, j, d = i[keep], j[keep], d[keep]
     both = surface[i] & surface[j]
-    i, j, d = i[both], j[both], d[both]
-    agreement = face_agreement(tree, frames, coeffs, i, j, d)
-    sign, comp = propagate_signs(P, i, j, agreement, min_reliability=0.5)
+    agreement = np.einsum("ni,ni->n", frames[i, :, 2], frames[j, :, 2])
+    # a PCA normal of a sharp or sparse spot is rough: trust only nearly parallel ones
+    agreement[~both & (np.abs(agreement) < DOT_MIN)] = 0.0
+    agreement[both] = face_agreement(tree, frames, coeffs, i[both], j[both], d[both])
+    sign, comp = propagate_signs(P, i, j, agreement, min_reliability=MIN_RELIABILITY)
     if orient != "none":
         e3 = frames[:, :, 2] * sign[:, None]
-        weights = np.where(surface, tree.count, 0).astype(np.float64)
+        weights = np.where(usable, tree.count, 0).astype(np.float64)
         sign = sign * component_rule_signs(orient, comp, e3, centroid, weights, vp, centre)
     flip = sign < 0
     frames[flip, :, 1:] *= -1.0
@@ -387,30 +386,14 @@ def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool, clock: "_C
     return normals, scalars, dir1, method, frames, coeffs
 
 
-def _near_points(tree: Octree, query: np.ndarray) -> tuple[np.ndarray, float]:
-    """Sorted points in the finest-level cells around the query points, and that cell edge.
-
-    Any point closer to a query point than the cell edge is among them, so a
-    k-d tree over them answers k-NN queries exactly up to that distance.
-    """
-    shift = MAX_DEPTH - tree.max_level
-    h = tree.edge / 2.0**tree.max_level
-    cells = np.unique(tree.q[query] >> shift, axis=0)
-    steps = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), axis=-1).reshape(-1, 3)
-    around = (cells[:, None, :] + steps[None, :, :]).reshape(-1, 3)
-    around = around[np.all((around >= 0) & (around < (1 << tree.max_level)), axis=1)]
-    wanted = np.unique(encode(around))
-    vkey = tree.keys >> np.uint64(3 * shift)
-    pos = np.minimum(np.searchsorted(wanted, vkey), wanted.size - 1)
-    return np.flatnonzero(wanted[pos] == vkey), h
-
-
 def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centre, rounds: int = 4) -> None:
     """k-NN PCA normals for points of edge and sparse leaves, oriented by their neighbours."""
     query = np.flatnonzero(method == 0)
     if query.size == 0:
         return
-    nrm, s3, k1, k2, t1, nb = knn_normals(tree.local, query, k, near=_near_points(tree, query))
+    nrm, s3, k1, k2, t1, nb = knn_normals(
+        tree.local, query, k, grid=(tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level)
+    )
     oriented = method != 0
     normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])

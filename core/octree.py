@@ -15,7 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .morton import MAX_DEPTH, decode, encode, quantize
+from .morton import MAX_DEPTH, decode
 from . import _kernels
 from .moments import EXPONENTS, shift_matrices
 from .quadric import NodeFit, fit_nodes
@@ -110,27 +110,37 @@ class Octree:
         return np.where(ok, idx, -1)
 
 
-def sort_points(local: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sort points by Morton key, ties broken by coordinates.
+def sort_points(points: np.ndarray, corner: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sort points by Morton key in the root cube, ties broken by coordinates.
 
     The result does not depend on the input order (exact duplicates are
     interchangeable), which makes every later sum bit-reproducible.
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+    corner : (3,) float64
+        Minimum corner of the root cube.
+    edge : float
+        Root cube edge.
 
     Returns
     -------
     order : (N,) int64, keys : (N,) uint64 sorted, q : (N, 3) int64 sorted.
     """
-    q = quantize(local, edge)
-    keys = encode(q)
+    n = points.shape[0]
+    q = np.empty((n, 3), dtype=np.int64)
+    keys = np.empty(n, dtype=np.uint64)
+    _kernels.morton_keys(points, np.asarray(corner, dtype=np.float64), float(edge), q, keys)
     order = np.argsort(keys, kind="stable")
     keys = keys[order]
     tie = np.flatnonzero(keys[1:] == keys[:-1])
     if tie.size:
         pos = np.unique(np.concatenate([tie, tie + 1]))
-        sub = local[order[pos]]
+        sub = points[order[pos]]
         sub_order = np.lexsort((sub[:, 2], sub[:, 1], sub[:, 0], keys[pos]))
         order[pos] = order[pos[sub_order]]
-    return order, keys, q[order]
+    return order, keys, _kernels.take_rows(q, order)
 
 
 def _occupied(keys: np.ndarray, level: int) -> int:
@@ -251,10 +261,10 @@ def build_octree(
     spacing : float
         Point spacing (metres), used only for the default threshold.
     sorted_input : tuple, optional
-        ``sort_points(local, edge)`` when the caller already has it.
+        ``sort_points(local, zeros(3), edge)`` when the caller already has it.
     """
-    order, keys, q = sorted_input if sorted_input is not None else sort_points(local, edge)
-    pts = local[order]
+    order, keys, q = sorted_input if sorted_input is not None else sort_points(local, np.zeros(3), edge)
+    pts = _kernels.take_rows(local, order)
     max_level = int(np.clip(np.floor(np.log2(edge / d_min)), 0, MAX_DEPTH)) if d_min > 0 else MAX_DEPTH
     levels = _bottom_up(pts, keys, edge, max_level)
     if threshold is None:

@@ -17,7 +17,7 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
 from .morton import MAX_DEPTH, encode
 from .octree import KIND_SURFACE, Octree
-from .quadric import implicit_value
+from .quadric import implicit_value, surface_normals
 
 __all__ = ["ORIENT_RULES", "face_neighbours", "face_agreement", "propagate_signs", "component_rule_signs", "point_rule_signs"]
 
@@ -71,9 +71,14 @@ def face_agreement(
 ) -> np.ndarray:
     """Mean sign agreement of two patches' implicit quadrics on their shared face.
 
-    A sample closer than twice the larger fit RMSE to either surface says
-    nothing (a face parallel to a noisy surface lies inside its noise band,
-    where the two signs are arbitrary) and counts as 0.
+    Only samples near both surfaces vote: one closer than twice the larger
+    fit RMSE to either surface says nothing (a face parallel to a noisy
+    surface lies inside its noise band, where the two signs are arbitrary),
+    and one farther than half the face's edge from either surface depends on
+    how the quadrics extrapolate rather than on the shared surface, and one
+    where the two quadrics' normals are more than 60 degrees apart or point
+    the opposite way to what the signs say (the quadrics cross or fold
+    there) is unreliable.  All count as 0.
 
     Parameters
     ----------
@@ -84,8 +89,10 @@ def face_agreement(
 
     Returns
     -------
-    (E,) float64 in [-1, 1]: +1 when the frames' ``e3`` agree at every sample,
-    -1 when they are opposite at every sample.
+    (E,) float64 in [-1, 1]: the sum of the votes (+1 where the two signs
+    agree, -1 where they differ) over the number of voting samples, or over
+    4 when fewer voted: +1 when the frames' ``e3`` agree at every voting
+    sample, -1 when they are opposite at every one.
     """
     E = i.shape[0]
     if E == 0:
@@ -112,8 +119,19 @@ def face_agreement(
     vi = implicit_value(pts, cen[ri], frames[ri], coeffs[ri])
     vj = implicit_value(pts, cen[rj], frames[rj], coeffs[rj])
     band = 2.0 * np.repeat(np.maximum(tree.fit.rmse[i], tree.fit.rmse[j]), m)
-    vote = np.sign(vi) * np.sign(vj) * ((np.abs(vi) > band) & (np.abs(vj) > band))
-    return vote.reshape(E, m).mean(axis=1)
+    reach = 0.5 * hh
+    near = (np.abs(vi) > band) & (np.abs(vj) > band) & (np.abs(vi) <= reach) & (np.abs(vj) <= reach)
+    # a sample also needs the two surfaces to run alike there: where the signs
+    # and the directions of the two normals tell different stories, the
+    # quadrics cross or fold and the sample says nothing
+    ni = surface_normals(pts, cen[ri], frames[ri], coeffs[ri])
+    nj = surface_normals(pts, cen[rj], frames[rj], coeffs[rj])
+    dot = np.einsum("ni,ni->n", ni, nj)
+    same = np.sign(vi) * np.sign(vj)
+    near &= (np.abs(dot) > 0.5) & (same == np.sign(dot))
+    vote = (same * near).reshape(E, m)
+    voters = near.reshape(E, m).sum(axis=1)
+    return vote.sum(axis=1) / np.maximum(voters, 4)
 
 
 def propagate_signs(n: int, i: np.ndarray, j: np.ndarray, agreement: np.ndarray, min_reliability: float) -> tuple[np.ndarray, np.ndarray]:
