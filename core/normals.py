@@ -36,6 +36,7 @@ from .orient import (
     face_neighbours,
     point_rule_signs,
     propagate_signs,
+    rule_prior,
 )
 from .patches import PatchTable
 
@@ -361,11 +362,14 @@ def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool, clock: "_C
     # a PCA normal of a sharp or sparse spot is rough: trust only nearly parallel ones
     agreement[~both & (np.abs(agreement) < DOT_MIN)] = 0.0
     agreement[both] = face_agreement(tree, frames, coeffs, i[both], j[both], d[both])
-    sign, comp = propagate_signs(P, i, j, agreement, min_reliability=MIN_RELIABILITY)
-    if orient != "none":
+    usable_e3 = frames[:, :, 2] * usable[:, None]
+    prior = rule_prior(orient, usable_e3, centroid, vp, centre)
+    sign, comp, ruled = propagate_signs(P, i, j, agreement, min_reliability=MIN_RELIABILITY, prior=prior)
+    if orient != "none" and not ruled.all():
+        # groups no reliable link ties to the rule: the rule decides for each as a whole
         e3 = frames[:, :, 2] * sign[:, None]
-        weights = np.where(usable, tree.count, 0).astype(np.float64)
-        sign = sign * component_rule_signs(orient, comp, e3, centroid, weights, vp, centre)
+        weights = np.where(usable & ~ruled, tree.count, 0).astype(np.float64)
+        sign = sign * np.where(ruled, 1.0, component_rule_signs(orient, comp, e3, centroid, weights, vp, centre))
     flip = sign < 0
     frames[flip, :, 1:] *= -1.0
     coeffs[flip] *= np.array([-1.0, 1.0, -1.0, -1.0, 1.0, -1.0])

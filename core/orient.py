@@ -19,7 +19,10 @@ from .morton import MAX_DEPTH, encode
 from .octree import KIND_SURFACE, Octree
 from .quadric import implicit_value, surface_normals
 
-__all__ = ["ORIENT_RULES", "face_neighbours", "face_agreement", "propagate_signs", "component_rule_signs", "point_rule_signs"]
+__all__ = [
+    "ORIENT_RULES", "face_neighbours", "face_agreement", "propagate_signs", "rule_prior", "component_rule_signs",
+    "point_rule_signs",
+]
 
 #: Global orientation rules: towards +Z, towards a viewpoint, away from the centre, none.
 ORIENT_RULES = ("up", "viewpoint", "outward", "none")
@@ -134,43 +137,79 @@ def face_agreement(
     return vote.sum(axis=1) / np.maximum(voters, 4)
 
 
-def propagate_signs(n: int, i: np.ndarray, j: np.ndarray, agreement: np.ndarray, min_reliability: float) -> tuple[np.ndarray, np.ndarray]:
-    """Relative signs of ``n`` patches from pairwise agreements.
+def propagate_signs(
+    n: int, i: np.ndarray, j: np.ndarray, agreement: np.ndarray, min_reliability: float, prior: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signs of ``n`` patches from pairwise agreements and an optional prior.
 
-    Edges whose ``|agreement|`` is below ``min_reliability`` are ignored;
-    over the rest a maximum spanning forest on ``|agreement|`` fixes the
-    sign of every patch relative to the lowest-index patch of its component.
+    Edges whose ``|agreement|`` is below ``min_reliability`` are ignored.
+    ``prior[k]`` (in [-1, 1]) is the agreement of patch ``k`` with the global
+    rule; it enters as an edge to a virtual node that stands for the rule, so
+    that the rule and the pairwise agreements compete on the same footing:
+    a maximum spanning forest on ``|agreement|`` (most reliable first) fixes
+    every sign.  Components that hold the rule node follow it; the others get
+    signs relative to their lowest-index patch.
 
     Returns
     -------
     sign : (n,) float64 of +1/-1
-    component : (n,) int64 connected-component label of every patch
+    component : (n,) int64 label of every patch's component (without the rule node)
+    ruled : (n,) bool, True where the sign was fixed through the rule node
     """
+    if n == 0:
+        return np.ones(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
+    nodes = n
+    if prior is not None:
+        k = np.arange(n)
+        i = np.concatenate([i, k])
+        j = np.concatenate([j, np.full(n, n)])
+        agreement = np.concatenate([agreement, prior])
+        nodes = n + 1
     keep = np.abs(agreement) >= min_reliability
     i, j, a = i[keep], j[keep], agreement[keep]
-    if n == 0:
-        return np.ones(0), np.zeros(0, dtype=np.int64)
     w = 2.0 - np.abs(a)  # positive: csgraph treats zeros as missing edges
-    g = coo_matrix((w, (i, j)), shape=(n, n)).tocsr()
+    g = coo_matrix((w, (i, j)), shape=(nodes, nodes)).tocsr()
     forest = minimum_spanning_tree(g).tocoo()
     fi, fj = forest.row, forest.col
-    # look the sign of each forest edge up (the forest may store (j, i))
-    rel = np.sign(a)
-    key = np.minimum(i, j) * n + np.maximum(i, j)
-    order = np.argsort(key)
-    fkey = np.minimum(fi, fj).astype(np.int64) * n + np.maximum(fi, fj)
-    frel = rel[order[np.searchsorted(key[order], fkey)]]
+    # the sign of each forest edge (the forest may store it as (j, i))
+    key = np.minimum(i, j).astype(np.int64) * nodes + np.maximum(i, j)
+    order = np.argsort(key, kind="stable")
+    fkey = np.minimum(fi, fj).astype(np.int64) * nodes + np.maximum(fi, fj)
+    frel = np.sign(a)[order[np.searchsorted(key[order], fkey)]]
     ncomp, comp = connected_components(forest, directed=False)
-    # doubled graph: node v+ is v, v- is v + n
+    # doubled graph: node v+ is v, v- is v + nodes
     pos = frel > 0
-    r = np.concatenate([fi[pos], fi[pos] + n, fi[~pos], fi[~pos] + n])
-    c = np.concatenate([fj[pos], fj[pos] + n, fj[~pos] + n, fj[~pos]])
-    dg = coo_matrix((np.ones(r.size), (r, c)), shape=(2 * n, 2 * n))
+    r = np.concatenate([fi[pos], fi[pos] + nodes, fi[~pos], fi[~pos] + nodes])
+    c = np.concatenate([fj[pos], fj[pos] + nodes, fj[~pos] + nodes, fj[~pos]])
+    dg = coo_matrix((np.ones(r.size), (r, c)), shape=(2 * nodes, 2 * nodes))
     _, lab = connected_components(dg, directed=False)
-    root = np.full(ncomp, n, dtype=np.int64)
-    np.minimum.at(root, comp, np.arange(n))
-    sign = np.where(lab[:n] == lab[root[comp]], 1.0, -1.0)
-    return sign, comp.astype(np.int64)
+    root = np.full(ncomp, nodes, dtype=np.int64)
+    np.minimum.at(root, comp, np.arange(nodes))
+    if prior is not None:
+        root[comp[n]] = n  # the rule node is the root of its component
+    sign = np.where(lab[:n] == lab[root[comp[:n]]], 1.0, -1.0)
+    ruled = np.zeros(n, dtype=bool)
+    if prior is not None:
+        ruled = comp[:n] == comp[n]
+    return sign, comp[:n].astype(np.int64), ruled
+
+
+def rule_prior(rule: str, normals: np.ndarray, positions: np.ndarray, viewpoint=None, centre=None) -> np.ndarray | None:
+    """Agreement in [-1, 1] of each patch normal with a global rule, for :func:`propagate_signs`.
+
+    "up": the normal's z; "viewpoint": the cosine to the direction of the
+    viewpoint; "outward": 0.6 times the cosine to the direction away from
+    ``centre`` (a weak prior: on a non-convex object local agreements must be
+    able to overrule it); "none": no prior.
+    """
+    if rule == "none":
+        return None
+    if rule == "up":
+        return normals[:, 2].copy()
+    d = (np.asarray(viewpoint)[None, :] - positions) if rule == "viewpoint" else (positions - np.asarray(centre)[None, :])
+    norm = np.linalg.norm(d, axis=1)
+    cos = np.einsum("ni,ni->n", normals, d) / np.where(norm > 0, norm, 1.0)
+    return cos if rule == "viewpoint" else 0.6 * cos
 
 
 def _rule_scores(rule: str, normals: np.ndarray, positions: np.ndarray, weights: np.ndarray, viewpoint, centre) -> np.ndarray:

@@ -1,0 +1,60 @@
+"""The compiled kernels against their numpy references."""
+
+import numpy as np
+
+from patchcloud.core import _kernels
+from patchcloud.core.fallback import knn_normals
+from patchcloud.core.moments import EXPONENTS, point_moments
+from patchcloud.core.morton import encode, quantize
+
+
+def test_cell_moments_match_numpy(rng):
+    p = rng.normal(size=(5000, 3))
+    starts = np.array([0, 7, 1000, 1001, 4000])
+    centres = rng.normal(size=(5, 3))
+    counts = np.diff(np.r_[starts, 5000])
+    ref = point_moments(p - np.repeat(centres, counts, axis=0), starts)
+    out = np.empty((5, len(EXPONENTS)))
+    _kernels.cell_moments(p, starts, centres, EXPONENTS, out)
+    assert np.allclose(out, ref, rtol=1e-12, atol=1e-9)
+
+
+def test_morton_keys_match_numpy(rng):
+    p = rng.uniform(-5, 5, (10000, 3))
+    corner, edge = np.array([-5.0, -5.0, -5.0]), 10.0
+    q = np.empty((10000, 3), dtype=np.int64)
+    keys = np.empty(10000, dtype=np.uint64)
+    _kernels.morton_keys(p, corner, edge, q, keys)
+    assert np.array_equal(q, quantize(p - corner, edge))
+    assert np.array_equal(keys, encode(q))
+
+
+def test_knn_pca_matches_a_direct_pca(rng):
+    # a noisy paraboloid: compare with numpy PCA of the same neighbourhoods
+    xy = rng.uniform(-1, 1, (3000, 2))
+    p = np.column_stack([xy, 0.3 * xy[:, 0] ** 2 + 0.001 * rng.normal(size=3000)])
+    query = np.arange(0, 3000, 7)
+    normals, sigma3, k1, k2, dir1, nb = knn_normals(p, query, 20)
+    from scipy.spatial import cKDTree
+
+    _, ref_nb = cKDTree(p).query(p[query], k=20)
+    assert np.array_equal(np.sort(nb, axis=1), np.sort(ref_nb, axis=1))
+    q = p[ref_nb] - p[ref_nb].mean(axis=1)[:, None, :]
+    w, v = np.linalg.eigh(np.einsum("mki,mkj->mij", q, q) / 20)
+    assert np.allclose(np.abs(np.einsum("ij,ij->i", normals, v[:, :, 0])), 1.0, atol=1e-9)
+    assert np.allclose(sigma3, w[:, 0] / w.sum(axis=1), atol=1e-12)
+    # the neighbourhood quadric sees the paraboloid's curvature 2a = 0.6 along x
+    assert abs(np.median(np.maximum(np.abs(k1), np.abs(k2))) - 0.6) < 0.1
+
+
+def test_grid_knn_equals_whole_cloud_knn(rng):
+    # isolated points far from the rest force the widening search
+    p = np.concatenate([rng.uniform(0, 1, (4000, 3)), rng.uniform(5, 6, (3, 3))])
+    from patchcloud.core.octree import sort_points
+
+    order, keys, q = sort_points(p, np.zeros(3), 8.0)
+    ps = p[order]
+    query = np.arange(0, len(ps), 3)
+    a = knn_normals(ps, query, 10, grid=(q, keys, 5, 8.0 / 32))[5]
+    b = knn_normals(ps, query, 10)[5]
+    assert np.array_equal(np.sort(a, axis=1), np.sort(b, axis=1))
