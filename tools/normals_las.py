@@ -81,7 +81,9 @@ def main(argv: list[str] | None = None) -> int:
         las[name] = values.astype(dt)
     tmp = a.output.with_name(a.output.name + ".partial")
     try:
-        las.write(tmp, do_compress=a.output.suffix.lower() == ".laz")
+        # through a file object: laspy decides compression from a path's suffix, and ours is .partial
+        with open(tmp, "wb") as f:
+            las.write(f, do_compress=a.output.suffix.lower() == ".laz")
         os.replace(tmp, a.output)
     finally:
         if tmp.exists():
