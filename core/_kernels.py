@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs"]
 
 _KIND_SURFACE = 0
 _MAX_DEPTH = 21
@@ -244,6 +244,70 @@ def cell_moments(local, starts, centres, exponents, out):
             out[k, m] = acc[m]
 
 
+@njit(cache=True, inline="always")
+def _cholesky_solve6(G, b):
+    """Solve ``G x = b`` for a symmetric positive definite 6x6 ``G`` (overwritten)."""
+    for j in range(6):
+        d = G[j, j]
+        for k in range(j):
+            d -= G[j, k] * G[j, k]
+        d = np.sqrt(d) if d > 0.0 else 1e-300
+        G[j, j] = d
+        for i in range(j + 1, 6):
+            v = G[i, j]
+            for k in range(j):
+                v -= G[i, k] * G[j, k]
+            G[i, j] = v / d
+    x = b.copy()
+    for i in range(6):
+        v = x[i]
+        for k in range(i):
+            v -= G[i, k] * x[k]
+        x[i] = v / G[i, i]
+    for i in range(5, -1, -1):
+        v = x[i]
+        for k in range(i + 1, 6):
+            v -= G[k, i] * x[k]
+        x[i] = v / G[i, i]
+    return x
+
+
+@njit(cache=True)
+def _eigh3(A):
+    """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric 3x3 matrix, cyclic Jacobi."""
+    a = A.copy()
+    v = np.eye(3)
+    for _ in range(12):
+        off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
+        scale = a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]
+        if off <= 1e-30 * scale or off == 0.0:
+            break
+        for p in range(2):
+            for q in range(p + 1, 3):
+                apq = a[p, q]
+                if apq == 0.0:
+                    continue
+                theta = (a[q, q] - a[p, p]) / (2.0 * apq)
+                t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+                c = 1.0 / np.sqrt(t * t + 1.0)
+                sn = t * c
+                for k in range(3):  # a <- J^T a J
+                    akp, akq = a[k, p], a[k, q]
+                    a[k, p] = c * akp - sn * akq
+                    a[k, q] = sn * akp + c * akq
+                for k in range(3):
+                    apk, aqk = a[p, k], a[q, k]
+                    a[p, k] = c * apk - sn * aqk
+                    a[q, k] = sn * apk + c * aqk
+                for k in range(3):
+                    vkp, vkq = v[k, p], v[k, q]
+                    v[k, p] = c * vkp - sn * vkq
+                    v[k, q] = sn * vkp + c * vkq
+    w = np.array([a[0, 0], a[1, 1], a[2, 2]])
+    idx = np.argsort(w)
+    return w[idx], v[:, idx]
+
+
 @njit(cache=True, parallel=True)
 def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
     """PCA normal, surface variation and quadric curvatures of k-neighbourhoods.
@@ -268,7 +332,7 @@ def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
                 for b in range(3):
                     cov[a, b] += da * (points[nb[m, j], b] - c[b])
         cov /= k
-        w, v = np.linalg.eigh(cov)
+        w, v = _eigh3(cov)
         tot = w[0] + w[1] + w[2]
         sigma3[m] = max(w[0], 0.0) / tot if tot > 0 else 0.0
         frame = np.empty((1, 3, 3))
@@ -302,7 +366,7 @@ def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
             tr += G[a, a]
         for a in range(6):
             G[a, a] += 1e-8 * tr / 6.0 + 1e-300
-        beta = np.linalg.solve(G, rhs)
+        beta = _cholesky_solve6(G, rhs)
         coeffs = np.empty((1, 6))
         coeffs[0, 0], coeffs[0, 1], coeffs[0, 2] = beta[0] / s, beta[1] / s, beta[2] / s
         coeffs[0, 3], coeffs[0, 4], coeffs[0, 5] = beta[3], beta[4], beta[5] * s
@@ -382,3 +446,30 @@ def take_rows(values, order):
         for j in range(values.shape[1]):
             out[i, j] = values[order[i], j]
     return out
+
+
+@njit(cache=True, parallel=True)
+def neighbour_signs(query, nb, normals, oriented, todo, sign):
+    """Sign that turns each pending query normal towards the sum of its oriented neighbours' normals.
+
+    ``sign[m]`` is +1/-1 for pending queries (``todo[m]``) with at least one
+    oriented neighbour, 0 otherwise.  Returns how many got a sign.
+    """
+    count = 0
+    for m in prange(query.shape[0]):
+        sign[m] = 0.0
+        if not todo[m]:
+            continue
+        rx, ry, rz = 0.0, 0.0, 0.0
+        for j in range(nb.shape[1]):
+            o = nb[m, j]
+            if oriented[o]:
+                rx += normals[o, 0]
+                ry += normals[o, 1]
+                rz += normals[o, 2]
+        if rx * rx + ry * ry + rz * rz > 0.0:
+            i = query[m]
+            dot = normals[i, 0] * rx + normals[i, 1] * ry + normals[i, 2] * rz
+            sign[m] = -1.0 if dot < 0.0 else 1.0
+            count += 1
+    return count

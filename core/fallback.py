@@ -85,6 +85,8 @@ def knn_normals(
     neighbours = np.zeros((m, k), dtype=np.int64)
     if m == 0:
         return normals, sigma3, k1, k2, dir1, neighbours
+    if grid is not None and m > n // 10:
+        grid = None  # many queries: one tree over the whole cloud is cheaper than cells
     for lo in range(0, m, chunk):
         qi = query[lo : lo + chunk]
         nb = _knn(points, qi, k, grid)
@@ -111,7 +113,7 @@ def _knn(points, qi, k, grid, reach: int = 1) -> np.ndarray:
     far = np.flatnonzero(dist[:, -1] > reach * h)
     if far.size:
         nxt = reach * 4
-        if nxt * h >= (1 << level) * h or level == 0:  # the whole cloud
+        if nxt >= (1 << level) or far.size > 256:  # the whole cloud
             nb[far] = _knn(points, qi[far], k, None)
         else:
             nb[far] = _knn(points, qi[far], k, grid, nxt)

@@ -67,6 +67,7 @@ class NormalsParameters:
     criterion: str
     threshold: float
     d_min: float
+    max_edge: float
     n_min: int
     min_sigma2: float
     k_fallback: int
@@ -183,6 +184,7 @@ def estimate_normals(
     *,
     threshold: float | None = None,
     d_min: float | None = None,
+    max_edge: float | None = None,
     n_min: int = 12,
     min_sigma2: float = 0.01,
     k_fallback: int = 16,
@@ -210,6 +212,10 @@ def estimate_normals(
     d_min : float, optional
         Minimum leaf edge (metres). Default: 3 times the point spacing
         estimated from the octree occupancy.
+    max_edge : float, optional
+        Maximum leaf edge (metres): larger nodes are split even when
+        uniform, so one patch never spans a whole flat tile.  Default: 256
+        times the point spacing.
     n_min : int
         Nodes with fewer points are not split and get no surface (default 12).
     min_sigma2 : float
@@ -263,6 +269,7 @@ def estimate_normals(
     k_fallback = _positive("k_fallback", k_fallback, integer=True)
     threshold = _positive("threshold", threshold)
     d_min = _positive("d_min", d_min)
+    max_edge = _positive("max_edge", max_edge)
     if not (0 <= min_sigma2 < 1 / 3 + 1e-12):
         raise PatchcloudValueError(f"min_sigma2 must be in [0, 1/3), got {min_sigma2!r}")
     vp = None
@@ -284,11 +291,13 @@ def estimate_normals(
     clock.lap("sort")
     if d_min is None:
         d_min = 3.0 * spacing if spacing > 0 else edge / 2.0**21
+    if max_edge is None:
+        max_edge = 256.0 * spacing if spacing > 0 else np.inf
     if threshold is None and criterion == "sigma3":
         threshold = 0.005
     tree = build_octree(
         local, edge, criterion=criterion, threshold=threshold, d_min=d_min, n_min=n_min,
-        min_sigma2=min_sigma2, spacing=spacing, sorted_input=sorted_input,
+        min_sigma2=min_sigma2, spacing=spacing, max_edge=max_edge, sorted_input=sorted_input,
     )
     clock.lap("octree")
     vp_local = None if vp is None else vp - corner
@@ -311,7 +320,7 @@ def estimate_normals(
         kind=tree.kind,
     )
     params = NormalsParameters(
-        criterion=criterion, threshold=tree.threshold, d_min=float(d_min), n_min=n_min, min_sigma2=float(min_sigma2),
+        criterion=criterion, threshold=tree.threshold, d_min=float(d_min), max_edge=float(max_edge), n_min=n_min, min_sigma2=float(min_sigma2),
         k_fallback=k_fallback, orient=orient, viewpoint=None if vp is None else tuple(vp.tolist()), blend=bool(blend),
         spacing=float(spacing), root_corner=tuple(corner.tolist()), root_edge=float(edge),
     )
@@ -404,22 +413,17 @@ def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, 
     dir1[query] = t1
     method[query] = Method.KNN
     todo = np.ones(query.size, dtype=bool)
+    sign = np.empty(query.size)
     for _ in range(rounds):
-        if not todo.any():
+        # each round orients the points that have oriented neighbours, from the state before the round
+        if _kernels.neighbour_signs(query, nb, normals, oriented, todo, sign) == 0:
             break
-        q = np.flatnonzero(todo)
-        nbq = nb[q]
-        w = oriented[nbq][:, :, None] * normals[nbq]
-        ref = w.sum(axis=1)
-        has = np.einsum("ni,ni->n", ref, ref) > 0
-        q, ref = q[has], ref[has]
-        if q.size == 0:
-            break
-        s = np.where(np.einsum("ni,ni->n", normals[query[q]], ref) < 0, -1.0, 1.0)
-        normals[query[q]] *= s[:, None]
-        scalars[query[q], 1:] *= s[:, None]
-        oriented[query[q]] = True
-        todo[q] = False
+        done = todo & (sign != 0)
+        rows = query[done]
+        normals[rows] *= sign[done, None]
+        scalars[rows, 1:] *= sign[done, None]
+        oriented[rows] = True
+        todo &= ~done
     rest = query[todo]
     if rest.size and orient != "none":
         s = point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre)

@@ -237,6 +237,7 @@ def build_octree(
     n_min: int,
     min_sigma2: float,
     spacing: float,
+    max_edge: float = np.inf,
     sorted_input: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> Octree:
     """Anisotropic subdivision of points in a root cube.
@@ -260,6 +261,8 @@ def build_octree(
         Leaves with ``sigma2`` below this hold a 3D curve, not a surface (edge).
     spacing : float
         Point spacing (metres), used only for the default threshold.
+    max_edge : float
+        Nodes with a larger edge are split even when uniform (metres).
     sorted_input : tuple, optional
         ``sort_points(local, zeros(3), edge)`` when the caller already has it.
     """
@@ -272,6 +275,8 @@ def build_octree(
             raise ValueError("threshold None is only resolved for the rmse criterion")
         threshold = default_max_rmse(levels[max_level].moments, edge / 2.0 ** (max_level + 1), n_min, spacing)
 
+    # levels whose nodes are larger than max_edge are never leaves (unless sparse)
+    min_level = int(np.clip(np.ceil(np.log2(edge / max_edge)), 0, max_level)) if np.isfinite(max_edge) else 0
     leaf_level, leaf_node, leaf_uniform = [], [], []
     active = np.zeros(1, dtype=np.int64)
     for lev in range(max_level + 1):
@@ -286,6 +291,8 @@ def build_octree(
             fit = fit_nodes(mom[dense], half, quadric=criterion == "rmse")
             measure = fit.rmse if criterion == "rmse" else fit.sigma3
             uniform[dense] = measure <= threshold
+        if lev < min_level:
+            uniform[:] = False
         leaf = sparse | uniform | (lev == max_level)
         leaf_level.append(np.full(int(leaf.sum()), lev))
         leaf_node.append(active[leaf])
