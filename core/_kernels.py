@@ -1,10 +1,15 @@
 """Compiled per-point loops (numba) for the two steps that visit every point.
 
-Everything per node stays vectorised numpy; only the evaluation of the
-patch quadrics at each point and the blending across leaf faces run here,
-where numpy's temporaries would cost ten times more.  Each kernel mirrors a
-numpy reference in :mod:`.quadric` / :mod:`.blend`, and the tests compare
-them.  Compiled code is cached on disk after the first call.
+Everything per node stays vectorised numpy.  What visits every point runs
+here, where numpy's temporaries would cost five to ten times more: the
+Morton keys, the finest-level moments, the evaluation of the patch quadrics
+at each point, the blending across leaf faces, the k-NN fallback's PCA and
+quadric, and the reordering of the outputs.  Where a numpy reference exists
+(:func:`.moments.point_moments`, :func:`.morton.encode`,
+:func:`.quadric.surface_normals` and ``surface_curvatures``) the tests compare
+the two.  Parallel loops only ever write a row of their own, so results do
+not depend on the thread count.  Compiled code is cached on disk after the
+first call.
 """
 
 from __future__ import annotations
@@ -315,8 +320,8 @@ def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
     For query ``m`` (point ``query[m]``, neighbours ``nb[m]``): the PCA frame of
     the neighbours (e3 made to point along (0.001, 0.01, 1)), the quadric
     ``w = S(u, v)`` fitted to them in that frame, and the curvatures of that
-    quadric at the query point; mirrors :mod:`patchcloud.core.fallback`'s
-    numpy reference.
+    quadric at the query point (the numpy functions of :mod:`.quadric`
+    give the same curvatures for the same frame and coefficients).
     """
     M, k = nb.shape
     for m in prange(M):

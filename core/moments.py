@@ -69,7 +69,7 @@ _SHIFT_BINOM = np.array(
 
 
 def point_moments(rel: np.ndarray, starts: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
-    """Moments of contiguous runs of points.
+    """Moments of contiguous runs of points (numpy reference of the compiled ``cell_moments``).
 
     Parameters
     ----------

@@ -39,6 +39,7 @@ from .orient import (
     rule_prior,
 )
 from .patches import PatchTable
+from .quadric import turn_over
 
 __all__ = ["Method", "NormalsParameters", "NormalsResult", "estimate_normals"]
 
@@ -352,8 +353,7 @@ def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool, clock: "_C
     n = tree.local.shape[0]
     P = tree.level.shape[0]
     fit = tree.fit
-    frames = fit.frame.copy()
-    coeffs = fit.coeffs.copy()
+    frames, coeffs = fit.frame, fit.coeffs
     centroid = tree.centroid
     surface = tree.kind == KIND_SURFACE
 
@@ -379,9 +379,7 @@ def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool, clock: "_C
         e3 = frames[:, :, 2] * sign[:, None]
         weights = np.where(usable & ~ruled, tree.count, 0).astype(np.float64)
         sign = sign * np.where(ruled, 1.0, component_rule_signs(orient, comp, e3, centroid, weights, vp, centre))
-    flip = sign < 0
-    frames[flip, :, 1:] *= -1.0
-    coeffs[flip] *= np.array([-1.0, 1.0, -1.0, -1.0, 1.0, -1.0])
+    frames, coeffs = turn_over(frames, coeffs, sign < 0)
     clock.lap("orient")
 
     normals = np.zeros((n, 3))

@@ -11,6 +11,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from .quadric import turn_over
+
 __all__ = ["PatchKind", "PatchTable"]
 
 
@@ -122,16 +124,10 @@ class PatchTable:
     def flipped(self, mask: np.ndarray) -> "PatchTable":
         """A copy with the patches in ``mask`` turned over.
 
-        Turning a patch over negates ``e3`` and ``e2`` (the frame stays
-        right-handed) and rewrites the quadric for ``(u, -v, -w)``, so the
-        surface is the same set of points with its normals reversed.
+        See :func:`patchcloud.core.quadric.turn_over`: the same surface with
+        its normals reversed.
         """
-        mask = np.asarray(mask, dtype=bool)
-        frame = self.frame.copy()
-        frame[mask, :, 1:] *= -1.0
-        coeffs = self.coeffs.copy()
-        # w' = -w, v' = -v:  w' = -a u^2 + b u v' - c v'^2 - d u + e v' - f
-        coeffs[mask] *= np.array([-1.0, 1.0, -1.0, -1.0, 1.0, -1.0])
+        frame, coeffs = turn_over(self.frame, self.coeffs, mask)
         return replace(self, frame=frame, coeffs=coeffs)
 
     def take(self, index: np.ndarray) -> "PatchTable":

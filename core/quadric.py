@@ -15,7 +15,7 @@ import numpy as np
 
 from .moments import pca, quadric_normal_equations
 
-__all__ = ["NodeFit", "fit_nodes", "surface_normals", "surface_curvatures", "implicit_value"]
+__all__ = ["NodeFit", "fit_nodes", "surface_normals", "surface_curvatures", "implicit_value", "turn_over"]
 
 
 @dataclass(frozen=True)
@@ -181,3 +181,19 @@ def surface_curvatures(points, centroid, frame, coeffs) -> tuple[np.ndarray, np.
     t = np.einsum("nij,nj->ni", frame, t_local)
     t /= np.linalg.norm(t, axis=1)[:, None]
     return k1, k2, t
+
+
+def turn_over(frames: np.ndarray, coeffs: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Copies of frames (P, 3, 3) and coefficients (P, 6) with the ``mask`` rows turned over.
+
+    Turning a patch over negates ``e3`` and ``e2`` (the frame stays
+    right-handed) and rewrites the quadric for ``(u, -v, -w)``:
+    ``w' = -a u^2 + b u v' - c v'^2 - d u + e v' - f``, the same surface with
+    its normals reversed.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    frames = frames.copy()
+    coeffs = coeffs.copy()
+    frames[mask, :, 1:] *= -1.0
+    coeffs[mask] *= np.array([-1.0, 1.0, -1.0, -1.0, 1.0, -1.0])
+    return frames, coeffs
