@@ -23,7 +23,7 @@ _KIND_SURFACE = 0
 _MAX_DEPTH = 21
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _frame_coords(px, py, pz, l, centroid, frames):
     dx = px - centroid[l, 0]
     dy = py - centroid[l, 1]
@@ -34,7 +34,7 @@ def _frame_coords(px, py, pz, l, centroid, frames):
     return u, v, w
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _normal_at(u, v, l, frames, coeffs):
     a, b, c, d, e = coeffs[l, 0], coeffs[l, 1], coeffs[l, 2], coeffs[l, 3], coeffs[l, 4]
     su = 2.0 * a * u + b * v + d
@@ -47,7 +47,7 @@ def _normal_at(u, v, l, frames, coeffs):
     return nx, ny, nz, su, sv
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _curvatures(su, sv, l, coeffs):
     a, b, c = coeffs[l, 0], coeffs[l, 1], coeffs[l, 2]
     W = np.sqrt(1.0 + su * su + sv * sv)
@@ -61,7 +61,7 @@ def _curvatures(su, sv, l, coeffs):
     return H + disc, H - disc, E, F, G, L, M, N
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _k1_direction(su, sv, k1, E, F, G, L, M, N, l, frames):
     """Unit 3D tangent of principal curvature k1 from the fundamental forms."""
     r1u, r1v = M - k1 * F, -(L - k1 * E)
@@ -249,7 +249,7 @@ def cell_moments(local, starts, centres, exponents, out):
             out[k, m] = acc[m]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cholesky_solve6(G, b):
     """Solve ``G x = b`` for a symmetric positive definite 6x6 ``G`` (overwritten)."""
     for j in range(6):
