@@ -135,3 +135,19 @@ def test_explicit_root_cube_aligns_leaves(rng):
     cells = (lo - np.array(root[0])) / t.edge[:, None]
     assert np.allclose(cells, np.round(cells))
     assert res.parameters.root_edge == 16.0
+
+
+def test_result_does_not_depend_on_thread_count(bumpy):
+    numba = pytest.importorskip("numba")
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("only one thread available: nothing to compare")
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        a = estimate_normals(bumpy)
+        numba.set_num_threads(2)
+        b = estimate_normals(bumpy)
+    finally:
+        numba.set_num_threads(before)
+    for name in ("normals", "curvature", "k1", "k2", "dir1", "method", "patch"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
