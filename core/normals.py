@@ -208,7 +208,7 @@ def estimate_normals(
         most ``threshold`` ("sigma3", dimensionless).
     threshold : float, optional
         Default for "rmse": twice the median fit RMSE of the smallest
-        nodes (the scanner noise) and at least 1/20 of the point spacing;
+        nodes (the scanner noise) and at least 1/50 of the point spacing;
         for "sigma3": 0.005.
     d_min : float, optional
         Minimum leaf edge (metres). Default: 3 times the point spacing

@@ -206,6 +206,8 @@ def _bottom_up(local, keys, edge, max_level) -> list[_Level]:
 
 #: Default RMSE threshold = NOISE_FACTOR x the median fit RMSE of the smallest nodes.
 NOISE_FACTOR = 2.0
+#: ... and at least FLOOR_FACTOR x the point spacing (noise-free data).
+FLOOR_FACTOR = 0.02
 
 
 def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing: float) -> float:
@@ -213,7 +215,7 @@ def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing:
 
     At the finest level most nodes hold a smooth piece of surface, so the
     median of their quadric fit RMSE measures the scanner noise; NOISE_FACTOR times
-    that (or a twentieth of the point spacing on noise-free data, whichever
+    that (or FLOOR_FACTOR times the point spacing on noise-free data, whichever
     is larger) separates noise from geometry.
     """
     keep = moments[:, 0] >= n_min
@@ -224,7 +226,7 @@ def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing:
     if sample.shape[0]:
         fit = fit_nodes(sample, np.full(sample.shape[0], half_edge))
         noise = float(np.median(fit.rmse))
-    return max(NOISE_FACTOR * noise, 0.05 * spacing)
+    return max(NOISE_FACTOR * noise, FLOOR_FACTOR * spacing)
 
 
 def build_octree(
