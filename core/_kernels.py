@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents"]
 
 _KIND_SURFACE = 0
 _MAX_DEPTH = 21
@@ -217,36 +217,130 @@ def blend_points(
 
 
 @njit(cache=True, parallel=True)
-def cell_moments(local, starts, centres, exponents, out):
+def cell_moments(local, starts, centres, out):
     """Moments (:mod:`patchcloud.core.moments`) of runs of points about their cell centres.
 
-    ``out[k, m] = sum over the points of run k of prod_axis (p - centres[k]) ** exponents[m]``;
-    mirrors :func:`patchcloud.core.moments.point_moments`.
+    ``out[k, m] = sum over the points of run k of prod_axis (p - centres[k]) ** EXPONENTS[m]``,
+    the 35 monomials written out (generated from ``moments.EXPONENTS``, whose
+    order they follow) so the sums stay in registers; mirrors
+    :func:`patchcloud.core.moments.point_moments`.
     """
     M = starts.shape[0]
     n = local.shape[0]
-    nm = exponents.shape[0]
     for k in prange(M):
         hi = starts[k + 1] if k + 1 < M else n
-        acc = np.zeros(nm)
-        px = np.empty(5)
-        py = np.empty(5)
-        pz = np.empty(5)
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        a3 = 0.0
+        a4 = 0.0
+        a5 = 0.0
+        a6 = 0.0
+        a7 = 0.0
+        a8 = 0.0
+        a9 = 0.0
+        a10 = 0.0
+        a11 = 0.0
+        a12 = 0.0
+        a13 = 0.0
+        a14 = 0.0
+        a15 = 0.0
+        a16 = 0.0
+        a17 = 0.0
+        a18 = 0.0
+        a19 = 0.0
+        a20 = 0.0
+        a21 = 0.0
+        a22 = 0.0
+        a23 = 0.0
+        a24 = 0.0
+        a25 = 0.0
+        a26 = 0.0
+        a27 = 0.0
+        a28 = 0.0
+        a29 = 0.0
+        a30 = 0.0
+        a31 = 0.0
+        a32 = 0.0
+        a33 = 0.0
+        a34 = 0.0
         for i in range(starts[k], hi):
             x = local[i, 0] - centres[k, 0]
             y = local[i, 1] - centres[k, 1]
             z = local[i, 2] - centres[k, 2]
-            px[0] = 1.0
-            py[0] = 1.0
-            pz[0] = 1.0
-            for d in range(1, 5):
-                px[d] = px[d - 1] * x
-                py[d] = py[d - 1] * y
-                pz[d] = pz[d - 1] * z
-            for m in range(nm):
-                acc[m] += px[exponents[m, 0]] * py[exponents[m, 1]] * pz[exponents[m, 2]]
-        for m in range(nm):
-            out[k, m] = acc[m]
+            x2, y2, z2 = x * x, y * y, z * z
+            x3, y3, z3 = x2 * x, y2 * y, z2 * z
+            x4, y4, z4 = x2 * x2, y2 * y2, z2 * z2
+            a0 += 1.0
+            a1 += x
+            a2 += y
+            a3 += z
+            a4 += x2
+            a5 += x*y
+            a6 += x*z
+            a7 += y2
+            a8 += y*z
+            a9 += z2
+            a10 += x3
+            a11 += x2*y
+            a12 += x2*z
+            a13 += x*y2
+            a14 += x*y*z
+            a15 += x*z2
+            a16 += y3
+            a17 += y2*z
+            a18 += y*z2
+            a19 += z3
+            a20 += x4
+            a21 += x3*y
+            a22 += x3*z
+            a23 += x2*y2
+            a24 += x2*y*z
+            a25 += x2*z2
+            a26 += x*y3
+            a27 += x*y2*z
+            a28 += x*y*z2
+            a29 += x*z3
+            a30 += y4
+            a31 += y3*z
+            a32 += y2*z2
+            a33 += y*z3
+            a34 += z4
+        out[k, 0] = a0
+        out[k, 1] = a1
+        out[k, 2] = a2
+        out[k, 3] = a3
+        out[k, 4] = a4
+        out[k, 5] = a5
+        out[k, 6] = a6
+        out[k, 7] = a7
+        out[k, 8] = a8
+        out[k, 9] = a9
+        out[k, 10] = a10
+        out[k, 11] = a11
+        out[k, 12] = a12
+        out[k, 13] = a13
+        out[k, 14] = a14
+        out[k, 15] = a15
+        out[k, 16] = a16
+        out[k, 17] = a17
+        out[k, 18] = a18
+        out[k, 19] = a19
+        out[k, 20] = a20
+        out[k, 21] = a21
+        out[k, 22] = a22
+        out[k, 23] = a23
+        out[k, 24] = a24
+        out[k, 25] = a25
+        out[k, 26] = a26
+        out[k, 27] = a27
+        out[k, 28] = a28
+        out[k, 29] = a29
+        out[k, 30] = a30
+        out[k, 31] = a31
+        out[k, 32] = a32
+        out[k, 33] = a33
+        out[k, 34] = a34
 
 
 @njit(cache=True)
@@ -478,3 +572,25 @@ def neighbour_signs(query, nb, normals, oriented, todo, sign):
             sign[m] = -1.0 if dot < 0.0 else 1.0
             count += 1
     return count
+
+
+@njit(cache=True, parallel=True)
+def shift_to_parents(moments, gstart, octant, rows, cols, coef, out):
+    """Sum children's moments into their parents, each shifted to the parent centre.
+
+    ``out[p] = sum over children c of p of S[octant[c]] @ moments[c]`` where
+    the shift matrices ``S[o]`` are given by their non-zero entries
+    ``S[o][rows[t], cols[t]] = coef[o, t]`` (see :func:`.moments.shift_matrices`);
+    children of parent ``p`` are ``gstart[p]:gstart[p + 1]``.
+    """
+    P = gstart.shape[0]
+    n = moments.shape[0]
+    T = rows.shape[0]
+    for p in prange(P):
+        hi = gstart[p + 1] if p + 1 < P else n
+        for r in range(out.shape[1]):
+            out[p, r] = 0.0
+        for c in range(gstart[p], hi):
+            o = octant[c]
+            for t in range(T):
+                out[p, rows[t]] += coef[o, t] * moments[c, cols[t]]

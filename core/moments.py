@@ -23,6 +23,7 @@ __all__ = [
     "N_MOMENTS",
     "point_moments",
     "shift_matrices",
+    "shift_entries",
     "pca",
     "quadric_normal_equations",
 ]
@@ -112,6 +113,18 @@ def point_moments(rel: np.ndarray, starts: np.ndarray, chunk: int = 1 << 18) -> 
     return out
 
 
+def shift_entries(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The non-zero entries of :func:`shift_matrices`: ``rows`` (T,), ``cols`` (T,), values (K, T)."""
+    d = np.asarray(d, dtype=np.float64)
+    vals = (
+        _SHIFT_BINOM
+        * d[:, None, 0] ** _SHIFT_EXP[:, 0]
+        * d[:, None, 1] ** _SHIFT_EXP[:, 1]
+        * d[:, None, 2] ** _SHIFT_EXP[:, 2]
+    )
+    return _SHIFT_ROW, _SHIFT_COL, vals
+
+
 def shift_matrices(d: np.ndarray) -> np.ndarray:
     """Matrices that move moments by a translation.
 
@@ -127,15 +140,9 @@ def shift_matrices(d: np.ndarray) -> np.ndarray:
     -------
     (K, 35, 35) float64
     """
-    d = np.asarray(d, dtype=np.float64)
-    out = np.zeros((d.shape[0], N_MOMENTS, N_MOMENTS))
-    vals = (
-        _SHIFT_BINOM
-        * d[:, None, 0] ** _SHIFT_EXP[:, 0]
-        * d[:, None, 1] ** _SHIFT_EXP[:, 1]
-        * d[:, None, 2] ** _SHIFT_EXP[:, 2]
-    )
-    out[:, _SHIFT_ROW, _SHIFT_COL] = vals
+    rows, cols, vals = shift_entries(d)
+    out = np.zeros((vals.shape[0], N_MOMENTS, N_MOMENTS))
+    out[:, rows, cols] = vals
     return out
 
 

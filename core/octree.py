@@ -17,7 +17,7 @@ import numpy as np
 
 from .morton import MAX_DEPTH, decode
 from . import _kernels
-from .moments import EXPONENTS, shift_matrices
+from .moments import EXPONENTS, shift_entries
 from .quadric import NodeFit, fit_nodes
 
 __all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "CRITERIA", "KIND_SURFACE", "KIND_EDGE", "KIND_SPARSE"]
@@ -183,7 +183,7 @@ def _bottom_up(local, keys, edge, max_level) -> list[_Level]:
     h = edge / 2.0**max_level
     centre = (decode(cells) + 0.5) * h
     moments = np.empty((cells.shape[0], EXPONENTS.shape[0]))
-    _kernels.cell_moments(local, starts, centre, EXPONENTS, moments)
+    _kernels.cell_moments(local, starts, centre, moments)
     levels: list[_Level] = [None] * (max_level + 1)  # type: ignore[list-item]
     levels[max_level] = _Level(cells, starts, moments)
     bits = np.array([[(o >> a) & 1 for a in range(3)] for o in range(8)], dtype=np.float64)
@@ -193,14 +193,11 @@ def _bottom_up(local, keys, edge, max_level) -> list[_Level]:
         gstart = np.flatnonzero(np.r_[True, pc[1:] != pc[:-1]])
         octant = (child.cells & np.uint64(7)).astype(np.int64)
         hc = edge / 2.0 ** (lev + 1)
-        S = shift_matrices((2.0 * bits - 1.0) * (0.5 * hc))
-        shifted = np.empty_like(child.moments)
-        for o in range(8):
-            m = octant == o
-            if m.any():
-                shifted[m] = child.moments[m] @ S[o].T
+        rows, cols, coef = shift_entries((2.0 * bits - 1.0) * (0.5 * hc))
+        moments = np.empty((gstart.shape[0], child.moments.shape[1]))
+        _kernels.shift_to_parents(child.moments, gstart, octant, rows, cols, coef, moments)
         child.parent = np.repeat(np.arange(len(gstart)), np.diff(np.r_[gstart, len(pc)]))
-        levels[lev] = _Level(pc[gstart], child.starts[gstart], np.add.reduceat(shifted, gstart, axis=0))
+        levels[lev] = _Level(pc[gstart], child.starts[gstart], moments)
     return levels
 
 
