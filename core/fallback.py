@@ -39,9 +39,14 @@ def points_near(q: np.ndarray, keys: np.ndarray, level: int, query: np.ndarray, 
     around = (cells[:, None, :] + steps[None, :, :]).reshape(-1, 3)
     around = around[np.all((around >= 0) & (around < (1 << level)), axis=1)]
     wanted = np.unique(encode(around))
-    vkey = keys >> np.uint64(3 * shift)
-    pos = np.minimum(np.searchsorted(wanted, vkey), wanted.size - 1)
-    return np.flatnonzero(wanted[pos] == vkey)
+    # the points of a cell are one run of the sorted keys
+    s3 = np.uint64(3 * shift)
+    lo = np.searchsorted(keys, wanted << s3)
+    hi = np.searchsorted(keys, (wanted + np.uint64(1)) << s3)
+    size = hi - lo
+    total = int(size.sum())
+    offsets = np.cumsum(size) - size
+    return np.repeat(lo - offsets, size) + np.arange(total)
 
 
 def knn_normals(
