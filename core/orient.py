@@ -16,7 +16,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
 from .morton import MAX_DEPTH, encode
-from .octree import KIND_SURFACE, Octree
+from .octree import Octree
 from .quadric import implicit_value, surface_normals
 
 __all__ = [

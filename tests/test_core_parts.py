@@ -1,12 +1,10 @@
 """The building blocks against brute-force or hand-computed answers."""
 
 import numpy as np
-import pytest
 
 import synthetic
 from conftest import angles_deg
 from patchcloud.core import PatchKind, estimate_normals
-from patchcloud.core import _kernels
 from patchcloud.core.blend import wendland
 from patchcloud.core.moments import EXPONENTS, pca, point_moments, quadric_normal_equations, shift_matrices
 from patchcloud.core.morton import decode, encode

@@ -1,7 +1,6 @@
 """tools/normals_las.py, the in-memory main job: output content and bad input."""
 
 import importlib.util
-import shutil
 
 import numpy as np
 import pytest
