@@ -19,6 +19,9 @@ tools/synthetic.py (known normals), the reference meshes of ../shared/data
 (no reference: the angle columns then give the difference from knn-pca).
 Every cloud runs twice: shuffled, and sorted in Morton order.
 
+After each block a comment line gives patchcloud's time per step and the
+share of points that fell back to k-NN.
+
 Columns: seconds (wall), points/s, peak RSS of the method's process (MB),
 median and 90th-percentile sign-insensitive angle error (degrees), the same
 median on smooth points only (all true normals of the 10 nearest neighbours
@@ -65,8 +68,11 @@ def _worker(method: str, inp: str, out: str, orient: str) -> None:
         rng = np.random.default_rng(0)
         estimate_normals(rng.normal(size=(2000, 3)), crit)  # warm the compiled kernels
         t = time.perf_counter()
-        n = estimate_normals(pts, crit, orient=orient).normals
+        res = estimate_normals(pts, crit, orient=orient)
         dt = time.perf_counter() - t
+        n = res.normals
+        steps = {k: round(v, 3) for k, v in res.timings.items()}
+        steps["knn_share"] = round(float(np.mean(res.method == 3)), 3)
     elif method == "knn-pca":
         from scipy.spatial import cKDTree
 
@@ -91,7 +97,10 @@ def _worker(method: str, inp: str, out: str, orient: str) -> None:
     else:
         raise SystemExit(f"unknown method {method}")
     np.save(out, n.astype(np.float32))
-    print(json.dumps({"seconds": dt, "peak_mb": _rss_mb(), "base_mb": base}))
+    info = {"seconds": dt, "peak_mb": _rss_mb(), "base_mb": base}
+    if method.startswith("patchcloud"):
+        info["steps"] = steps
+    print(json.dumps(info))
 
 
 def _write_ply(path: Path, pts: np.ndarray) -> None:
@@ -291,6 +300,9 @@ def main() -> None:
                         f"{info['peak_mb']:7.0f} {med:6.2f} {p90:6.2f} {sm:7.2f} {wrong:6.3f} {sp:7.2f}",
                         flush=True,
                     )
+                for m, (info, n) in rows.items():
+                    if "steps" in info:
+                        print(f"#   {name} {order} {m} steps (s): {info['steps']}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print("# speedup = fastest peer's seconds (open3d, cc-*) / this method's seconds, same data and order")
