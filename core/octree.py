@@ -215,10 +215,10 @@ def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing:
     that (or FLOOR_FACTOR times the point spacing on noise-free data, whichever
     is larger) separates noise from geometry.
     """
-    keep = moments[:, 0] >= n_min
+    keep = np.flatnonzero(moments[:, 0] >= n_min)
+    if keep.size > 8000:  # a deterministic subsample is enough for a median
+        keep = keep[:: keep.size // 8000]
     sample = moments[keep]
-    if sample.shape[0] > 8000:  # a deterministic subsample is enough for a median
-        sample = sample[:: sample.shape[0] // 8000]
     noise = 0.0
     if sample.shape[0]:
         fit = fit_nodes(sample, np.full(sample.shape[0], half_edge))
