@@ -92,20 +92,25 @@ def knn_normals(
         return normals, sigma3, k1, k2, dir1, neighbours
     if grid is not None and m > n // 10:
         grid = None  # many queries: one tree over the whole cloud is cheaper than cells
+    whole: list[cKDTree] = []  # the whole-cloud tree, built at most once
     for lo in range(0, m, chunk):
         qi = query[lo : lo + chunk]
-        nb = _knn(points, qi, k, grid)
+        nb = _knn(points, qi, k, grid, whole)
         neighbours[lo : lo + chunk] = nb
         hi = lo + qi.size
         _kernels.knn_pca(points, qi, nb, normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
     return normals, sigma3, k1, k2, dir1, neighbours
 
 
-def _knn(points, qi, k, grid, reach: int = 1) -> np.ndarray:
-    """Exact k nearest neighbours of ``points[qi]``, searched in as few cells as possible."""
+def _knn(points, qi, k, grid, whole: list, reach: int = 1) -> np.ndarray:
+    """Exact k nearest neighbours of ``points[qi]``, searched in as few cells as possible.
+
+    ``whole`` caches the k-d tree over the whole cloud between calls.
+    """
     if grid is None:
-        tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
-        return tree.query(points[qi], k=k, workers=-1)[1].reshape(qi.size, k)
+        if not whole:
+            whole.append(cKDTree(points, balanced_tree=False, compact_nodes=False))
+        return whole[0].query(points[qi], k=k, workers=-1)[1].reshape(qi.size, k)
     q, keys, level, h = grid
     subset = points_near(q, keys, level, qi, reach)
     if subset.size < k:
@@ -119,7 +124,7 @@ def _knn(points, qi, k, grid, reach: int = 1) -> np.ndarray:
     if far.size:
         nxt = reach * 4
         if nxt >= (1 << level) or far.size > 256:  # the whole cloud
-            nb[far] = _knn(points, qi[far], k, None)
+            nb[far] = _knn(points, qi[far], k, None, whole)
         else:
-            nb[far] = _knn(points, qi[far], k, grid, nxt)
+            nb[far] = _knn(points, qi[far], k, grid, whole, nxt)
     return nb

@@ -135,7 +135,8 @@ class NormalsResult:
         return self.curvature
 
 
-def _validate_points(points) -> np.ndarray:
+def _validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points as C-ordered float64, and their per-axis minimum and maximum."""
     arr = np.asarray(points)
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise PatchcloudValueError(f"points must be a real numeric array (float or int), got dtype {arr.dtype}")
@@ -417,13 +418,15 @@ def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, 
         if _kernels.neighbour_signs(query, nb, normals, oriented, todo, sign) == 0:
             break
         done = todo & (sign != 0)
-        rows = query[done]
-        normals[rows] *= sign[done, None]
-        scalars[rows, 1:] *= sign[done, None]
-        oriented[rows] = True
+        _turn(normals, scalars, query[done], sign[done])
+        oriented[query[done]] = True
         todo &= ~done
     rest = query[todo]
     if rest.size and orient != "none":
-        s = point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre)
-        normals[rest] *= s[:, None]
-        scalars[rest, 1:] *= s[:, None]
+        _turn(normals, scalars, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
+
+
+def _turn(normals: np.ndarray, scalars: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:
+    """Multiply normals by ``sign`` (+1/-1) in place, and the curvatures signed by them (k1, k2)."""
+    normals[rows] *= sign[:, None]
+    scalars[rows, 1:] *= sign[:, None]

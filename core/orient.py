@@ -119,16 +119,18 @@ def face_agreement(
     pts[rows, other2] += np.tile(gv, E) * hh
     cen = tree.centroid
     ri, rj = np.repeat(i, m), np.repeat(j, m)
-    vi = implicit_value(pts, cen[ri], frames[ri], coeffs[ri])
-    vj = implicit_value(pts, cen[rj], frames[rj], coeffs[rj])
+    patch_i = (cen[ri], frames[ri], coeffs[ri])  # each side's patch, row by sample
+    patch_j = (cen[rj], frames[rj], coeffs[rj])
+    vi = implicit_value(pts, *patch_i)
+    vj = implicit_value(pts, *patch_j)
     band = 2.0 * np.repeat(np.maximum(tree.fit.rmse[i], tree.fit.rmse[j]), m)
     reach = 0.5 * hh
     near = (np.abs(vi) > band) & (np.abs(vj) > band) & (np.abs(vi) <= reach) & (np.abs(vj) <= reach)
     # a sample also needs the two surfaces to run alike there: where the signs
     # and the directions of the two normals tell different stories, the
     # quadrics cross or fold and the sample says nothing
-    ni = surface_normals(pts, cen[ri], frames[ri], coeffs[ri])
-    nj = surface_normals(pts, cen[rj], frames[rj], coeffs[rj])
+    ni = surface_normals(pts, *patch_i)
+    nj = surface_normals(pts, *patch_j)
     dot = np.einsum("ni,ni->n", ni, nj)
     same = np.sign(vi) * np.sign(vj)
     near &= (np.abs(dot) > 0.5) & (same == np.sign(dot))
