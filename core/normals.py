@@ -409,7 +409,13 @@ def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, 
     oriented = method != 0
     normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])
-    dir1[query] = t1
+    # the quadric's k1 direction lies in the quadric's tangent plane at the point;
+    # keep it tangent to the PCA normal that is reported
+    t = t1 - np.einsum("ni,ni->n", t1, nrm)[:, None] * nrm
+    length = np.linalg.norm(t, axis=1)
+    flat = length < 1e-9  # k1 direction along the normal: any tangent will do
+    t[flat] = np.cross(nrm[flat], np.where(np.abs(nrm[flat, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+    dir1[query] = t / np.linalg.norm(t, axis=1)[:, None]
     method[query] = Method.KNN
     todo = np.ones(query.size, dtype=bool)
     sign = np.empty(query.size)
@@ -418,15 +424,24 @@ def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, 
         if _kernels.neighbour_signs(query, nb, normals, oriented, todo, sign) == 0:
             break
         done = todo & (sign != 0)
-        _turn(normals, scalars, query[done], sign[done])
+        _turn(normals, scalars, dir1, query[done], sign[done])
         oriented[query[done]] = True
         todo &= ~done
     rest = query[todo]
     if rest.size and orient != "none":
-        _turn(normals, scalars, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
+        _turn(normals, scalars, dir1, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
 
 
-def _turn(normals: np.ndarray, scalars: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:
-    """Multiply normals by ``sign`` (+1/-1) in place, and the curvatures signed by them (k1, k2)."""
-    normals[rows] *= sign[:, None]
-    scalars[rows, 1:] *= sign[:, None]
+def _turn(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:
+    """Turn the normals of ``rows`` where ``sign`` is -1, in place, with what depends on their side.
+
+    Seen from the other side a surface's curvatures change sign, so
+    ``(k1, k2)`` becomes ``(-k2, -k1)`` (still ``k1 >= k2``) and the k1
+    direction becomes the old k2 direction, ``cross(n, dir1)``.
+    """
+    rows = rows[sign < 0]
+    n, d = normals[rows], dir1[rows]
+    dir1[rows] = np.cross(n, d)
+    normals[rows] = -n
+    k1, k2 = scalars[rows, 1].copy(), scalars[rows, 2].copy()
+    scalars[rows, 1], scalars[rows, 2] = -k2, -k1

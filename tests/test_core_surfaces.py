@@ -110,3 +110,13 @@ def test_noisy_plane(rng):
     res = estimate_normals(p)
     assert np.median(angles_deg(res.normals, n)) < 1.0
     assert np.all(res.normals[:, 2] > 0)
+
+
+def test_principal_curvatures_stay_ordered_for_every_method(rng):
+    # a box: edge points get k-NN normals, about half of which are turned by orientation
+    p, _ = synthetic.box(rng, 30000, size=(2.0, 3.0, 1.5), noise=0.002)
+    res = estimate_normals(p, orient="outward")
+    assert np.any(res.method == Method.KNN)
+    assert np.all(res.k1 >= res.k2)
+    # dir1 is tangent: orthogonal to the normal
+    assert np.max(np.abs(np.einsum("ij,ij->i", res.dir1, res.normals))) < 1e-3
