@@ -134,6 +134,7 @@ def eval_surface_points(local, start, count, surface, centroid, frames, coeffs, 
 @njit(cache=True, parallel=True)
 def blend_points(
     local, q, start, count, level, ijk, lo_key, hi_key, lower, edge, kind, centroid, frames, coeffs, sigma3,
+    nb_off, nb_lo_key, nb_hi_key, nb_edge, nb_kind, nb_centroid, nb_frames, nb_coeffs, nb_sigma3,
     normals, scalars, dir1, blended,
 ):
     """Blend normals and (sigma3, k1, k2) of surface points across leaf faces, in place.
@@ -142,6 +143,11 @@ def blend_points(
     ``r = min(d1, d2) / 3`` of a face, the neighbour's surface value at the
     point gets the Wendland weight of ``dist / r`` (own value: weight 1),
     provided the neighbour surface passes within ``r`` of the point.
+
+    Leaves beyond the root cube's faces come from the ``nb_*`` arrays: block
+    ``d`` (rows ``nb_off[d]:nb_off[d + 1]``, sorted by key) holds the leaves
+    of the equal-sized cube across face ``d`` (-x, +x, -y, +y, -z, +z), with
+    keys in that cube's own octree and centroids in this cube's frame.
     """
     P = start.shape[0]
     qmax = 1 << _MAX_DEPTH
@@ -166,8 +172,9 @@ def blend_points(
                     continue
                 cell = ijk[l, axis]
                 pc = ((cell + 1) << shift) if upper else ((cell << shift) - 1)
-                if pc < 0 or pc >= qmax:
-                    continue
+                outside = pc < 0 or pc >= qmax
+                if outside:  # across the root cube's face: the neighbour cube's leaves
+                    pc = 0 if upper else qmax - 1
                 c0, c1, c2 = q[i, 0], q[i, 1], q[i, 2]
                 if axis == 0:
                     c0 = pc
@@ -176,27 +183,41 @@ def blend_points(
                 else:
                     c2 = pc
                 key = _spread(np.uint64(c0)) | (_spread(np.uint64(c1)) << np.uint64(1)) | (_spread(np.uint64(c2)) << np.uint64(2))
-                j = _find_leaf(key, lo_key, hi_key)
-                if j < 0 or kind[j] != _KIND_SURFACE:
+                if outside:
+                    blk = 2 * axis + (1 if upper else 0)
+                    a0, a1 = nb_off[blk], nb_off[blk + 1]
+                    if a0 == a1:
+                        continue
+                    j = _find_leaf(key, nb_lo_key[a0:a1], nb_hi_key[a0:a1])
+                    if j < 0:
+                        continue
+                    j += a0
+                    o_kind, o_edge, o_centroid, o_frames, o_coeffs, o_sigma3 = nb_kind, nb_edge, nb_centroid, nb_frames, nb_coeffs, nb_sigma3
+                else:
+                    j = _find_leaf(key, lo_key, hi_key)
+                    if j < 0:
+                        continue
+                    o_kind, o_edge, o_centroid, o_frames, o_coeffs, o_sigma3 = kind, edge, centroid, frames, coeffs, sigma3
+                if o_kind[j] != _KIND_SURFACE:
                     continue
-                r = min(h, edge[j]) / 3.0
+                r = min(h, o_edge[j]) / 3.0
                 t = dist / r
                 if t >= 1.0:
                     continue
-                u, v, w = _frame_coords(px, py, pz, j, centroid, frames)
-                a, b, c, d, e, f = coeffs[j, 0], coeffs[j, 1], coeffs[j, 2], coeffs[j, 3], coeffs[j, 4], coeffs[j, 5]
+                u, v, w = _frame_coords(px, py, pz, j, o_centroid, o_frames)
+                a, b, c, d, e, f = o_coeffs[j, 0], o_coeffs[j, 1], o_coeffs[j, 2], o_coeffs[j, 3], o_coeffs[j, 4], o_coeffs[j, 5]
                 gap = w - (a * u * u + b * u * v + c * v * v + d * u + e * v + f)
                 if abs(gap) > r:
                     continue
-                mx, my, mz, su, sv = _normal_at(u, v, j, frames, coeffs)
+                mx, my, mz, su, sv = _normal_at(u, v, j, o_frames, o_coeffs)
                 if mx * normals[i, 0] + my * normals[i, 1] + mz * normals[i, 2] <= 0.0:
                     continue  # opposite orientations never blend
                 wt = (1.0 - t) ** 4 * (4.0 * t + 1.0)
-                k1, k2, E, F, G, L, M, N = _curvatures(su, sv, j, coeffs)
+                k1, k2, E, F, G, L, M, N = _curvatures(su, sv, j, o_coeffs)
                 nx += wt * mx
                 ny += wt * my
                 nz += wt * mz
-                s0 += wt * sigma3[j]
+                s0 += wt * o_sigma3[j]
                 s1 += wt * k1
                 s2 += wt * k2
                 wsum += wt

@@ -18,9 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from typing import Sequence
+
 from . import _kernels
-from .morton import MAX_DEPTH
+from .morton import MAX_DEPTH, encode
 from .octree import Octree
+from .patches import PatchTable
 
 __all__ = ["wendland", "blend_across_faces"]
 
@@ -44,6 +47,8 @@ def blend_across_faces(
     normals: np.ndarray,
     scalars: np.ndarray,
     dir1: np.ndarray,
+    outside: Sequence[PatchTable | None] | None = None,
+    corner: np.ndarray | None = None,
 ) -> np.ndarray:
     """Blend the values of the points of surface leaves, in place.
 
@@ -55,6 +60,14 @@ def blend_across_faces(
     normals, scalars, dir1 : (N, 3) float64, sorted order
         Own-patch normals, (surface variation, k1, k2) and k1 directions;
         rows of points outside surface leaves are left as they are.
+    outside : sequence of six PatchTable or None, optional
+        Oriented patch tables of the equal-sized cubes across the root cube's
+        faces -x, +x, -y, +y, -z, +z (a tile's neighbours); None where there
+        is none.  Their leaves blend with this cube's leaves across the face
+        exactly as leaves inside the cube do.
+    corner : (3,) float64
+        The root cube's minimum corner in the tables' coordinates (needed
+        with ``outside``).
 
     Returns
     -------
@@ -63,10 +76,37 @@ def blend_across_faces(
     shift = (3 * (MAX_DEPTH - tree.level)).astype(np.uint64)
     lo_key = tree.cell << shift
     hi_key = (tree.cell + np.uint64(1)) << shift
+    nb = _pack_outside(outside, corner)
     blended = np.zeros(tree.local.shape[0], dtype=np.bool_)
     _kernels.blend_points(
         tree.local, tree.q, tree.start, tree.count, tree.level, tree.ijk, lo_key, hi_key, tree.lower,
-        tree.leaf_edge, tree.kind, tree.centroid, frames, coeffs, tree.fit.sigma3,
+        tree.leaf_edge, tree.kind, tree.centroid, frames, coeffs, tree.fit.sigma3, *nb,
         normals, scalars, dir1, blended,
     )
     return blended
+
+
+def _pack_outside(outside, corner) -> tuple:
+    """The six neighbour tables as the kernel's concatenated ``nb_*`` arrays."""
+    tables = list(outside) if outside is not None else [None] * 6
+    if len(tables) != 6:
+        raise ValueError(f"outside must hold 6 tables (-x, +x, -y, +y, -z, +z), got {len(tables)}")
+    off = np.zeros(7, dtype=np.int64)
+    parts: list[tuple] = []
+    for d, t in enumerate(tables):
+        if t is None or len(t) == 0:
+            off[d + 1] = off[d]
+            continue
+        level = t.level.astype(np.int64)
+        cell = encode(t.ijk)
+        shift = (3 * (MAX_DEPTH - level)).astype(np.uint64)
+        lo = cell << shift
+        order = np.argsort(lo, kind="stable")
+        hi = (cell + np.uint64(1)) << shift
+        parts.append((lo[order], hi[order], t.edge[order], t.kind[order], t.centroid[order] - np.asarray(corner), t.frame[order], t.coeffs[order], t.sigma3[order]))
+        off[d + 1] = off[d] + len(t)
+    if not parts:
+        return (off, np.zeros(0, np.uint64), np.zeros(0, np.uint64), np.zeros(0), np.zeros(0, np.uint8), np.zeros((0, 3)),
+                np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros(0))
+    cols = [np.ascontiguousarray(np.concatenate(c)) for c in zip(*parts)]
+    return (off, *cols)

@@ -25,29 +25,13 @@ from typing import Sequence
 import numpy as np
 
 from . import _kernels
-from .blend import blend_across_faces
 from .errors import PatchcloudValueError
-from .fallback import knn_normals
-from .octree import CRITERIA, KIND_SURFACE, Octree, build_octree, estimate_spacing, sort_points
-from .orient import (
-    ORIENT_RULES,
-    component_rule_signs,
-    face_agreement,
-    face_neighbours,
-    point_rule_signs,
-    propagate_signs,
-    rule_prior,
-)
+from .octree import CRITERIA, estimate_spacing, sort_points
+from .orient import ORIENT_RULES
 from .patches import PatchTable
-from .quadric import turn_over
+from .tiles import finish_tile, fit_tile, patch_signs
 
 __all__ = ["Method", "NormalsParameters", "NormalsResult", "estimate_normals"]
-
-
-#: Smallest |cos| between the PCA normals of an edge or sparse leaf and a neighbour for them to link.
-DOT_MIN = 0.9
-#: Smallest |agreement| of a face-neighbour pair for it to carry orientation.
-MIN_RELIABILITY = 0.5
 
 
 class Method(IntEnum):
@@ -109,8 +93,8 @@ class NormalsResult:
     parameters : NormalsParameters
         What was used, defaults resolved.
     timings : dict[str, float]
-        Wall seconds of each step: sort, octree, orient, evaluate, blend,
-        fallback, output.
+        Wall seconds of each step: sort, octree (fit), orient, evaluate
+        (evaluation, blending and k-NN fallback), output.
     """
 
     normals: np.ndarray
@@ -297,32 +281,22 @@ def estimate_normals(
         max_edge = 256.0 * spacing if spacing > 0 else np.inf
     if threshold is None and criterion == "sigma3":
         threshold = 0.005
-    tree = build_octree(
-        local, edge, criterion=criterion, threshold=threshold, d_min=d_min, n_min=n_min,
-        min_sigma2=min_sigma2, spacing=spacing, max_edge=max_edge, sorted_input=sorted_input,
+    centre = corner + local.mean(axis=0)
+    fit = fit_tile(
+        pts, corner, edge, criterion=criterion, threshold=threshold, d_min=d_min, max_edge=max_edge, n_min=n_min,
+        min_sigma2=min_sigma2, orient=orient, viewpoint=vp, centre=centre, spacing=spacing, sorted_input=sorted_input,
     )
     clock.lap("octree")
-    vp_local = None if vp is None else vp - corner
-    centre_local = tree.local.mean(axis=0)
-    normals, scalars, dir1, method, frames, coeffs = _surface_pass(tree, orient, vp_local, centre_local, blend, clock)
-    _fallback_pass(tree, normals, scalars, dir1, method, k_fallback, orient, vp_local, centre_local)
-    clock.lap("fallback")
-
-    table = PatchTable(
-        root_corner=corner.copy(),
-        root_edge=float(edge),
-        level=tree.level.astype(np.uint8),
-        ijk=tree.ijk,
-        count=tree.count,
-        centroid=tree.centroid + corner,
-        frame=frames,
-        eigenvalues=tree.fit.eigenvalues,
-        coeffs=coeffs,
-        rmse=tree.fit.rmse,
-        kind=tree.kind,
+    sign, _ = patch_signs(len(fit.patches), fit.links, fit.agreement, fit.score, orient)
+    clock.lap("orient")
+    tile = finish_tile(
+        fit.local, fit.patches, sign, d_min=d_min, k_fallback=k_fallback, orient=orient, viewpoint=vp, centre=centre,
+        blend=blend,
     )
+    clock.lap("evaluate")
+
     params = NormalsParameters(
-        criterion=criterion, threshold=tree.threshold, d_min=float(d_min), max_edge=float(max_edge), n_min=n_min, min_sigma2=float(min_sigma2),
+        criterion=criterion, threshold=fit.threshold, d_min=float(d_min), max_edge=float(max_edge), n_min=n_min, min_sigma2=float(min_sigma2),
         k_fallback=k_fallback, orient=orient, viewpoint=None if vp is None else tuple(vp.tolist()), blend=bool(blend),
         spacing=float(spacing), root_corner=tuple(corner.tolist()), root_edge=float(edge),
     )
@@ -331,9 +305,9 @@ def estimate_normals(
         k2=np.empty(n, np.float32), dir1=np.empty((n, 3), np.float32), method=np.empty(n, np.uint8),
         patch=np.empty(n, np.int32),
     )
-    _kernels.unsort_outputs(tree.order, normals, scalars, dir1, method, tree.point_leaf(), *outputs.values())
+    _kernels.unsort_outputs(fit.order, tile.normals, tile.scalars, tile.dir1, tile.method, tile.patch, *outputs.values())
     clock.lap("output")
-    return NormalsResult(**outputs, patches=table, parameters=params, timings=dict(clock.laps))
+    return NormalsResult(**outputs, patches=tile.patches, parameters=params, timings=dict(clock.laps))
 
 
 class _Clock:
@@ -347,101 +321,3 @@ class _Clock:
         now = time.perf_counter()
         self.laps[name] = self.laps.get(name, 0.0) + now - self._t
         self._t = now
-
-
-def _surface_pass(tree: Octree, orient: str, vp, centre, blend: bool, clock: "_Clock"):
-    """Normals of the points of surface leaves; orientation; blending."""
-    n = tree.local.shape[0]
-    P = tree.level.shape[0]
-    fit = tree.fit
-    frames, coeffs = fit.frame, fit.coeffs
-    centroid = tree.centroid
-    surface = tree.kind == KIND_SURFACE
-
-    # Relative orientation over the leaf adjacency graph: face sampling of the
-    # two quadrics between surface patches (paper 2.3); between a surface and
-    # an edge or sparse leaf, or two of those, the sign of the dot product of
-    # their PCA normals, so groups of patches separated by a sharp feature or
-    # a sparse spot still propagate their orientation through it.
-    i, j, d = face_neighbours(tree)
-    usable = tree.count >= 3
-    keep = usable[i] & usable[j]
-    i, j, d = i[keep], j[keep], d[keep]
-    both = surface[i] & surface[j]
-    agreement = np.einsum("ni,ni->n", frames[i, :, 2], frames[j, :, 2])
-    # a PCA normal of a sharp or sparse spot is rough: trust only nearly parallel ones
-    agreement[~both & (np.abs(agreement) < DOT_MIN)] = 0.0
-    agreement[both] = face_agreement(tree, frames, coeffs, i[both], j[both], d[both])
-    usable_e3 = frames[:, :, 2] * usable[:, None]
-    prior = rule_prior(orient, usable_e3, centroid, vp, centre)
-    sign, comp, ruled = propagate_signs(P, i, j, agreement, min_reliability=MIN_RELIABILITY, prior=prior)
-    if orient != "none" and not ruled.all():
-        # groups no reliable link ties to the rule: the rule decides for each as a whole
-        e3 = frames[:, :, 2] * sign[:, None]
-        weights = np.where(usable & ~ruled, tree.count, 0).astype(np.float64)
-        sign = sign * np.where(ruled, 1.0, component_rule_signs(orient, comp, e3, centroid, weights, vp, centre))
-    frames, coeffs = turn_over(frames, coeffs, sign < 0)
-    clock.lap("orient")
-
-    normals = np.zeros((n, 3))
-    scalars = np.zeros((n, 3))
-    dir1 = np.zeros((n, 3))
-    _kernels.eval_surface_points(
-        tree.local, tree.start, tree.count, surface, centroid, frames, coeffs, fit.sigma3, normals, scalars, dir1
-    )
-    method = np.repeat(np.where(surface, Method.QUADRIC, 0).astype(np.uint8), tree.count)
-    clock.lap("evaluate")
-    if blend:
-        was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1)
-        method[was] = Method.BLENDED
-    clock.lap("blend")
-    return normals, scalars, dir1, method, frames, coeffs
-
-
-def _fallback_pass(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centre, rounds: int = 4) -> None:
-    """k-NN PCA normals for points of edge and sparse leaves, oriented by their neighbours."""
-    query = np.flatnonzero(method == 0)
-    if query.size == 0:
-        return
-    nrm, s3, k1, k2, t1, nb = knn_normals(
-        tree.local, query, k, grid=(tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level)
-    )
-    oriented = method != 0
-    normals[query] = nrm
-    scalars[query] = np.column_stack([s3, k1, k2])
-    # the quadric's k1 direction lies in the quadric's tangent plane at the point;
-    # keep it tangent to the PCA normal that is reported
-    t = t1 - np.einsum("ni,ni->n", t1, nrm)[:, None] * nrm
-    length = np.linalg.norm(t, axis=1)
-    flat = length < 1e-9  # k1 direction along the normal: any tangent will do
-    t[flat] = np.cross(nrm[flat], np.where(np.abs(nrm[flat, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
-    dir1[query] = t / np.linalg.norm(t, axis=1)[:, None]
-    method[query] = Method.KNN
-    todo = np.ones(query.size, dtype=bool)
-    sign = np.empty(query.size)
-    for _ in range(rounds):
-        # each round orients the points that have oriented neighbours, from the state before the round
-        if _kernels.neighbour_signs(query, nb, normals, oriented, todo, sign) == 0:
-            break
-        done = todo & (sign != 0)
-        _turn(normals, scalars, dir1, query[done], sign[done])
-        oriented[query[done]] = True
-        todo &= ~done
-    rest = query[todo]
-    if rest.size and orient != "none":
-        _turn(normals, scalars, dir1, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
-
-
-def _turn(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:
-    """Turn the normals of ``rows`` where ``sign`` is -1, in place, with what depends on their side.
-
-    Seen from the other side a surface's curvatures change sign, so
-    ``(k1, k2)`` becomes ``(-k2, -k1)`` (still ``k1 >= k2``) and the k1
-    direction becomes the old k2 direction, ``cross(n, dir1)``.
-    """
-    rows = rows[sign < 0]
-    n, d = normals[rows], dir1[rows]
-    dir1[rows] = np.cross(n, d)
-    normals[rows] = -n
-    k1, k2 = scalars[rows, 1].copy(), scalars[rows, 2].copy()
-    scalars[rows, 1], scalars[rows, 2] = -k2, -k1

@@ -11,21 +11,29 @@ component as a whole.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
 from .morton import MAX_DEPTH, encode
-from .octree import Octree
+from .octree import KIND_SURFACE, Octree
 from .quadric import implicit_value, surface_normals
 
 __all__ = [
-    "ORIENT_RULES", "face_neighbours", "face_agreement", "propagate_signs", "rule_prior", "component_rule_signs",
-    "point_rule_signs",
+    "ORIENT_RULES", "DOT_MIN", "MIN_RELIABILITY", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
+    "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "rule_scores",
+    "component_rule_signs", "point_rule_signs",
 ]
 
 #: Global orientation rules: towards +Z, towards a viewpoint, away from the centre, none.
 ORIENT_RULES = ("up", "viewpoint", "outward", "none")
+
+#: Smallest |cos| between the PCA normals of an edge or sparse leaf and a neighbour for them to link.
+DOT_MIN = 0.9
+#: Smallest |agreement| of a link for it to carry orientation.
+MIN_RELIABILITY = 0.5
 
 _DIRS = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]], dtype=np.int64)
 
@@ -69,9 +77,61 @@ def face_neighbours(tree: Octree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.concatenate(ii), np.concatenate(jj), np.concatenate(dd)
 
 
-def face_agreement(
-    tree: Octree, frames: np.ndarray, coeffs: np.ndarray, i: np.ndarray, j: np.ndarray, d: np.ndarray, samples: int = 4
-) -> np.ndarray:
+class LeafSet(NamedTuple):
+    """Leaves as arrays in one coordinate frame (metres), for orientation links.
+
+    A tile's own leaves and its neighbour's leaves are two sets in the same
+    frame; :func:`link_agreements` relates rows of one to rows of the other.
+    """
+
+    lower: np.ndarray  #: (P, 3) minimum corner of every leaf cube
+    edge: np.ndarray  #: (P,) leaf edge
+    centroid: np.ndarray  #: (P, 3)
+    frame: np.ndarray  #: (P, 3, 3) PCA axes as columns
+    coeffs: np.ndarray  #: (P, 6) quadric in the frame
+    rmse: np.ndarray  #: (P,) quadric fit RMSE
+    kind: np.ndarray  #: (P,) KIND_SURFACE, KIND_EDGE or KIND_SPARSE
+    count: np.ndarray  #: (P,) points
+
+    @classmethod
+    def of_tree(cls, tree: Octree, frames: np.ndarray, coeffs: np.ndarray) -> "LeafSet":
+        """The leaves of an octree (root-corner frame) with the given frames and quadrics."""
+        return cls(tree.lower, tree.leaf_edge, tree.centroid, frames, coeffs, tree.fit.rmse, tree.kind, tree.count)
+
+    @classmethod
+    def of_table(cls, table, corner) -> "LeafSet":
+        """The rows of a PatchTable, shifted to the frame whose origin is ``corner``."""
+        c = np.asarray(corner, dtype=np.float64)
+        return cls(table.lower - c, table.edge, table.centroid - c, table.frame, table.coeffs, table.rmse, table.kind, table.count)
+
+
+def link_agreements(
+    A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray, d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Orientation agreement of face-neighbour leaves ``A[i]`` and ``B[j]``.
+
+    Between two surface patches: :func:`face_agreement` (face sampling of the
+    two quadrics, paper 2.3).  Between a surface and an edge or sparse leaf,
+    or two of those: the dot product of their PCA normals when the two are
+    nearly parallel (``|cos| >= DOT_MIN``), else 0, so groups of patches
+    separated by a sharp feature or a sparse spot still propagate their
+    orientation through it.  Leaves with fewer than 3 points take no part.
+
+    Returns
+    -------
+    i, j, agreement : the usable pairs and their agreements in [-1, 1].
+    """
+    keep = (A.count[i] >= 3) & (B.count[j] >= 3)
+    i, j, d = i[keep], j[keep], d[keep]
+    both = (A.kind[i] == KIND_SURFACE) & (B.kind[j] == KIND_SURFACE)
+    agreement = np.einsum("ni,ni->n", A.frame[i, :, 2], B.frame[j, :, 2])
+    # a PCA normal of a sharp or sparse spot is rough: trust only nearly parallel ones
+    agreement[~both & (np.abs(agreement) < DOT_MIN)] = 0.0
+    agreement[both] = face_agreement(A, i[both], B, j[both], d[both])
+    return i, j, agreement
+
+
+def face_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray, d: np.ndarray, samples: int = 4) -> np.ndarray:
     """Mean sign agreement of two patches' implicit quadrics on their shared face.
 
     Only samples near both surfaces vote: one closer than twice the larger
@@ -85,10 +145,11 @@ def face_agreement(
 
     Parameters
     ----------
-    frames, coeffs : per-leaf frames (P, 3, 3) and quadric coefficients (P, 6).
-    i, j, d : pairs from :func:`face_neighbours`.
+    A, i, B, j : the pairs' leaves ``A[i]`` (the smaller, or equal) and ``B[j]``.
+    d : (E,) int
+        Face of ``A[i]`` that touches ``B[j]`` (index into -x, +x, -y, +y, -z, +z).
     samples : int
-        The face of ``i`` is sampled on a ``samples x samples`` grid.
+        The face of ``A[i]`` is sampled on a ``samples x samples`` grid.
 
     Returns
     -------
@@ -102,8 +163,8 @@ def face_agreement(
         return np.zeros(0)
     axis = d // 2
     upper = d % 2
-    h = tree.leaf_edge[i]
-    lo = tree.lower[i]
+    h = A.edge[i]
+    lo = A.lower[i]
     g = (np.arange(samples) + 0.5) / samples
     gu, gv = np.meshgrid(g, g, indexing="ij")
     gu, gv = gu.ravel(), gv.ravel()
@@ -117,13 +178,12 @@ def face_agreement(
     pts[rows, ax] += np.repeat(upper, m) * hh
     pts[rows, other1] += np.tile(gu, E) * hh
     pts[rows, other2] += np.tile(gv, E) * hh
-    cen = tree.centroid
     ri, rj = np.repeat(i, m), np.repeat(j, m)
-    patch_i = (cen[ri], frames[ri], coeffs[ri])  # each side's patch, row by sample
-    patch_j = (cen[rj], frames[rj], coeffs[rj])
+    patch_i = (A.centroid[ri], A.frame[ri], A.coeffs[ri])  # each side's patch, row by sample
+    patch_j = (B.centroid[rj], B.frame[rj], B.coeffs[rj])
     vi = implicit_value(pts, *patch_i)
     vj = implicit_value(pts, *patch_j)
-    band = 2.0 * np.repeat(np.maximum(tree.fit.rmse[i], tree.fit.rmse[j]), m)
+    band = 2.0 * np.repeat(np.maximum(A.rmse[i], B.rmse[j]), m)
     reach = 0.5 * hh
     near = (np.abs(vi) > band) & (np.abs(vj) > band) & (np.abs(vi) <= reach) & (np.abs(vj) <= reach)
     # a sample also needs the two surfaces to run alike there: where the signs
@@ -139,18 +199,92 @@ def face_agreement(
     return vote.sum(axis=1) / np.maximum(voters, 4)
 
 
-def propagate_signs(
-    n: int, i: np.ndarray, j: np.ndarray, agreement: np.ndarray, min_reliability: float, prior: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Signs of ``n`` patches from pairwise agreements and an optional prior.
+def cross_face_pairs(A, B, axis: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Leaves of two adjacent equal-sized root cubes that share part of their common face.
 
-    Edges whose ``|agreement|`` is below ``min_reliability`` are ignored.
-    ``prior[k]`` (in [-1, 1]) is the agreement of patch ``k`` with the global
-    rule; it enters as an edge to a virtual node that stands for the rule, so
-    that the rule and the pairwise agreements compete on the same footing:
-    a maximum spanning forest on ``|agreement|`` (most reliable first) fixes
-    every sign.  Components that hold the rule node follow it; the others get
-    signs relative to their lowest-index patch.
+    ``A`` and ``B`` are PatchTables (or anything with ``level`` and ``ijk``)
+    of two cubes of the same edge, ``B`` next to ``A`` on the +``axis`` side.
+    As :func:`face_neighbours` inside one cube, every pair is reported once,
+    from its smaller leaf (from ``A`` when both have the same size).
+
+    Returns
+    -------
+    (ia, jb, da) : pairs reported from ``A``: rows of A, rows of B, face of A (+axis)
+    (ib, ja, db) : pairs reported from ``B``: rows of B, rows of A, face of B (-axis)
+    """
+    ab = _probe_across(A, B, axis, upper=True)
+    ba = _probe_across(B, A, axis, upper=False)
+    ib, ja, db = ba
+    strict = np.asarray(A.level)[ja] < np.asarray(B.level)[ib]  # equal sizes were reported from A
+    return ab, (ib[strict], ja[strict], db[strict])
+
+
+def _probe_across(S, T, axis: int, upper: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Leaves of ``S`` on its ``upper`` face along ``axis`` and the leaf of ``T`` across, when as large or larger."""
+    level = np.asarray(S.level).astype(np.int64)
+    ijk = np.asarray(S.ijk).astype(np.int64)
+    last = np.left_shift(1, level) - 1
+    src = np.flatnonzero(ijk[:, axis] == (last if upper else 0))
+    probe = ijk[src].copy()
+    probe[:, axis] = 0 if upper else last[src]
+    shift = (MAX_DEPTH - level[src])[:, None]
+    keys = encode(np.left_shift(probe, shift))
+    t_level = np.asarray(T.level).astype(np.int64)
+    t_cell = encode(np.asarray(T.ijk).astype(np.int64))
+    t_shift = (3 * (MAX_DEPTH - t_level)).astype(np.uint64)
+    lo = t_cell << t_shift
+    hi = (t_cell + np.uint64(1)) << t_shift
+    order = np.argsort(lo, kind="stable")
+    pos = np.searchsorted(lo[order], keys, side="right") - 1
+    safe = np.maximum(pos, 0)
+    j = order[safe]
+    ok = (pos >= 0) & (keys < hi[j])
+    ok &= t_level[j] <= level[src]
+    d = 2 * axis + (1 if upper else 0)
+    return src[ok], j[ok], np.full(int(ok.sum()), d, dtype=np.int64)
+
+
+def spanning_forest(
+    nodes: int, i: np.ndarray, j: np.ndarray, agreement: np.ndarray, min_reliability: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Maximum spanning forest of an agreement graph, most reliable links first.
+
+    Links whose ``|agreement|`` is below ``min_reliability`` are dropped.
+    Because a link left out of the forest of a subgraph is the least
+    reliable on a cycle, it is left out of the forest of any larger graph
+    too: the forest of a whole cloud is the forest of the union of its
+    tiles' forests and the links between tiles.
+
+    Returns
+    -------
+    fi, fj, fa : (F,) the forest's links and their agreements.
+    """
+    keep = np.abs(agreement) >= min_reliability
+    i, j, a = np.asarray(i)[keep], np.asarray(j)[keep], np.asarray(agreement, dtype=np.float64)[keep]
+    if i.size == 0:
+        e = np.zeros(0, dtype=np.int64)
+        return e, e.copy(), np.zeros(0)
+    w = 2.0 - np.abs(a)  # positive: csgraph treats zeros as missing edges
+    g = coo_matrix((w, (i, j)), shape=(nodes, nodes)).tocsr()
+    forest = minimum_spanning_tree(g).tocoo()
+    fi, fj = forest.row.astype(np.int64), forest.col.astype(np.int64)
+    # the agreement of each forest link (the forest may store it as (j, i))
+    key = np.minimum(i, j).astype(np.int64) * nodes + np.maximum(i, j)
+    order = np.argsort(key, kind="stable")
+    fkey = np.minimum(fi, fj) * nodes + np.maximum(fi, fj)
+    fa = a[order[np.searchsorted(key[order], fkey)]]
+    srt = np.argsort(fkey, kind="stable")  # a canonical order
+    return fi[srt], fj[srt], fa[srt]
+
+
+def forest_signs(
+    n: int, fi: np.ndarray, fj: np.ndarray, fa: np.ndarray, rule_node: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signs of ``n`` patches fixed by a spanning forest's links.
+
+    With ``rule_node``, node ``n`` stands for the global rule: the
+    component that holds it follows it; the other components get signs
+    relative to their lowest-index patch.
 
     Returns
     -------
@@ -158,8 +292,42 @@ def propagate_signs(
     component : (n,) int64 label of every patch's component (without the rule node)
     ruled : (n,) bool, True where the sign was fixed through the rule node
     """
+    nodes = n + 1 if rule_node else n
     if n == 0:
         return np.ones(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
+    forest = coo_matrix((np.ones(fi.size), (fi, fj)), shape=(nodes, nodes))
+    ncomp, comp = connected_components(forest, directed=False)
+    # doubled graph: node v+ is v, v- is v + nodes
+    pos = fa > 0
+    r = np.concatenate([fi[pos], fi[pos] + nodes, fi[~pos], fi[~pos] + nodes])
+    c = np.concatenate([fj[pos], fj[pos] + nodes, fj[~pos] + nodes, fj[~pos]])
+    dg = coo_matrix((np.ones(r.size), (r, c)), shape=(2 * nodes, 2 * nodes))
+    _, lab = connected_components(dg, directed=False)
+    root = np.full(ncomp, nodes, dtype=np.int64)
+    np.minimum.at(root, comp, np.arange(nodes))
+    if rule_node:
+        root[comp[n]] = n  # the rule node is the root of its component
+    sign = np.where(lab[:n] == lab[root[comp[:n]]], 1.0, -1.0)
+    ruled = comp[:n] == comp[n] if rule_node else np.zeros(n, dtype=bool)
+    return sign, comp[:n].astype(np.int64), ruled
+
+
+def propagate_signs(
+    n: int, i: np.ndarray, j: np.ndarray, agreement: np.ndarray, min_reliability: float, prior: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signs of ``n`` patches from pairwise agreements and an optional prior.
+
+    Links whose ``|agreement|`` is below ``min_reliability`` are ignored.
+    ``prior[k]`` (in [-1, 1]) is the agreement of patch ``k`` with the global
+    rule; it enters as a link to a virtual node that stands for the rule, so
+    that the rule and the pairwise agreements compete on the same footing:
+    a maximum spanning forest on ``|agreement|`` (most reliable first) fixes
+    every sign (:func:`spanning_forest`, :func:`forest_signs`).
+
+    Returns
+    -------
+    sign, component, ruled : see :func:`forest_signs`.
+    """
     nodes = n
     if prior is not None:
         k = np.arange(n)
@@ -167,33 +335,8 @@ def propagate_signs(
         j = np.concatenate([j, np.full(n, n)])
         agreement = np.concatenate([agreement, prior])
         nodes = n + 1
-    keep = np.abs(agreement) >= min_reliability
-    i, j, a = i[keep], j[keep], agreement[keep]
-    w = 2.0 - np.abs(a)  # positive: csgraph treats zeros as missing edges
-    g = coo_matrix((w, (i, j)), shape=(nodes, nodes)).tocsr()
-    forest = minimum_spanning_tree(g).tocoo()
-    fi, fj = forest.row, forest.col
-    # the sign of each forest edge (the forest may store it as (j, i))
-    key = np.minimum(i, j).astype(np.int64) * nodes + np.maximum(i, j)
-    order = np.argsort(key, kind="stable")
-    fkey = np.minimum(fi, fj).astype(np.int64) * nodes + np.maximum(fi, fj)
-    frel = np.sign(a)[order[np.searchsorted(key[order], fkey)]]
-    ncomp, comp = connected_components(forest, directed=False)
-    # doubled graph: node v+ is v, v- is v + nodes
-    pos = frel > 0
-    r = np.concatenate([fi[pos], fi[pos] + nodes, fi[~pos], fi[~pos] + nodes])
-    c = np.concatenate([fj[pos], fj[pos] + nodes, fj[~pos] + nodes, fj[~pos]])
-    dg = coo_matrix((np.ones(r.size), (r, c)), shape=(2 * nodes, 2 * nodes))
-    _, lab = connected_components(dg, directed=False)
-    root = np.full(ncomp, nodes, dtype=np.int64)
-    np.minimum.at(root, comp, np.arange(nodes))
-    if prior is not None:
-        root[comp[n]] = n  # the rule node is the root of its component
-    sign = np.where(lab[:n] == lab[root[comp[:n]]], 1.0, -1.0)
-    ruled = np.zeros(n, dtype=bool)
-    if prior is not None:
-        ruled = comp[:n] == comp[n]
-    return sign, comp[:n].astype(np.int64), ruled
+    fi, fj, fa = spanning_forest(nodes, i, j, agreement, min_reliability)
+    return forest_signs(n, fi, fj, fa, rule_node=prior is not None)
 
 
 def rule_prior(rule: str, normals: np.ndarray, positions: np.ndarray, viewpoint=None, centre=None) -> np.ndarray | None:
@@ -214,7 +357,13 @@ def rule_prior(rule: str, normals: np.ndarray, positions: np.ndarray, viewpoint=
     return cos if rule == "viewpoint" else 0.6 * cos
 
 
-def _rule_scores(rule: str, normals: np.ndarray, positions: np.ndarray, weights: np.ndarray, viewpoint, centre) -> np.ndarray:
+def rule_scores(rule: str, normals: np.ndarray, positions: np.ndarray, weights: np.ndarray, viewpoint=None, centre=None) -> np.ndarray:
+    """Weighted score of each normal under a global rule: positive when it follows the rule.
+
+    "up": ``n_z``; "viewpoint": ``n . (viewpoint - p)``; "outward":
+    ``n . (p - centre)``; "none": 0.  Summed over a component by
+    :func:`component_rule_signs`; a turned patch's score changes sign.
+    """
     if rule == "up":
         s = normals[:, 2]
     elif rule == "viewpoint":
@@ -237,12 +386,12 @@ def component_rule_signs(
     """
     if component.size == 0:
         return np.ones(0)
-    score = _rule_scores(rule, normals, positions, weights, viewpoint, centre)
+    score = rule_scores(rule, normals, positions, weights, viewpoint, centre)
     total = np.bincount(component, weights=score, minlength=int(component.max()) + 1)
     return np.where(total[component] < 0, -1.0, 1.0)
 
 
 def point_rule_signs(rule: str, normals: np.ndarray, positions: np.ndarray, viewpoint=None, centre=None) -> np.ndarray:
     """Sign per point that makes each normal follow the global rule on its own."""
-    score = _rule_scores(rule, normals, positions, np.ones(normals.shape[0]), viewpoint, centre)
+    score = rule_scores(rule, normals, positions, np.ones(normals.shape[0]), viewpoint, centre)
     return np.where(score < 0, -1.0, 1.0)

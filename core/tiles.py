@@ -1,0 +1,393 @@
+"""One tile of a larger cloud: the two halves of the normals pipeline.
+
+:func:`patchcloud.core.estimate_normals` runs on one cloud in memory; the
+stream runs the same steps on the tiles of a cloud that does not fit, and
+both go through this module, so a one-tile stream run and an in-memory run
+are the same computation:
+
+1. :func:`fit_tile` builds the tile's octree (a subtree of the global
+   octree when the tile is one of its cubes), fits every leaf, and reduces
+   the tile's orientation graph (face agreements between its leaves, plus a
+   link from every patch to a virtual node standing for the global rule) to
+   its maximum spanning forest.  What it keeps, a :class:`TileFit`, is small:
+   the patch table (not yet oriented) and the forest.
+2. :func:`patch_signs` turns the forests of all tiles, plus the links
+   between leaves of neighbouring tiles (:func:`patchcloud.core.orient.cross_face_pairs`),
+   into one sign per patch.  Because a link left out of a tile's forest is
+   the least reliable on a cycle inside the tile, the result is the one the
+   whole cloud's graph would give.
+3. :func:`finish_tile` evaluates every point of the tile on its oriented
+   patch, blends across leaf faces, including the faces shared with the
+   neighbouring tiles (from their patch tables, not their points), and gives
+   the points of edge and sparse leaves a k-NN normal, searching also among
+   the "skin" points of the neighbouring tiles (those within a halo of the
+   shared faces).
+
+All coordinates are in the caller's frame (for the stream: metres relative
+to the store's origin); tile-local computations subtract the tile corner.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _kernels
+from .blend import blend_across_faces
+from .fallback import knn_normals
+from .morton import encode
+from .octree import KIND_SURFACE, Octree, build_octree, sort_points
+from .orient import (
+    MIN_RELIABILITY,
+    LeafSet,
+    face_neighbours,
+    forest_signs,
+    link_agreements,
+    point_rule_signs,
+    rule_prior,
+    rule_scores,
+    spanning_forest,
+)
+from .patches import PatchTable
+from .quadric import NodeFit, turn_over
+
+__all__ = ["TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile", "max_level_for", "METHOD_QUADRIC", "METHOD_BLENDED", "METHOD_KNN"]
+
+#: Method codes (see :class:`patchcloud.core.Method`).
+METHOD_QUADRIC, METHOD_BLENDED, METHOD_KNN = 1, 2, 3
+
+
+@dataclass(frozen=True)
+class TileFit:
+    """What fitting one tile keeps (P patches, N points).
+
+    Attributes
+    ----------
+    patches : PatchTable
+        The leaves' patch models as fitted: frames not yet oriented.
+    links : (F, 2) int64
+        The tile's orientation forest: pairs of patch rows; row ``P`` is the
+        virtual node of the global rule.
+    agreement : (F,) float64
+        Agreement in [-1, 1] of each link (+1: the two ``e3`` agree).
+    score : (P,) float64
+        Each patch's score under the global rule as fitted (point count
+        times the rule's measure; see :func:`patchcloud.core.orient.rule_scores`),
+        for components that no link ties to the rule.
+    order : (N,) int64
+        Sorting order of the points: ``order[k]`` is the input row of the
+        k-th point of the patches' runs (patch ``p`` owns sorted points
+        ``cumsum(count)[p-1]:cumsum(count)[p]``).
+    local : (N, 3) float64
+        The sorted points relative to the tile corner (metres).
+    threshold : float
+        The uniformity threshold used.
+    """
+
+    patches: PatchTable
+    links: np.ndarray
+    agreement: np.ndarray
+    score: np.ndarray
+    order: np.ndarray
+    local: np.ndarray
+    threshold: float
+
+
+@dataclass(frozen=True)
+class Skin:
+    """Points of neighbouring tiles near this tile's faces, for k-NN searches (S points).
+
+    Attributes
+    ----------
+    points : (S, 3) float64, caller's frame
+    normals : (S, 3) float64
+        Their oriented normals where known (points of surface patches), else zeros.
+    oriented : (S,) bool
+        Where ``normals`` holds an oriented normal.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    oriented: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "Skin":
+        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=bool))
+
+
+@dataclass(frozen=True)
+class TileNormals:
+    """Per-point results of one tile in sorted order (N points), and its oriented patches.
+
+    ``normals`` (N, 3), ``scalars`` (N, 3) = (surface variation, k1, k2),
+    ``dir1`` (N, 3), all float64; ``method`` (N,) uint8; ``patch`` (N,) int64
+    row of the point's patch; ``patches`` oriented.
+    """
+
+    normals: np.ndarray
+    scalars: np.ndarray
+    dir1: np.ndarray
+    method: np.ndarray
+    patch: np.ndarray
+    patches: PatchTable
+
+
+def max_level_for(edge: float, d_min: float) -> int:
+    """Deepest octree level below a root cube of ``edge`` whose cubes are at least ``d_min``."""
+    from .morton import MAX_DEPTH
+
+    return int(np.clip(np.floor(np.log2(edge / d_min)), 0, MAX_DEPTH)) if d_min > 0 else MAX_DEPTH
+
+
+def fit_tile(
+    points: np.ndarray,
+    corner: np.ndarray,
+    edge: float,
+    *,
+    criterion: str,
+    threshold: float | None,
+    d_min: float,
+    max_edge: float,
+    n_min: int,
+    min_sigma2: float,
+    orient: str,
+    viewpoint: np.ndarray | None = None,
+    centre: np.ndarray | None = None,
+    spacing: float = 0.0,
+    sorted_input: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> TileFit:
+    """Octree, patch fits and orientation forest of the points of one root cube.
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+        Points inside the cube ``corner`` .. ``corner + edge`` (caller's frame, metres).
+    corner : (3,) float64
+    edge : float
+    criterion, threshold, d_min, max_edge, n_min, min_sigma2 :
+        As :func:`patchcloud.core.estimate_normals`, resolved (``threshold``
+        may be None for the rmse criterion: then from this cube's points).
+    orient : {"up", "viewpoint", "outward", "none"}
+    viewpoint, centre : (3,) float64, optional
+        Viewpoint (``orient="viewpoint"``) and the cloud's centre
+        (``orient="outward"``), caller's frame.
+    spacing : float
+        Point spacing (metres), for the default threshold's floor.
+    sorted_input : tuple, optional
+        ``sort_points(points - corner, zeros(3), edge)`` when the caller has it.
+
+    Returns
+    -------
+    TileFit
+    """
+    corner = np.asarray(corner, dtype=np.float64)
+    local = points - corner
+    if sorted_input is None:
+        sorted_input = sort_points(local, np.zeros(3), edge)
+    tree = build_octree(
+        local, edge, criterion=criterion, threshold=threshold, d_min=d_min, n_min=n_min,
+        min_sigma2=min_sigma2, spacing=spacing, max_edge=max_edge, sorted_input=sorted_input,
+    )
+    frames, coeffs = tree.fit.frame, tree.fit.coeffs
+    P = tree.level.shape[0]
+    leaves = LeafSet.of_tree(tree, frames, coeffs)
+    i, j, d = face_neighbours(tree)
+    i, j, a = link_agreements(leaves, i, leaves, j, d)
+    usable = tree.count >= 3
+    vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64) - corner
+    ctr = None if centre is None else np.asarray(centre, dtype=np.float64) - corner
+    e3 = frames[:, :, 2] * usable[:, None]
+    prior = rule_prior(orient, e3, tree.centroid, vp, ctr)
+    if prior is not None:
+        i = np.concatenate([i, np.arange(P)])
+        j = np.concatenate([j, np.full(P, P)])
+        a = np.concatenate([a, prior])
+    fi, fj, fa = spanning_forest(P + 1, i, j, a, MIN_RELIABILITY)
+    score = rule_scores(orient, frames[:, :, 2], tree.centroid, (tree.count * usable).astype(np.float64), vp, ctr)
+    table = PatchTable(
+        root_corner=corner.copy(),
+        root_edge=float(edge),
+        level=tree.level.astype(np.uint8),
+        ijk=tree.ijk,
+        count=tree.count,
+        centroid=tree.centroid + corner,
+        frame=frames,
+        eigenvalues=tree.fit.eigenvalues,
+        coeffs=coeffs,
+        rmse=tree.fit.rmse,
+        kind=tree.kind,
+    )
+    return TileFit(
+        patches=table, links=np.column_stack([fi, fj]).astype(np.int64), agreement=fa, score=score,
+        order=tree.order, local=tree.local, threshold=tree.threshold,
+    )
+
+
+def patch_signs(
+    n: int, links: np.ndarray, agreement: np.ndarray, score: np.ndarray, orient: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sign (+1/-1) of each of ``n`` patches from orientation links.
+
+    ``links`` (E, 2) are pairs of patch indices, index ``n`` being the
+    global rule's node, with their ``agreement``; they may be one tile's
+    forest, or the union of several tiles' forests (indices offset) and the
+    links between tiles.  The maximum spanning forest of the links fixes the
+    signs (most reliable first); components that no link ties to the rule
+    follow the rule as a whole (the sign of the sum of their ``score``).
+
+    Returns
+    -------
+    sign : (n,) float64
+    ruled : (n,) bool, True where the sign came through a chain of links to the rule
+    """
+    links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
+    fi, fj, fa = spanning_forest(n + 1, links[:, 0], links[:, 1], agreement, MIN_RELIABILITY)
+    sign, comp, ruled = forest_signs(n, fi, fj, fa, rule_node=True)
+    if orient != "none" and n and not ruled.all():
+        total = np.bincount(comp, weights=np.where(ruled, 0.0, score * sign), minlength=int(comp.max()) + 1)
+        sign = np.where(~ruled & (total[comp] < 0), -sign, sign)
+    return sign, ruled
+
+
+def _tree_of(local: np.ndarray, table: PatchTable, corner: np.ndarray, edge: float, max_level: int) -> Octree:
+    """The octree of sorted tile points whose leaves are ``table``'s rows (nothing refitted)."""
+    n = local.shape[0]
+    q = np.empty((n, 3), dtype=np.int64)
+    keys = np.empty(n, dtype=np.uint64)
+    _kernels.morton_keys(local, np.zeros(3), float(edge), q, keys)
+    level = table.level.astype(np.int64)
+    count = table.count.astype(np.int64)
+    start = np.cumsum(count) - count
+    h = edge / np.exp2(level)
+    centre = (table.ijk + 0.5) * h[:, None]
+    fit = NodeFit(
+        count=count.astype(np.float64), centroid=table.centroid - corner - centre, eigenvalues=table.eigenvalues,
+        frame=table.frame, coeffs=table.coeffs, rmse=table.rmse,
+    )
+    return Octree(
+        edge=float(edge), max_level=max_level, order=np.arange(n), local=local, q=q, keys=keys, level=level,
+        cell=encode(table.ijk), start=start, count=count, fit=fit, kind=table.kind, threshold=float("nan"),
+    )
+
+
+def finish_tile(
+    local: np.ndarray,
+    patches: PatchTable,
+    sign: np.ndarray,
+    *,
+    d_min: float,
+    k_fallback: int,
+    orient: str,
+    viewpoint: np.ndarray | None = None,
+    centre: np.ndarray | None = None,
+    blend: bool = True,
+    outside: list[PatchTable | None] | None = None,
+    skin: Skin | None = None,
+) -> TileNormals:
+    """Normals, curvatures and methods of every point of one tile, sorted order.
+
+    Parameters
+    ----------
+    local : (N, 3) float64
+        The tile's points sorted as by :func:`fit_tile`, relative to the tile corner.
+    patches : PatchTable
+        The tile's patch table as fitted (:attr:`TileFit.patches`).
+    sign : (P,) float64
+        +1/-1 per patch (:func:`patch_signs`).
+    d_min, k_fallback, orient, blend :
+        As :func:`patchcloud.core.estimate_normals`, resolved.
+    viewpoint, centre : (3,) float64, optional
+        Caller's frame.
+    outside : list of six PatchTable or None, optional
+        The oriented patch tables of the tiles across faces -x, +x, -y, +y,
+        -z, +z (caller's frame), for blending across the tile's faces.
+    skin : Skin, optional
+        Neighbouring tiles' points near this tile's faces, for the k-NN
+        normals of edge and sparse points.
+
+    Returns
+    -------
+    TileNormals
+    """
+    corner = np.asarray(patches.root_corner, dtype=np.float64)
+    edge = float(patches.root_edge)
+    tree = _tree_of(local, patches, corner, edge, max_level_for(edge, d_min))
+    frames, coeffs = turn_over(patches.frame, patches.coeffs, np.asarray(sign) < 0)
+    oriented = PatchTable(**{**patches.__dict__, "frame": frames, "coeffs": coeffs})
+    n = local.shape[0]
+    surface = tree.kind == KIND_SURFACE
+    normals = np.zeros((n, 3))
+    scalars = np.zeros((n, 3))
+    dir1 = np.zeros((n, 3))
+    _kernels.eval_surface_points(
+        tree.local, tree.start, tree.count, surface, tree.centroid, frames, coeffs, tree.fit.sigma3, normals, scalars, dir1
+    )
+    method = np.repeat(np.where(surface, METHOD_QUADRIC, 0).astype(np.uint8), tree.count)
+    if blend:
+        was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1, outside=outside, corner=corner)
+        method[was] = METHOD_BLENDED
+    vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64) - corner
+    ctr = None if centre is None else np.asarray(centre, dtype=np.float64) - corner
+    if skin is not None and skin.points.shape[0]:
+        skin = Skin(skin.points - corner, skin.normals, skin.oriented)
+    else:
+        skin = None
+    _fallback(tree, normals, scalars, dir1, method, k_fallback, orient, vp, ctr, skin)
+    return TileNormals(normals, scalars, dir1, method, tree.point_leaf(), oriented)
+
+
+def _fallback(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centre, skin: Skin | None, rounds: int = 4) -> None:
+    """k-NN PCA normals for points of edge and sparse leaves, oriented by their neighbours, in place."""
+    query = np.flatnonzero(method == 0)
+    if query.size == 0:
+        return
+    n = tree.local.shape[0]
+    if skin is None:
+        points, grid = tree.local, (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level)
+        all_normals, oriented = normals, method != 0
+    else:  # the neighbours' skin points take part in the search; one tree over both
+        points, grid = np.concatenate([tree.local, skin.points]), None
+        all_normals = np.concatenate([normals, skin.normals])
+        oriented = np.concatenate([method != 0, skin.oriented])
+    nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grid=grid)
+    all_normals[query] = nrm
+    scalars[query] = np.column_stack([s3, k1, k2])
+    # the quadric's k1 direction lies in the quadric's tangent plane at the point;
+    # keep it tangent to the PCA normal that is reported
+    t = t1 - np.einsum("ni,ni->n", t1, nrm)[:, None] * nrm
+    length = np.linalg.norm(t, axis=1)
+    flat = length < 1e-9  # k1 direction along the normal: any tangent will do
+    t[flat] = np.cross(nrm[flat], np.where(np.abs(nrm[flat, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+    dir1[query] = t / np.linalg.norm(t, axis=1)[:, None]
+    method[query] = METHOD_KNN
+    todo = np.ones(query.size, dtype=bool)
+    sign = np.empty(query.size)
+    for _ in range(rounds):
+        # each round orients the points that have oriented neighbours, from the state before the round
+        if _kernels.neighbour_signs(query, nb, all_normals, oriented, todo, sign) == 0:
+            break
+        done = todo & (sign != 0)
+        _turn(all_normals, scalars, dir1, query[done], sign[done])
+        oriented[query[done]] = True
+        todo &= ~done
+    rest = query[todo]
+    if rest.size and orient != "none":
+        _turn(all_normals, scalars, dir1, rest, point_rule_signs(orient, all_normals[rest], tree.local[rest], vp, centre))
+    if all_normals is not normals:
+        normals[:] = all_normals[:n]
+
+
+def _turn(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:
+    """Turn the normals of ``rows`` where ``sign`` is -1, in place, with what depends on their side.
+
+    Seen from the other side a surface's curvatures change sign, so
+    ``(k1, k2)`` becomes ``(-k2, -k1)`` (still ``k1 >= k2``) and the k1
+    direction becomes the old k2 direction, ``cross(n, dir1)``.
+    """
+    rows = rows[sign < 0]
+    n, d = normals[rows], dir1[rows]
+    dir1[rows] = np.cross(n, d)
+    normals[rows] = -n
+    k1, k2 = scalars[rows, 1].copy(), scalars[rows, 2].copy()
+    scalars[rows, 1], scalars[rows, 2] = -k2, -k1
