@@ -1,6 +1,13 @@
-"""patchcloud.stream: out-of-core LAS/LAZ ingest, zarr tiles, dask scheduling and export.
+"""patchcloud.stream: normals of LAS/LAZ files of any size, through a tiled zarr store and dask.
 
-Not built yet (see the project's issues); nothing is exported so far.
+>>> from patchcloud.stream import normals                    # doctest: +SKIP
+>>> summary = normals("city.laz", "city_normals.laz")        # doctest: +SKIP
+>>> print(summary.format())                                  # doctest: +SKIP
 """
 
-__all__: list[str] = []
+from .info import format_info, info
+from .pipeline import NormalsSummary, normals, tile
+from .scheduling import Runner, map_tiles
+from .store import Store
+
+__all__ = ["normals", "tile", "info", "format_info", "NormalsSummary", "Store", "Runner", "map_tiles"]

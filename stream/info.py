@@ -1,0 +1,84 @@
+"""``info``: what a LAS/LAZ file or a patchcloud store holds."""
+
+from __future__ import annotations
+
+import os
+
+import laspy
+import numpy as np
+
+from patchcloud.core.errors import PatchcloudIOError
+
+from .lasio import open_source
+from .store import Store
+
+__all__ = ["info", "format_info"]
+
+
+def info(path: str | os.PathLike) -> dict:
+    """A description of a LAS/LAZ file (header) or of a store (source, grid, tiles, steps done).
+
+    Raises
+    ------
+    PatchcloudIOError
+        ``path`` is neither a readable LAS/LAZ file nor a patchcloud store.
+    """
+    p = str(path)
+    if os.path.isfile(p):
+        src = open_source(p)
+        with laspy.open(p) as r:
+            dims = list(r.header.point_format.dimension_names)
+            extra = list(r.header.point_format.extra_dimension_names)
+        return {"kind": "las", **src.to_json(), "dimensions": dims, "extra_dimensions": extra}
+    if Store.exists(p):
+        st = Store.open(p, mode="r")
+        a = st.attrs
+        tiles = st.tiles
+        done: dict[str, int] = {}
+        for t in tiles:
+            for step, v in dict(st.tile(t).attrs).get("done", {}).items() if st.group.get(f"tiles/{_n(t)}") is not None else []:
+                if v:
+                    done[step] = done.get(step, 0) + 1
+        counts = np.asarray(a.get("tile_counts", []), dtype=np.int64)
+        return {
+            "kind": "store", "url": st.url, "source": a.get("source"), "grid": a.get("grid"), "tiles": len(tiles),
+            "points": int(counts.sum()), "points_per_tile": [int(counts.min()), int(np.median(counts)), int(counts.max())] if counts.size else [],
+            "steps": a.get("steps", {}), "tiles_done": done, "parameters": a.get("params"),
+        }
+    raise PatchcloudIOError(f"{p}: neither a LAS/LAZ file nor a patchcloud store")
+
+
+def _n(t):
+    from .store import tile_name
+
+    return tile_name(t)
+
+
+def format_info(d: dict) -> str:
+    """``info``'s dictionary as a few lines of text."""
+    if d["kind"] == "las":
+        lines = [
+            f"{d['path']}: LAS {d['version']} point format {d['point_format']}{' (LAZ)' if d['compressed'] else ''}",
+            f"  points       {d['point_count']:,}",
+            f"  bounds       x {d['mins'][0]:.3f} .. {d['maxs'][0]:.3f}, y {d['mins'][1]:.3f} .. {d['maxs'][1]:.3f}, z {d['mins'][2]:.3f} .. {d['maxs'][2]:.3f}",
+            f"  scale        {d['scale']}  offset {d['offset']}",
+            f"  dimensions   {', '.join(d['dimensions'])}",
+            f"  CRS          {(d['crs'] or 'none')[:100]}",
+        ]
+        return "\n".join(lines)
+    g = d["grid"] or {}
+    src = d["source"] or {}
+    steps = ", ".join(d["steps"]) or "none"
+    done = ", ".join(f"{k} {v}/{d['tiles']}" for k, v in sorted(d["tiles_done"].items())) or "none"
+    lines = [
+        f"{d['url']}: patchcloud store",
+        f"  source       {src.get('path')} ({src.get('point_count', 0):,} points)",
+        f"  points       {d['points']:,} in {d['tiles']:,} tiles of {g.get('tile_size', 0):g} m (min/median/max per tile {d['points_per_tile']})",
+        f"  origin       {g.get('origin')}",
+        f"  steps done   {steps}",
+        f"  tiles done   {done}",
+    ]
+    if d.get("parameters"):
+        p = d["parameters"]
+        lines.append(f"  parameters   {p['criterion']} threshold {p['threshold']:.4g}, d_min {p['d_min']:.3g} m, spacing {p['spacing']:.3g} m, orient {p['orient']}")
+    return "\n".join(lines)

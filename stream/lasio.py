@@ -1,0 +1,204 @@
+"""LAS/LAZ input and output in chunks (laspy with the lazrs backend).
+
+Every problem with an input file becomes one :class:`PatchcloudIOError`
+naming the file and what is wrong with it: missing, not LAS/LAZ, empty,
+truncated, or a header whose point count disagrees with the data.  Output
+files are written under a temporary name (``NAME.partial``) and renamed
+only when complete.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+
+__all__ = ["LasSource", "OUTPUT_DIMS", "open_source", "read_chunks", "output_header", "atomic_output", "is_laz_name"]
+
+#: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description.
+OUTPUT_DIMS = (
+    ("NormalX", np.float32, "unit normal x"),
+    ("NormalY", np.float32, "unit normal y"),
+    ("NormalZ", np.float32, "unit normal z"),
+    ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)"),
+    ("NormalMethod", np.uint8, "1 quadric 2 blended 3 kNN"),
+    ("PatchId", np.uint32, "patchcloud patch id"),
+)
+
+
+@dataclass(frozen=True)
+class LasSource:
+    """What the stream records about an input file."""
+
+    path: str
+    size: int
+    mtime_ns: int
+    point_count: int
+    point_format: int
+    version: str
+    scale: tuple[float, float, float]
+    offset: tuple[float, float, float]
+    mins: tuple[float, float, float]
+    maxs: tuple[float, float, float]
+    compressed: bool
+    crs: str | None
+
+    def to_json(self) -> dict:
+        return dict(self.__dict__)
+
+    def same_file(self, other: dict) -> bool:
+        """True when ``other`` (a :meth:`to_json` dict) describes this file unchanged."""
+        return all(other.get(k) == getattr(self, k) for k in ("path", "size", "mtime_ns", "point_count"))
+
+
+def is_laz_name(path: str | os.PathLike) -> bool:
+    return str(path).lower().endswith(".laz")
+
+
+def open_source(path: str | os.PathLike) -> LasSource:
+    """Check that ``path`` is a readable, non-empty, complete LAS/LAZ file and describe it.
+
+    Raises
+    ------
+    PatchcloudIOError
+        The file is missing, not LAS/LAZ, empty, or truncated, or its header's
+        point count disagrees with the size of its point data.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise PatchcloudIOError(f"{p}: no such file")
+    if p.is_dir():
+        raise PatchcloudIOError(f"{p}: is a directory, not a LAS/LAZ file")
+    st = p.stat()
+    with open(p, "rb") as f:
+        sig = f.read(4)
+    if sig != b"LASF":
+        raise PatchcloudIOError(f"{p}: not a LAS/LAZ file (no 'LASF' signature)")
+    try:
+        with laspy.open(p) as reader:
+            h = reader.header
+            compressed = bool(h.are_points_compressed)
+            crs = None
+            try:
+                c = h.parse_crs()
+                crs = None if c is None else c.to_wkt()
+            except Exception:  # pyproj missing or an unparsable CRS VLR: not fatal
+                crs = None
+            src = LasSource(
+                path=str(p.resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns), point_count=int(h.point_count),
+                point_format=int(h.point_format.id), version=str(h.version), scale=tuple(map(float, h.scales)),
+                offset=tuple(map(float, h.offsets)), mins=tuple(map(float, h.mins)), maxs=tuple(map(float, h.maxs)),
+                compressed=compressed, crs=crs,
+            )
+            record = int(h.point_format.size)
+            start = int(h.offset_to_point_data)
+            evlr = int(getattr(h, "start_of_first_evlr", 0) or 0)
+    except PatchcloudIOError:
+        raise
+    except Exception as exc:
+        raise PatchcloudIOError(f"{p}: not a readable LAS/LAZ file ({exc})") from exc
+    if src.point_count == 0:
+        raise PatchcloudIOError(f"{p}: the file holds no points")
+    if not compressed:
+        end = start + src.point_count * record
+        if st.st_size < end:
+            have = max(0, (st.st_size - start) // record)
+            raise PatchcloudIOError(
+                f"{p}: truncated: the header says {src.point_count:,} points but the file holds only {have:,}"
+            )
+        data_end = evlr if evlr > 0 else st.st_size
+        if data_end > end and (data_end - end) >= record:
+            extra = (data_end - start) // record
+            raise PatchcloudIOError(
+                f"{p}: the header says {src.point_count:,} points but the point data holds {extra:,}"
+            )
+    return src
+
+
+def read_chunks(src: LasSource, chunk: int, start_chunk: int = 0) -> Iterator[tuple[int, laspy.ScaleAwarePointRecord]]:
+    """Chunks of ``chunk`` points of the file, from chunk ``start_chunk`` on, with their first index.
+
+    Raises
+    ------
+    PatchcloudIOError
+        The data ends before the header's point count (truncated or corrupt).
+    """
+    p = src.path
+    try:
+        with laspy.open(p, laz_backend=_laz_backend()) as reader:
+            if start_chunk:
+                reader.seek(start_chunk * chunk)
+            done = start_chunk * chunk
+            while done < src.point_count:
+                want = min(chunk, src.point_count - done)
+                try:
+                    pts = reader.read_points(want)
+                except Exception as exc:
+                    raise PatchcloudIOError(f"{p}: corrupt or truncated point data after point {done:,} ({exc})") from exc
+                if len(pts) != want:
+                    raise PatchcloudIOError(
+                        f"{p}: truncated: the header says {src.point_count:,} points but the data ends after {done + len(pts):,}"
+                    )
+                yield done, pts
+                done += want
+    except PatchcloudIOError:
+        raise
+    except Exception as exc:
+        raise PatchcloudIOError(f"{p}: cannot read point data ({exc})") from exc
+
+
+def _laz_backend():
+    """lazrs, in parallel when the installed build offers it."""
+    try:
+        return laspy.LazBackend.LazrsParallel if laspy.LazBackend.LazrsParallel.is_available() else laspy.LazBackend.Lazrs
+    except Exception:
+        return None
+
+
+def output_header(src: LasSource) -> laspy.LasHeader:
+    """The input's header (point format, version, scales, offsets, VLRs, CRS) with :data:`OUTPUT_DIMS` added.
+
+    A dimension of the same name and type already in the input (a file
+    that went through ``patchcloud normals`` before) is reused; one of
+    another type is an error.
+    """
+    with laspy.open(src.path) as reader:
+        header = reader.header
+    existing = {d.name: d for d in header.point_format.dimensions}
+    new = []
+    for name, dtype, desc in OUTPUT_DIMS:
+        if name in existing:
+            if np.dtype(existing[name].dtype) != np.dtype(dtype):
+                raise PatchcloudValueError(
+                    f"{src.path}: already has a dimension {name} of type {existing[name].dtype}, not {np.dtype(dtype)}"
+                )
+            continue
+        new.append(laspy.ExtraBytesParams(name=name, type=dtype, description=desc))
+    if new:
+        header.add_extra_dims(new)
+    return header
+
+
+@contextmanager
+def atomic_output(path: str | os.PathLike, overwrite: bool):
+    """Open ``path``'s temporary name for binary writing; rename to ``path`` on success, remove on failure."""
+    p = Path(path)
+    if p.exists() and not overwrite:
+        raise PatchcloudIOError(f"{p}: exists (use --overwrite to replace it)")
+    if not p.parent.exists():
+        raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
+    tmp = p.with_name(p.name + ".partial")
+    try:
+        with open(tmp, "wb") as f:
+            yield f
+        os.replace(tmp, p)
+    finally:
+        if tmp.exists():
+            tmp.unlink()

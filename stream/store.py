@@ -1,0 +1,262 @@
+"""The zarr store that holds a cloud cut into tiles, and what has been computed on them.
+
+Layout (zarr format 3; a local path or any fsspec URL the workers can reach)::
+
+    store/                       attrs: format, version, source (the input file), grid, steps done
+      index/chunk_tile           (K, 3) int64: input chunk, tile, points of the chunk in the tile
+      tiles/<name>/              attrs: ijk, count, done (per step)
+        xyz                      (n, 3) int32  LAS integer coordinates, sorted by octree key
+        rank                     (n,) uint32   position of each point among the tile's points in input order
+        patches                  (P, 29) float64  the patch table (see :func:`table_to_array`)
+        links, agreement, score  the tile's orientation forest (see patchcloud.core.tiles.TileFit)
+        skin, skin_patch         points near the tile's faces and their patch rows
+        sign                     (P,) int8    orientation of every patch after the seam pass
+        normal, curvature,       results in the tile's input order
+        method, patch
+
+Tiles are the cubes of a grid of edge ``tile_size`` (a power of two,
+metres) anchored at ``origin`` (a multiple of :data:`ANCHOR` metres), so
+every tile is a cube of one global octree whatever the tile size, and a
+tile's face is an octree face.  Coordinates stay exact: the LAS integers
+are stored; the float64 local frame is ``X * scale + offset - origin``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import zarr
+
+from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core.patches import PatchTable
+
+__all__ = ["Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name"]
+
+FORMAT = "patchcloud-store"
+VERSION = 1
+#: The grid origin is a multiple of this (metres), so grids of every power-of-two tile size up to it align.
+ANCHOR = 4096.0
+#: Largest tile size (metres).
+MAX_TILE = ANCHOR
+
+
+@dataclass(frozen=True)
+class Grid:
+    """The tile grid and the local frame: ``local = X * scale + (offset - origin)``."""
+
+    origin: tuple[float, float, float]
+    tile_size: float
+    scale: tuple[float, float, float]
+    offset: tuple[float, float, float]
+
+    def local(self, xyz_int: np.ndarray) -> np.ndarray:
+        """(n, 3) float64 local coordinates (metres) of LAS integer coordinates."""
+        s = np.asarray(self.scale)
+        shift = np.asarray(self.offset) - np.asarray(self.origin)
+        return xyz_int.astype(np.float64) * s + shift
+
+    def tile_of(self, local: np.ndarray) -> np.ndarray:
+        """(n, 3) int64 tile indices of local coordinates."""
+        return np.floor(local / self.tile_size).astype(np.int64)
+
+    def corner(self, ijk) -> np.ndarray:
+        """Local minimum corner of tile ``ijk``."""
+        return np.asarray(ijk, dtype=np.float64) * self.tile_size
+
+    def to_json(self) -> dict:
+        return dict(origin=list(self.origin), tile_size=self.tile_size, scale=list(self.scale), offset=list(self.offset))
+
+    @classmethod
+    def from_json(cls, d: dict) -> "Grid":
+        return cls(tuple(d["origin"]), float(d["tile_size"]), tuple(d["scale"]), tuple(d["offset"]))
+
+
+def tile_name(ijk) -> str:
+    """Name of tile ``ijk`` in the store, e.g. ``t+3-1+0``."""
+    i, j, k = (int(v) for v in ijk)
+    return f"t{i:+d}{j:+d}{k:+d}"
+
+
+#: Columns of the patch table array.
+_TABLE_COLS = (
+    ("level", 1), ("ijk", 3), ("count", 1), ("centroid", 3), ("frame", 9), ("eigenvalues", 3), ("coeffs", 6),
+    ("rmse", 1), ("kind", 1),
+)
+
+
+def table_to_array(t: PatchTable) -> np.ndarray:
+    """The rows of a patch table as one (P, 28) float64 array (exact: integers below 2**53)."""
+    P = len(t)
+    cols = [np.asarray(getattr(t, name), dtype=np.float64).reshape(P, width) for name, width in _TABLE_COLS]
+    return np.concatenate(cols, axis=1) if P else np.zeros((0, sum(w for _, w in _TABLE_COLS)))
+
+
+def array_to_table(a: np.ndarray, corner: np.ndarray, edge: float) -> PatchTable:
+    """Inverse of :func:`table_to_array`."""
+    out = {}
+    c = 0
+    for name, width in _TABLE_COLS:
+        out[name] = a[:, c : c + width]
+        c += width
+    P = a.shape[0]
+    return PatchTable(
+        root_corner=np.asarray(corner, dtype=np.float64),
+        root_edge=float(edge),
+        level=out["level"][:, 0].astype(np.uint8),
+        ijk=out["ijk"].astype(np.int64),
+        count=out["count"][:, 0].astype(np.int64),
+        centroid=np.ascontiguousarray(out["centroid"]),
+        frame=np.ascontiguousarray(out["frame"]).reshape(P, 3, 3),
+        eigenvalues=np.ascontiguousarray(out["eigenvalues"]),
+        coeffs=np.ascontiguousarray(out["coeffs"]),
+        rmse=np.ascontiguousarray(out["rmse"][:, 0]),
+        kind=out["kind"][:, 0].astype(np.uint8),
+    )
+
+
+class Store:
+    """A tiled cloud in a zarr group.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> s = Store.create(os.path.join(tempfile.mkdtemp(), "s.zarr"))
+    >>> s.attrs["format"]
+    'patchcloud-store'
+    """
+
+    #: Points per zarr chunk of per-point arrays.
+    CHUNK = 1 << 16
+
+    def __init__(self, group: zarr.Group, url: str):
+        self.group = group
+        self.url = url
+
+    # -- opening -----------------------------------------------------------
+    @classmethod
+    def create(cls, url: str, overwrite: bool = False) -> "Store":
+        """A new, empty store at ``url`` (replacing what is there when ``overwrite``)."""
+        try:
+            g = zarr.open_group(url, mode="w" if overwrite else "w-")
+        except Exception as exc:
+            raise PatchcloudIOError(f"{url}: cannot create a store there ({exc})") from exc
+        g.attrs.update(format=FORMAT, version=VERSION, steps={})
+        return cls(g, url)
+
+    @classmethod
+    def open(cls, url: str, mode: str = "r+") -> "Store":
+        """An existing store; a clear error when ``url`` is not one or is of another version."""
+        try:
+            g = zarr.open_group(url, mode=mode)
+        except Exception as exc:
+            raise PatchcloudIOError(f"{url}: not a patchcloud store ({exc})") from exc
+        a = dict(g.attrs)
+        if a.get("format") != FORMAT:
+            raise PatchcloudIOError(f"{url}: not a patchcloud store (no '{FORMAT}' format mark)")
+        if a.get("version") != VERSION:
+            raise PatchcloudIOError(f"{url}: store version {a.get('version')} is not supported (this is version {VERSION})")
+        return cls(g, url)
+
+    @classmethod
+    def exists(cls, url: str) -> bool:
+        try:
+            g = zarr.open_group(url, mode="r")
+        except Exception:
+            return False
+        return dict(g.attrs).get("format") == FORMAT
+
+    # -- global state --------------------------------------------------------
+    @property
+    def attrs(self) -> dict:
+        return dict(self.group.attrs)
+
+    def update(self, **kw) -> None:
+        self.group.attrs.update(**json.loads(json.dumps(kw)))
+
+    @property
+    def grid(self) -> Grid:
+        return Grid.from_json(self.attrs["grid"])
+
+    @property
+    def tiles(self) -> list[tuple[int, int, int]]:
+        """Tile indices, in the store's canonical (lexicographic) order."""
+        return [tuple(t) for t in self.attrs.get("tiles", [])]
+
+    @property
+    def tile_counts(self) -> np.ndarray:
+        return np.asarray(self.attrs.get("tile_counts", []), dtype=np.int64)
+
+    def step_done(self, step: str) -> dict | None:
+        return self.attrs.get("steps", {}).get(step)
+
+    def mark_step(self, step: str, info: dict | None) -> None:
+        steps = self.attrs.get("steps", {})
+        if info is None:
+            steps.pop(step, None)
+        else:
+            steps[step] = info
+        self.update(steps=steps)
+
+    # -- tiles ---------------------------------------------------------------
+    def tile(self, ijk) -> zarr.Group:
+        return self.group.require_group(f"tiles/{tile_name(ijk)}")
+
+    def tile_done(self, ijk, step: str) -> bool:
+        name = f"tiles/{tile_name(ijk)}"
+        if name not in self.group:
+            return False
+        return bool(dict(self.group[name].attrs).get("done", {}).get(step))
+
+    def mark_tile(self, ijk, step: str, value=True) -> None:
+        g = self.tile(ijk)
+        done = dict(g.attrs).get("done", {})
+        done[step] = value
+        g.attrs.update(done=done)
+
+    def clear_tile_steps(self, steps: list[str]) -> None:
+        for ijk in self.tiles:
+            g = self.tile(ijk)
+            done = dict(g.attrs).get("done", {})
+            if any(s in done for s in steps):
+                g.attrs.update(done={k: v for k, v in done.items() if k not in steps})
+
+    def write(self, ijk, name: str, values: np.ndarray, chunk: int | None = None) -> None:
+        """Write (replace) array ``name`` of tile ``ijk``."""
+        g = self.tile(ijk)
+        values = np.ascontiguousarray(values)
+        rows = chunk or self.CHUNK
+        chunks = (max(1, min(rows, values.shape[0])),) + values.shape[1:]
+        a = g.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True)
+        if values.size:
+            a[...] = values
+
+    def read(self, ijk, name: str, rows: slice | None = None) -> np.ndarray:
+        g = self.group[f"tiles/{tile_name(ijk)}"]
+        if name not in g:
+            raise PatchcloudValueError(f"{self.url}: tile {tile_name(ijk)} has no array {name!r} (step not run?)")
+        a = g[name]
+        return a[...] if rows is None else a[rows]
+
+    def has(self, ijk, name: str) -> bool:
+        key = f"tiles/{tile_name(ijk)}"
+        return key in self.group and name in self.group[key]
+
+    def append(self, ijk, name: str, values: np.ndarray) -> None:
+        g = self.tile(ijk)
+        if name in g:
+            g[name].append(values, axis=0)
+        else:
+            chunks = (self.CHUNK * 4,) + values.shape[1:]
+            a = g.create_array(name, shape=(0,) + values.shape[1:], dtype=values.dtype, chunks=chunks)
+            a.append(values, axis=0)
+
+    def delete(self, ijk, name: str) -> None:
+        g = self.tile(ijk)
+        if name in g:
+            del g[name]
+
+    def patch_table(self, ijk) -> PatchTable:
+        grid = self.grid
+        return array_to_table(self.read(ijk, "patches"), grid.corner(ijk), grid.tile_size)
