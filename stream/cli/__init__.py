@@ -1,0 +1,28 @@
+"""The ``patchcloud`` command line (click): one module per subcommand, shared options in :mod:`.options`."""
+
+from __future__ import annotations
+
+import click
+
+from .info import info_command
+from .normals import normals_command
+from .tile import tile_command
+
+__all__ = ["main"]
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="patchcloud")
+def main() -> None:
+    """Normals, curvature and patch models of LiDAR point clouds of any size.
+
+    \b
+    Start with:
+      patchcloud normals in.laz out.laz       normals and curvature of a LAS/LAZ file
+      patchcloud info in.laz                  what a file (or a store) holds
+    """
+
+
+main.add_command(normals_command)
+main.add_command(tile_command)
+main.add_command(info_command)

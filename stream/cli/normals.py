@@ -1,0 +1,51 @@
+"""``patchcloud normals``."""
+
+from __future__ import annotations
+
+import click
+
+from . import options
+
+
+@click.command("normals")
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.argument("output", type=click.Path(dir_okay=False))
+@options.tile_size
+@click.option("--criterion", type=click.Choice(["rmse", "sigma3"]), default="rmse", show_default=True,
+              help="When an octree node is one smooth patch: quadric fit RMSE below the threshold (metres), or surface variation.")
+@click.option("--threshold", type=float, default=None, help="Threshold of the criterion. Default: from the scanner noise (rmse), 0.005 (sigma3).")
+@click.option("--orient", type=click.Choice(["up", "viewpoint", "outward", "none"]), default="up", show_default=True,
+              help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule.")
+@click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z", help="With --orient viewpoint, in the file's coordinates.")
+@click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
+@options.scheduler
+@options.workers
+@options.store
+@click.option("--keep-store", is_flag=True, help="Keep the default store after success.")
+@options.overwrite
+@options.quiet
+@options.reports_errors
+def normals_command(input, output, tile_size, criterion, threshold, orient, viewpoint, no_blend, scheduler, workers, store, keep_store, overwrite, quiet):
+    """Normals and curvature of INPUT (LAS/LAZ, any size), written to OUTPUT.
+
+    OUTPUT (LAZ when its name ends in .laz) holds every input point once, in
+    input order, with every original dimension unchanged, plus NormalX,
+    NormalY, NormalZ, Curvature (surface variation), NormalMethod (1 quadric
+    patch, 2 blended across patches, 3 k-nearest-neighbour fallback) and
+    PatchId.  Memory depends on --tile-size, not on the file.  A run that is
+    stopped can be resumed by running the same command again with --store.
+
+    \b
+    Example:
+      patchcloud normals city.laz city_normals.laz
+      patchcloud normals city.laz out.laz --store /data/city.zarr --scheduler tcp://head:8786
+    """
+    from patchcloud.stream import normals
+
+    summary = normals(
+        input, output, tile_size=tile_size, criterion=criterion, threshold=threshold, orient=orient,
+        viewpoint=viewpoint or None, blend=not no_blend, scheduler=scheduler, workers=workers, store=store,
+        keep_store=keep_store or None, overwrite=overwrite, quiet=quiet,
+    )
+    if not quiet:
+        click.echo(summary.format())

@@ -1,0 +1,44 @@
+"""Options shared by several subcommands, and the one way errors reach the user."""
+
+from __future__ import annotations
+
+import functools
+import sys
+
+import click
+
+from patchcloud.core.errors import PatchcloudError
+
+__all__ = ["tile_size", "scheduler", "workers", "store", "overwrite", "quiet", "reports_errors"]
+
+tile_size = click.option(
+    "--tile-size", type=float, default=None, metavar="METRES",
+    help="Edge of the tiles, rounded down to a power of two. Default: about a million points per tile.",
+)
+scheduler = click.option(
+    "--scheduler", default="threads", show_default=True, metavar="ADDRESS",
+    help="'threads' (this machine, one task per core), 'processes', 'synchronous', or the address of a "
+    "dask.distributed scheduler, e.g. tcp://host:8786 (the store must then be reachable by the workers).",
+)
+workers = click.option("--workers", type=int, default=None, help="Threads or processes on this machine. Default: the cores.")
+store = click.option(
+    "--store", default=None, metavar="PATH",
+    help="Where the tiles and intermediate results go (a path or an fsspec URL). Default: OUT.store beside "
+    "the output, removed when the job succeeds; a store given here is kept, and a rerun resumes from it.",
+)
+overwrite = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
+quiet = click.option("--quiet", "-q", is_flag=True, help="No progress bars or summary.")
+
+
+def reports_errors(func):
+    """Turn a PatchcloudError (bad file, bad parameter) into one line on stderr and exit status 2."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except PatchcloudError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+
+    return wrapper

@@ -1,0 +1,28 @@
+"""``patchcloud tile``."""
+
+from __future__ import annotations
+
+import click
+
+from . import options
+
+
+@click.command("tile")
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.argument("store")
+@options.tile_size
+@options.scheduler
+@options.workers
+@options.overwrite
+@options.quiet
+@options.reports_errors
+def tile_command(input, store, tile_size, scheduler, workers, overwrite, quiet):
+    """Cut INPUT (LAS/LAZ) into the tiled zarr STORE (a path or fsspec URL), without computing anything.
+
+    A later `patchcloud normals INPUT OUT --store STORE` starts from it.
+    """
+    from patchcloud.stream import format_info, info, tile
+
+    s = tile(input, store, tile_size=tile_size, scheduler=scheduler, workers=workers, overwrite=overwrite, quiet=quiet)
+    if not quiet:
+        click.echo(format_info(info(s.url)))
