@@ -36,7 +36,7 @@ def info(path: str | os.PathLike) -> dict:
         tiles = st.tiles
         done: dict[str, int] = {}
         for t in tiles:
-            for step, v in dict(st.tile(t).attrs).get("done", {}).items() if st.group.get(f"tiles/{_n(t)}") is not None else []:
+            for step, v in st.tile_attrs(t).get("done", {}).items():
                 if v:
                     done[step] = done.get(step, 0) + 1
         counts = np.asarray(a.get("tile_counts", []), dtype=np.int64)
@@ -46,12 +46,6 @@ def info(path: str | os.PathLike) -> dict:
             "steps": a.get("steps", {}), "tiles_done": done, "parameters": a.get("params"),
         }
     raise PatchcloudIOError(f"{p}: neither a LAS/LAZ file nor a patchcloud store")
-
-
-def _n(t):
-    from .store import tile_name
-
-    return tile_name(t)
 
 
 def format_info(d: dict) -> str:

@@ -312,7 +312,7 @@ def _summary(st: Store, src: LasSource, output: str, params: dict, seconds: dict
     kinds = np.zeros(3, dtype=np.int64)
     methods = np.zeros(4, dtype=np.int64)
     for t in st.tiles:
-        a = dict(st.tile(t).attrs)
+        a = st.tile_attrs(t)
         kinds += np.asarray(a["fit"]["kinds"], dtype=np.int64)
         methods += np.asarray(a["finish"]["methods"], dtype=np.int64)
     return NormalsSummary(

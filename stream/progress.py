@@ -12,7 +12,9 @@ class Progress:
     """Progress of one step of ``total`` units.
 
     >>> p = Progress("fit", 10, quiet=True)
-    >>> p.update(10); p.close()
+    >>> p.update(10)
+    >>> p.done
+    10
     """
 
     def __init__(self, label: str, total: int, quiet: bool = False, unit: str = "") -> None:

@@ -45,7 +45,7 @@ def orient_tiles(store: Store, runner: Runner, orient: str, quiet: bool = False)
     """Orient every patch of the store consistently; write each tile's ``sign``; return counts."""
     tiles = store.tiles
     index = {t: k for k, t in enumerate(tiles)}
-    sizes = np.array([int(dict(store.tile(t).attrs)["fit"]["patches"]) for t in tiles], dtype=np.int64)
+    sizes = np.array([int(store.tile_attrs(t)["fit"]["patches"]) for t in tiles], dtype=np.int64)
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     total = int(offsets[-1])
     rule = total

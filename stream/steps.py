@@ -44,7 +44,7 @@ def sort_tile(url: str, ijk: tuple) -> list[int]:
     store = Store.open(url)
     if store.tile_done(ijk, "sort"):
         store.delete(ijk, "raw")
-        return list(dict(store.tile(ijk).attrs)["occupancy"])
+        return list(store.tile_attrs(ijk)["occupancy"])
     grid = store.grid
     raw = store.read(ijk, "raw")
     local = grid.local(raw) - grid.corner(ijk)
@@ -52,9 +52,7 @@ def sort_tile(url: str, ijk: tuple) -> list[int]:
     store.write(ijk, "xyz", raw[order])
     store.write(ijk, "rank", order.astype(np.uint32))
     occ = [int(np.count_nonzero(np.diff(keys >> np.uint64(3 * (MAX_DEPTH - lev))))) + 1 for lev in range(MAX_DEPTH + 1)]
-    g = store.tile(ijk)
-    g.attrs.update(ijk=[int(v) for v in ijk], count=int(raw.shape[0]), occupancy=occ)
-    store.mark_tile(ijk, "sort")
+    store.mark_tile(ijk, "sort", index=[int(v) for v in ijk], count=int(raw.shape[0]), occupancy=occ)
     store.delete(ijk, "raw")
     return occ
 
@@ -127,7 +125,7 @@ def fit_one_tile(url: str, ijk: tuple, params: dict) -> dict:
     """Fit a tile's octree; store its patch table, orientation forest and skin."""
     store = Store.open(url)
     if store.tile_done(ijk, "fit"):
-        return dict(store.tile(ijk).attrs)["fit"]
+        return store.tile_attrs(ijk)["fit"]
     grid = store.grid
     T = grid.tile_size
     corner = grid.corner(ijk)
@@ -157,9 +155,7 @@ def fit_one_tile(url: str, ijk: tuple, params: dict) -> dict:
         patches=len(t), kinds=np.bincount(t.kind, minlength=3).tolist(), points_by_kind=kinds.astype(np.int64).tolist(),
         skin=int(near.sum()),
     )
-    g = store.tile(ijk)
-    g.attrs.update(fit=info)
-    store.mark_tile(ijk, "fit")
+    store.mark_tile(ijk, "fit", fit=info)
     return info
 
 
@@ -188,7 +184,7 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
     """Final normals and curvature of a tile's points, blended and oriented across tile faces."""
     store = Store.open(url)
     if store.tile_done(ijk, "finish"):
-        return dict(store.tile(ijk).attrs)["finish"]
+        return store.tile_attrs(ijk)["finish"]
     grid = store.grid
     T = grid.tile_size
     corner = grid.corner(ijk)
@@ -210,7 +206,8 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
         outside.append(oriented_table(n) if n in present else None)
     halo = params["halo"]
     sk_pts, sk_nrm, sk_ok = [], [], []
-    for n in sorted(present):
+    needs_knn = bool(np.any(table.kind != KIND_SURFACE))  # only k-NN normals look at the skin
+    for n in sorted(present) if needs_knn else []:
         sx = store.read(n, "skin")
         if sx.shape[0] == 0:
             continue
@@ -251,6 +248,5 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
     store.write(ijk, "method", out_m)
     store.write(ijk, "patch", out_p)
     info = dict(methods=np.bincount(res.method, minlength=4).tolist())
-    store.tile(ijk).attrs.update(finish=info)
-    store.mark_tile(ijk, "finish")
+    store.mark_tile(ijk, "finish", finish=info)
     return info

@@ -133,6 +133,8 @@ class Store:
     def __init__(self, group: zarr.Group, url: str):
         self.group = group
         self.url = url
+        self._attrs: dict | None = None
+        self._groups: dict[str, zarr.Group] = {}
 
     # -- opening -----------------------------------------------------------
     @classmethod
@@ -170,10 +172,15 @@ class Store:
     # -- global state --------------------------------------------------------
     @property
     def attrs(self) -> dict:
-        return dict(self.group.attrs)
+        """The store's attributes (read once, then kept up to date by :meth:`update`)."""
+        if self._attrs is None:
+            self._attrs = dict(self.group.attrs)
+        return self._attrs
 
     def update(self, **kw) -> None:
-        self.group.attrs.update(**json.loads(json.dumps(kw)))
+        kw = json.loads(json.dumps(kw))
+        self.group.attrs.update(**kw)
+        self._attrs = None
 
     @property
     def grid(self) -> Grid:
@@ -201,26 +208,34 @@ class Store:
 
     # -- tiles ---------------------------------------------------------------
     def tile(self, ijk) -> zarr.Group:
-        return self.group.require_group(f"tiles/{tile_name(ijk)}")
+        name = tile_name(ijk)
+        g = self._groups.get(name)
+        if g is None:
+            g = self.group.require_group(f"tiles/{name}")
+            self._groups[name] = g
+        return g
+
+    def tile_attrs(self, ijk) -> dict:
+        """The tile's attributes as stored now (another process may have changed them); {} for no tile."""
+        try:
+            return dict(self.group[f"tiles/{tile_name(ijk)}"].attrs)
+        except KeyError:
+            return {}
 
     def tile_done(self, ijk, step: str) -> bool:
-        name = f"tiles/{tile_name(ijk)}"
-        if name not in self.group:
-            return False
-        return bool(dict(self.group[name].attrs).get("done", {}).get(step))
+        return bool(self.tile_attrs(ijk).get("done", {}).get(step))
 
-    def mark_tile(self, ijk, step: str, value=True) -> None:
-        g = self.tile(ijk)
-        done = dict(g.attrs).get("done", {})
+    def mark_tile(self, ijk, step: str, value=True, **attrs) -> None:
+        """Mark ``step`` done on tile ``ijk``, storing ``attrs`` with it in one write."""
+        done = self.tile_attrs(ijk).get("done", {})
         done[step] = value
-        g.attrs.update(done=done)
+        self.tile(ijk).attrs.update(done=done, **json.loads(json.dumps(attrs)))
 
     def clear_tile_steps(self, steps: list[str]) -> None:
         for ijk in self.tiles:
-            g = self.tile(ijk)
-            done = dict(g.attrs).get("done", {})
+            done = self.tile_attrs(ijk).get("done", {})
             if any(s in done for s in steps):
-                g.attrs.update(done={k: v for k, v in done.items() if k not in steps})
+                self.tile(ijk).attrs.update(done={k: v for k, v in done.items() if k not in steps})
 
     def write(self, ijk, name: str, values: np.ndarray, chunk: int | None = None) -> None:
         """Write (replace) array ``name`` of tile ``ijk``."""
@@ -233,10 +248,10 @@ class Store:
             a[...] = values
 
     def read(self, ijk, name: str, rows: slice | None = None) -> np.ndarray:
-        g = self.group[f"tiles/{tile_name(ijk)}"]
-        if name not in g:
-            raise PatchcloudValueError(f"{self.url}: tile {tile_name(ijk)} has no array {name!r} (step not run?)")
-        a = g[name]
+        try:
+            a = self.tile(ijk)[name]
+        except KeyError:
+            raise PatchcloudValueError(f"{self.url}: tile {tile_name(ijk)} has no array {name!r} (step not run?)") from None
         return a[...] if rows is None else a[rows]
 
     def has(self, ijk, name: str) -> bool:
@@ -258,5 +273,5 @@ class Store:
             del g[name]
 
     def patch_table(self, ijk) -> PatchTable:
-        grid = self.grid
+        grid = self._grid = getattr(self, "_grid", None) or self.grid
         return array_to_table(self.read(ijk, "patches"), grid.corner(ijk), grid.tile_size)
