@@ -16,7 +16,7 @@ import numpy as np
 from patchcloud.core.errors import PatchcloudIOError
 
 from .ingest import _pack
-from .lasio import LasSource, atomic_output, is_laz_name, output_header, read_chunks
+from .lasio import LasSource, _laz_backend, atomic_output, is_laz_name, output_header, read_chunks
 from .progress import Progress
 from .store import Store
 
@@ -37,7 +37,9 @@ def export_normals(store: Store, src: LasSource, output: str, overwrite: bool = 
     arrays = {ijk: None for ijk in tiles}
     bar = Progress("export", src.point_count, quiet=quiet)
     with atomic_output(output, overwrite) as f:
-        with laspy.open(f, mode="w", header=header, do_compress=is_laz_name(output), closefd=False) as writer:
+        with laspy.open(
+            f, mode="w", header=header, do_compress=is_laz_name(output), closefd=False, laz_backend=_laz_backend()
+        ) as writer:
             for first, pts in read_chunks(src, chunk):
                 c = first // chunk
                 n = len(pts)
