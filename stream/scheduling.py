@@ -71,9 +71,9 @@ class Runner:
         from dask.distributed import Client, LocalCluster
 
         if self.scheduler == "threads":
-            self.cluster = LocalCluster(processes=False, n_workers=1, threads_per_worker=n, dashboard_address=None)
+            self.cluster = LocalCluster(processes=False, n_workers=1, threads_per_worker=n, dashboard_address=":0")
         elif self.scheduler == "processes":
-            self.cluster = LocalCluster(processes=True, n_workers=n, threads_per_worker=1, dashboard_address=None)
+            self.cluster = LocalCluster(processes=True, n_workers=n, threads_per_worker=1, dashboard_address=":0")
         elif "://" in self.scheduler or ":" in self.scheduler:
             try:
                 self.client = Client(self.scheduler, timeout="20s")
