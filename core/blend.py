@@ -21,7 +21,7 @@ import numpy as np
 from typing import Sequence
 
 from . import _kernels
-from .morton import MAX_DEPTH, encode
+from .morton import encode, key_range
 from .octree import Octree
 from .patches import PatchTable
 
@@ -73,9 +73,7 @@ def blend_across_faces(
     -------
     (N,) bool: True where at least one neighbouring surface contributed.
     """
-    shift = (3 * (MAX_DEPTH - tree.level)).astype(np.uint64)
-    lo_key = tree.cell << shift
-    hi_key = (tree.cell + np.uint64(1)) << shift
+    lo_key, hi_key = key_range(tree.cell, tree.level)
     nb = _pack_outside(outside, corner)
     blended = np.zeros(tree.local.shape[0], dtype=np.bool_)
     _kernels.blend_points(
@@ -97,12 +95,8 @@ def _pack_outside(outside, corner) -> tuple:
         if t is None or len(t) == 0:
             off[d + 1] = off[d]
             continue
-        level = t.level.astype(np.int64)
-        cell = encode(t.ijk)
-        shift = (3 * (MAX_DEPTH - level)).astype(np.uint64)
-        lo = cell << shift
+        lo, hi = key_range(encode(t.ijk), t.level)
         order = np.argsort(lo, kind="stable")
-        hi = (cell + np.uint64(1)) << shift
         parts.append((lo[order], hi[order], t.edge[order], t.kind[order], t.centroid[order] - np.asarray(corner), t.frame[order], t.coeffs[order], t.sigma3[order]))
         off[d + 1] = off[d] + len(t)
     if not parts:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MAX_DEPTH", "encode", "decode", "quantize"]
+__all__ = ["MAX_DEPTH", "encode", "decode", "quantize", "key_range", "containing"]
 
 #: Bits per axis; 3 * 21 = 63 bits fit an unsigned 64-bit key.
 MAX_DEPTH = 21
@@ -89,3 +89,17 @@ def quantize(local: np.ndarray, edge: float) -> np.ndarray:
     q = np.floor(local * (n / edge)).astype(np.int64)
     np.clip(q, 0, n - 1, out=q)
     return q
+
+
+def key_range(cell: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Depth-``MAX_DEPTH`` keys ``[lo, hi)`` covered by cells of given Morton ids at given levels."""
+    shift = (3 * (MAX_DEPTH - np.asarray(level, dtype=np.int64))).astype(np.uint64)
+    cell = np.asarray(cell, dtype=np.uint64)
+    return cell << shift, (cell + _M(1)) << shift
+
+
+def containing(lo: np.ndarray, hi: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Index of the range ``[lo[i], hi[i])`` holding each key, or -1; ``lo`` ascending, ranges disjoint."""
+    idx = np.searchsorted(lo, keys, side="right") - 1
+    safe = np.maximum(idx, 0)
+    return np.where((idx >= 0) & (keys < hi[safe]), idx, -1)

@@ -31,7 +31,7 @@ from .orient import ORIENT_RULES
 from .patches import PatchTable
 from .tiles import finish_tile, fit_tile, patch_signs
 
-__all__ = ["Method", "NormalsParameters", "NormalsResult", "estimate_normals"]
+__all__ = ["Method", "NormalsParameters", "NormalsResult", "check_parameters", "estimate_normals"]
 
 
 class Method(IntEnum):
@@ -164,6 +164,53 @@ def _root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]
     return corner, edge
 
 
+def check_parameters(
+    criterion: str,
+    orient: str,
+    viewpoint=None,
+    *,
+    threshold: float | None = None,
+    d_min: float | None = None,
+    max_edge: float | None = None,
+    n_min: int = 12,
+    min_sigma2: float = 0.01,
+    k_fallback: int = 16,
+) -> dict:
+    """The parameters of :func:`estimate_normals`, validated and normalised.
+
+    Returns a dict with ``threshold``, ``d_min``, ``max_edge`` (float or
+    None), ``n_min``, ``k_fallback`` (int) and ``viewpoint`` ((3,) float64
+    with ``orient="viewpoint"``, else None).
+
+    Raises
+    ------
+    PatchcloudValueError
+        The first invalid parameter, with the valid values.
+    """
+    if criterion not in CRITERIA:
+        raise PatchcloudValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
+    if orient not in ORIENT_RULES:
+        raise PatchcloudValueError(f"orient must be one of {', '.join(ORIENT_RULES)}; got {orient!r}")
+    out = {
+        "n_min": _positive("n_min", n_min, integer=True),
+        "k_fallback": _positive("k_fallback", k_fallback, integer=True),
+        "threshold": _positive("threshold", threshold),
+        "d_min": _positive("d_min", d_min),
+        "max_edge": _positive("max_edge", max_edge),
+        "viewpoint": None,
+    }
+    if not (0 <= min_sigma2 < 1 / 3 + 1e-12):
+        raise PatchcloudValueError(f"min_sigma2 must be in [0, 1/3), got {min_sigma2!r}")
+    if orient == "viewpoint":
+        if viewpoint is None:
+            raise PatchcloudValueError('orient="viewpoint" needs a viewpoint (x, y, z)')
+        vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
+        if vp.shape != (3,) or not np.isfinite(vp).all():
+            raise PatchcloudValueError(f"viewpoint must be three finite numbers, got {viewpoint!r}")
+        out["viewpoint"] = vp
+    return out
+
+
 def estimate_normals(
     points: np.ndarray,
     criterion: str = "rmse",
@@ -247,24 +294,12 @@ def estimate_normals(
     True
     """
     pts, lo, hi = _validate_points(points)
-    if criterion not in CRITERIA:
-        raise PatchcloudValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
-    if orient not in ORIENT_RULES:
-        raise PatchcloudValueError(f"orient must be one of {', '.join(ORIENT_RULES)}; got {orient!r}")
-    n_min = _positive("n_min", n_min, integer=True)
-    k_fallback = _positive("k_fallback", k_fallback, integer=True)
-    threshold = _positive("threshold", threshold)
-    d_min = _positive("d_min", d_min)
-    max_edge = _positive("max_edge", max_edge)
-    if not (0 <= min_sigma2 < 1 / 3 + 1e-12):
-        raise PatchcloudValueError(f"min_sigma2 must be in [0, 1/3), got {min_sigma2!r}")
-    vp = None
-    if orient == "viewpoint":
-        if viewpoint is None:
-            raise PatchcloudValueError('orient="viewpoint" needs a viewpoint (x, y, z)')
-        vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
-        if vp.shape != (3,) or not np.isfinite(vp).all():
-            raise PatchcloudValueError(f"viewpoint must be three finite numbers, got {viewpoint!r}")
+    checked = check_parameters(
+        criterion, orient, viewpoint, threshold=threshold, d_min=d_min, max_edge=max_edge, n_min=n_min,
+        min_sigma2=min_sigma2, k_fallback=k_fallback,
+    )
+    threshold, d_min, max_edge = checked["threshold"], checked["d_min"], checked["max_edge"]
+    n_min, k_fallback, vp = checked["n_min"], checked["k_fallback"], checked["viewpoint"]
     n = pts.shape[0]
     if n < n_min:
         raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")

@@ -15,12 +15,12 @@ from functools import cached_property
 
 import numpy as np
 
-from .morton import MAX_DEPTH, decode
+from .morton import MAX_DEPTH, containing, decode, key_range
 from . import _kernels
 from .moments import EXPONENTS, shift_entries
 from .quadric import NodeFit, fit_nodes
 
-__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "CRITERIA", "KIND_SURFACE", "KIND_EDGE", "KIND_SPARSE"]
+__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "CRITERIA", "KIND_SURFACE", "KIND_EDGE", "KIND_SPARSE", "max_level_for", "point_keys"]
 
 #: Subdivision criteria: "rmse" (quadric fit error, metres) and "sigma3" (surface variation).
 CRITERIA = ("rmse", "sigma3")
@@ -101,13 +101,21 @@ class Octree:
 
     def find_leaf(self, qkeys: np.ndarray) -> np.ndarray:
         """Leaf containing each depth-``MAX_DEPTH`` key, or -1 where none does."""
-        shift = (3 * (MAX_DEPTH - self.level)).astype(np.uint64)
-        lo = self.cell << shift
-        hi = (self.cell + np.uint64(1)) << shift
-        idx = np.searchsorted(lo, qkeys, side="right") - 1
-        safe = np.maximum(idx, 0)
-        ok = (idx >= 0) & (qkeys < hi[safe])
-        return np.where(ok, idx, -1)
+        return containing(*key_range(self.cell, self.level), qkeys)
+
+
+def max_level_for(edge: float, d_min: float) -> int:
+    """Deepest octree level below a root cube of ``edge`` whose cubes are at least ``d_min``."""
+    return int(np.clip(np.floor(np.log2(edge / d_min)), 0, MAX_DEPTH)) if d_min > 0 else MAX_DEPTH
+
+
+def point_keys(points: np.ndarray, edge: float, corner=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Depth-``MAX_DEPTH`` integer coordinates (N, 3) and Morton keys (N,) of points in the cube at ``corner``."""
+    n = points.shape[0]
+    q = np.empty((n, 3), dtype=np.int64)
+    keys = np.empty(n, dtype=np.uint64)
+    _kernels.morton_keys(np.ascontiguousarray(points, dtype=np.float64), np.asarray(corner, dtype=np.float64), float(edge), q, keys)
+    return q, keys
 
 
 def sort_points(points: np.ndarray, corner: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -128,10 +136,7 @@ def sort_points(points: np.ndarray, corner: np.ndarray, edge: float) -> tuple[np
     -------
     order : (N,) int64, keys : (N,) uint64 sorted, q : (N, 3) int64 sorted.
     """
-    n = points.shape[0]
-    q = np.empty((n, 3), dtype=np.int64)
-    keys = np.empty(n, dtype=np.uint64)
-    _kernels.morton_keys(points, np.asarray(corner, dtype=np.float64), float(edge), q, keys)
+    q, keys = point_keys(points, edge, corner)
     order = np.argsort(keys, kind="stable")
     keys = keys[order]
     tie = np.flatnonzero(keys[1:] == keys[:-1])
@@ -267,7 +272,7 @@ def build_octree(
     """
     order, keys, q = sorted_input if sorted_input is not None else sort_points(local, np.zeros(3), edge)
     pts = _kernels.take_rows(local, order)
-    max_level = int(np.clip(np.floor(np.log2(edge / d_min)), 0, MAX_DEPTH)) if d_min > 0 else MAX_DEPTH
+    max_level = max_level_for(edge, d_min)
     levels = _bottom_up(pts, keys, edge, max_level)
     if threshold is None:
         if criterion != "rmse":

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
-from .morton import MAX_DEPTH, encode
+from .morton import MAX_DEPTH, containing, encode, key_range
 from .octree import KIND_SURFACE, Octree
 from .quadric import implicit_value, surface_normals
 
@@ -230,16 +230,11 @@ def _probe_across(S, T, axis: int, upper: bool) -> tuple[np.ndarray, np.ndarray,
     shift = (MAX_DEPTH - level[src])[:, None]
     keys = encode(np.left_shift(probe, shift))
     t_level = np.asarray(T.level).astype(np.int64)
-    t_cell = encode(np.asarray(T.ijk).astype(np.int64))
-    t_shift = (3 * (MAX_DEPTH - t_level)).astype(np.uint64)
-    lo = t_cell << t_shift
-    hi = (t_cell + np.uint64(1)) << t_shift
+    lo, hi = key_range(encode(np.asarray(T.ijk).astype(np.int64)), t_level)
     order = np.argsort(lo, kind="stable")
-    pos = np.searchsorted(lo[order], keys, side="right") - 1
-    safe = np.maximum(pos, 0)
-    j = order[safe]
-    ok = (pos >= 0) & (keys < hi[j])
-    ok &= t_level[j] <= level[src]
+    pos = containing(lo[order], hi[order], keys)
+    j = order[np.maximum(pos, 0)]
+    ok = (pos >= 0) & (t_level[j] <= level[src])
     d = 2 * axis + (1 if upper else 0)
     return src[ok], j[ok], np.full(int(ok.sum()), d, dtype=np.int64)
 

@@ -37,7 +37,7 @@ from . import _kernels
 from .blend import blend_across_faces
 from .fallback import knn_normals
 from .morton import encode
-from .octree import KIND_SURFACE, Octree, build_octree, sort_points
+from .octree import KIND_SURFACE, Octree, build_octree, max_level_for, point_keys, sort_points
 from .orient import (
     MIN_RELIABILITY,
     LeafSet,
@@ -52,7 +52,7 @@ from .orient import (
 from .patches import PatchTable
 from .quadric import NodeFit, turn_over
 
-__all__ = ["TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile", "max_level_for", "METHOD_QUADRIC", "METHOD_BLENDED", "METHOD_KNN"]
+__all__ = ["TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile", "METHOD_QUADRIC", "METHOD_BLENDED", "METHOD_KNN"]
 
 #: Method codes (see :class:`patchcloud.core.Method`).
 METHOD_QUADRIC, METHOD_BLENDED, METHOD_KNN = 1, 2, 3
@@ -131,13 +131,6 @@ class TileNormals:
     method: np.ndarray
     patch: np.ndarray
     patches: PatchTable
-
-
-def max_level_for(edge: float, d_min: float) -> int:
-    """Deepest octree level below a root cube of ``edge`` whose cubes are at least ``d_min``."""
-    from .morton import MAX_DEPTH
-
-    return int(np.clip(np.floor(np.log2(edge / d_min)), 0, MAX_DEPTH)) if d_min > 0 else MAX_DEPTH
 
 
 def fit_tile(
@@ -253,9 +246,7 @@ def patch_signs(
 def _tree_of(local: np.ndarray, table: PatchTable, corner: np.ndarray, edge: float, max_level: int) -> Octree:
     """The octree of sorted tile points whose leaves are ``table``'s rows (nothing refitted)."""
     n = local.shape[0]
-    q = np.empty((n, 3), dtype=np.int64)
-    keys = np.empty(n, dtype=np.uint64)
-    _kernels.morton_keys(local, np.zeros(3), float(edge), q, keys)
+    q, keys = point_keys(local, edge)
     level = table.level.astype(np.int64)
     count = table.count.astype(np.int64)
     start = np.cumsum(count) - count

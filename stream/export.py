@@ -15,10 +15,10 @@ import numpy as np
 
 from patchcloud.core.errors import PatchcloudIOError
 
-from .ingest import _pack
+from .ingest import _pack, tile_keys
 from .lasio import LasSource, _laz_backend, atomic_output, is_laz_name, output_header, read_chunks
 from .progress import Progress
-from .store import Store
+from .store import Store, tile_name
 
 __all__ = ["export_normals"]
 
@@ -29,7 +29,7 @@ def export_normals(store: Store, src: LasSource, output: str, overwrite: bool = 
     grid = store.grid
     chunk = int(store.attrs["chunk_points"])
     tiles = store.tiles
-    tile_keys = _pack(np.asarray(tiles, dtype=np.int64))
+    tile_index = _pack(np.asarray(tiles, dtype=np.int64))  # sorted: the store lists tiles in key order
     patch_offsets = np.asarray(store.attrs["patch_offsets"], dtype=np.int64)
     index = store.group["index/chunk_tile"][...]
     bounds = np.searchsorted(index[:, 0], np.arange(-(-src.point_count // chunk) + 1))
@@ -44,7 +44,7 @@ def export_normals(store: Store, src: LasSource, output: str, overwrite: bool = 
                 c = first // chunk
                 n = len(pts)
                 xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]])
-                tid = np.searchsorted(tile_keys, _pack(grid.tile_of(grid.local(xyz))))
+                tid = np.searchsorted(tile_index, tile_keys(grid, xyz))
                 order = np.argsort(tid, kind="stable")
                 rows = index[bounds[c] : bounds[c + 1]]
                 counts = np.bincount(tid, minlength=len(tiles))
@@ -58,7 +58,7 @@ def export_normals(store: Store, src: LasSource, output: str, overwrite: bool = 
                 for t, m in zip(rows[:, 1].tolist(), rows[:, 2].tolist()):
                     ijk = tiles[t]
                     if arrays[ijk] is None:
-                        g = store.group[f"tiles/{_name(ijk)}"]
+                        g = store.group[f"tiles/{tile_name(ijk)}"]
                         arrays[ijk] = (g["normal"], g["curvature"], g["method"], g["patch"])
                     a_n, a_c, a_m, a_p = arrays[ijk]
                     sl = slice(int(taken[t]), int(taken[t]) + m)
@@ -81,8 +81,3 @@ def export_normals(store: Store, src: LasSource, output: str, overwrite: bool = 
                 bar.update(n)
     bar.close()
 
-
-def _name(ijk) -> str:
-    from .store import tile_name
-
-    return tile_name(ijk)

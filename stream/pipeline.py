@@ -29,8 +29,7 @@ import numpy as np
 
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 from patchcloud.core.morton import MAX_DEPTH
-from patchcloud.core.octree import CRITERIA
-from patchcloud.core.orient import ORIENT_RULES
+from patchcloud.core.normals import check_parameters
 
 from . import steps
 from .export import export_normals
@@ -88,14 +87,9 @@ def _params_key(d: dict) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _validate(criterion: str, orient: str, viewpoint, tile_size) -> None:
-    if criterion not in CRITERIA:
-        raise PatchcloudValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
-    if orient not in ORIENT_RULES:
-        raise PatchcloudValueError(f"orient must be one of {', '.join(ORIENT_RULES)}; got {orient!r}")
-    if orient == "viewpoint":
-        if viewpoint is None or len(viewpoint) != 3 or not np.isfinite(np.asarray(viewpoint, dtype=float)).all():
-            raise PatchcloudValueError('orient="viewpoint" needs a viewpoint: three finite numbers X Y Z')
+def _validate(tile_size, **parameters) -> None:
+    """The core's parameter checks, and the tile size's."""
+    check_parameters(**parameters)
     if tile_size is not None and (not np.isfinite(tile_size) or tile_size <= 0):
         raise PatchcloudValueError(f"tile size must be a positive number of metres, got {tile_size!r}")
 
@@ -110,9 +104,7 @@ def _ensure_tiled(src: LasSource, url: str, tile_size: float | None, runner: Run
         same = a.get("source") and src.same_file(a["source"]) and a.get("grid") == grid.to_json()
         if same and store.step_done("tile"):
             return store, 0.0
-        if same and store.step_done("bucket"):
-            pass  # the sort was interrupted: finish it below
-        else:
+        if not (same and store.step_done("bucket")):  # else only the sort was interrupted: finish it below
             store = Store.create(url, overwrite=True)
     else:
         store = Store.create(url)
@@ -142,7 +134,7 @@ def tile(
     >>> from patchcloud.stream import tile   # doctest: +SKIP
     >>> tile("city.laz", "city.zarr", tile_size=64)   # doctest: +SKIP
     """
-    _validate("rmse", "up", None, tile_size)
+    _validate(tile_size, criterion="rmse", orient="up")
     src = open_source(input)
     if Store.exists(store) and overwrite:
         Store.create(store, overwrite=True)
@@ -251,7 +243,10 @@ def normals(
     PatchcloudValueError (a ValueError)
         An invalid parameter.
     """
-    _validate(criterion, orient, viewpoint, tile_size)
+    _validate(
+        tile_size, criterion=criterion, orient=orient, viewpoint=viewpoint, threshold=threshold, d_min=d_min,
+        max_edge=max_edge, n_min=n_min, min_sigma2=min_sigma2, k_fallback=k_fallback,
+    )
     out = Path(output)
     if out.exists() and not overwrite:
         raise PatchcloudIOError(f"{out}: exists (use --overwrite to replace it)")

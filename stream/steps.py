@@ -13,10 +13,10 @@ import numpy as np
 
 from patchcloud.core import _kernels
 from patchcloud.core.morton import MAX_DEPTH, decode
-from patchcloud.core.octree import FLOOR_FACTOR, KIND_SURFACE, NOISE_FACTOR, sort_points
+from patchcloud.core.octree import FLOOR_FACTOR, KIND_SURFACE, NOISE_FACTOR, max_level_for, point_keys, sort_points
 from patchcloud.core.orient import LeafSet, cross_face_pairs, link_agreements
 from patchcloud.core.quadric import fit_nodes, surface_normals
-from patchcloud.core.tiles import Skin, finish_tile, fit_tile, max_level_for
+from patchcloud.core.tiles import Skin, finish_tile, fit_tile
 
 from .store import Store, table_to_array
 
@@ -26,14 +26,6 @@ __all__ = ["sort_tile", "calibrate_tile", "fit_one_tile", "seam_links", "finish_
 RMSE_BINS = np.linspace(-7.0, 2.0, 9 * 400 + 1)
 #: Finest cells used for the default threshold: those whose hash falls in 1 of this many.
 CALIBRATION_STRIDE = 8
-
-
-def _keys(local: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray]:
-    n = local.shape[0]
-    q = np.empty((n, 3), dtype=np.int64)
-    keys = np.empty(n, dtype=np.uint64)
-    _kernels.morton_keys(np.ascontiguousarray(local), np.zeros(3), float(edge), q, keys)
-    return q, keys
 
 
 def sort_tile(url: str, ijk: tuple) -> list[int]:
@@ -89,7 +81,7 @@ def calibrate_tile(url: str, ijk: tuple, d_min: float, n_min: int) -> np.ndarray
     grid = store.grid
     T = grid.tile_size
     local = grid.local(store.read(ijk, "xyz")) - grid.corner(ijk)
-    _, keys = _keys(local, T)
+    _, keys = point_keys(local, T)
     level = max_level_for(T, d_min)
     c = keys >> np.uint64(3 * (MAX_DEPTH - level))
     starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
@@ -131,7 +123,7 @@ def fit_one_tile(url: str, ijk: tuple, params: dict) -> dict:
     corner = grid.corner(ijk)
     xyz = store.read(ijk, "xyz")
     pts = grid.local(xyz)
-    q, keys = _keys(pts - corner, T)
+    q, keys = point_keys(pts - corner, T)
     vp = params.get("viewpoint_local")
     fit = fit_tile(
         pts, corner, T, criterion=params["criterion"], threshold=params["threshold"], d_min=params["d_min"],

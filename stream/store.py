@@ -273,5 +273,5 @@ class Store:
             del g[name]
 
     def patch_table(self, ijk) -> PatchTable:
-        grid = self._grid = getattr(self, "_grid", None) or self.grid
+        grid = self.grid
         return array_to_table(self.read(ijk, "patches"), grid.corner(ijk), grid.tile_size)
