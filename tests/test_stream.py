@@ -10,6 +10,7 @@ from conftest import angles_deg
 
 import synthetic
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core.octree import point_keys
 from patchcloud.stream import Store, normals, tile
 from patchcloud.stream import steps as stream_steps
 from patchcloud.stream.cli import main
@@ -172,9 +173,12 @@ def test_tile_and_info_commands(scene_las, tmp_path):
     st = Store.open(str(tmp_path / "s.zarr"))
     assert sum(st.tile_counts) == len(pts) and st.grid.tile_size == 16
     total = 0
-    for t in st.tiles:  # sorted within each tile, and the rank is a permutation
+    grid = st.grid
+    for t in st.tiles:  # sorted by octree key within each tile, and the rank is a permutation
         rank = st.read(t, "rank")
         assert np.array_equal(np.sort(rank), np.arange(rank.size))
+        _, keys = point_keys(grid.local(st.read(t, "xyz")) - grid.corner(t), grid.tile_size)
+        assert np.all(keys[1:] >= keys[:-1])
         total += rank.size
     assert total == len(pts)
     r = CliRunner().invoke(main, ["info", str(tmp_path / "s.zarr")])
