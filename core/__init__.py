@@ -1,4 +1,4 @@
-"""patchcloud.core: normals, curvature and quadric patch models of one in-memory cloud.
+"""patchcloud.core: normals, curvature, quadric patch models and Difference of Normals of one in-memory cloud.
 
 Numpy arrays in, numpy arrays out; no files and no dask here.
 
@@ -10,9 +10,12 @@ Numpy arrays in, numpy arrays out; no files and no dask here.
 ((5000, 3), dtype('float32'))
 """
 
+from .cluster import euclidean_clusters
+from .don import difference_of_normals, don_magnitude, don_mask, segment_don
 from .errors import PatchcloudError, PatchcloudIOError, PatchcloudValueError
 from .normals import Method, NormalsParameters, NormalsResult, estimate_normals
 from .patches import PatchKind, PatchTable
+from .radius import default_viewpoint, radius_normals
 
 __all__ = [
     "estimate_normals",
@@ -21,6 +24,13 @@ __all__ = [
     "Method",
     "PatchTable",
     "PatchKind",
+    "radius_normals",
+    "default_viewpoint",
+    "difference_of_normals",
+    "don_magnitude",
+    "don_mask",
+    "segment_don",
+    "euclidean_clusters",
     "PatchcloudError",
     "PatchcloudValueError",
     "PatchcloudIOError",

@@ -1,0 +1,221 @@
+"""Radius normals, Difference of Normals and Euclidean clustering of one in-memory cloud (patchcloud.core)."""
+
+import numpy as np
+import pytest
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from scipy.stats import spearmanr
+
+from patchcloud.core import (
+    PatchcloudValueError,
+    difference_of_normals,
+    don_magnitude,
+    don_mask,
+    euclidean_clusters,
+    radius_normals,
+    segment_don,
+)
+from patchcloud.core.radius import halo_width
+
+
+def brute_normals(points, radius, viewpoint, at):
+    """PCA of the ball, by hand: the reference definition."""
+    tree = cKDTree(points)
+    out = np.full((len(at), 3), np.nan)
+    for m, i in enumerate(at):
+        nb = tree.query_ball_point(points[i], radius * (1 + 1e-12))
+        if len(nb) < 3:
+            continue
+        d = points[nb] - points[i]
+        w, v = np.linalg.eigh(np.cov(d.T, bias=True))
+        n = v[:, 0]
+        out[m] = n if np.dot(viewpoint - points[i], n) >= 0 else -n
+    return out
+
+
+def pole_scene(rng, spacing=0.05):
+    """A 12 x 12 m ground plane with a vertical pole of radius 0.1 m and height 3 m at its centre."""
+    g = np.arange(-6, 6, spacing)
+    gx, gy = np.meshgrid(g, g)
+    ground = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    ground[:, :2] += rng.uniform(-spacing / 4, spacing / 4, (gx.size, 2))
+    theta = np.arange(0, 2 * np.pi, spacing / 0.1)
+    z = np.arange(spacing, 3.0, spacing)
+    tt, zz = np.meshgrid(theta, z)
+    pole = np.column_stack([0.1 * np.cos(tt.ravel()), 0.1 * np.sin(tt.ravel()), zz.ravel()])
+    ground = ground[np.hypot(ground[:, 0], ground[:, 1]) > 0.1]
+    return np.vstack([ground, pole]), len(ground)
+
+
+def test_exact_normals_equal_the_reference_pca(rng):
+    p = rng.uniform(0, 3, (3000, 3)) * [1, 1, 0.2] + [650000.0, 6860000.0, 40.0]  # UTM-sized coordinates
+    at = rng.choice(len(p), 200, replace=False)
+    vp = np.array([650001.0, 6860001.0, 100.0])
+    ours = radius_normals(p, 0.4, viewpoint=vp, at=at)
+    ref = brute_normals(p, 0.4, vp, at)
+    assert np.array_equal(np.isnan(ours), np.isnan(ref))
+    ok = ~np.isnan(ref[:, 0])
+    assert ok.sum() > 150
+    np.testing.assert_allclose(ours[ok], ref[ok], atol=1e-9)
+
+
+@pytest.mark.parametrize("mode", ["exact", "fast"])
+def test_plane_gives_zero_don_and_normals_face_the_viewpoint(rng, mode):
+    xy = rng.uniform(0, 10, (20000, 2))
+    p = np.column_stack([xy, 0.3 * xy[:, 0] + 5.0])  # tilted plane
+    d = difference_of_normals(p, 0.3, 1.5, mode=mode)
+    assert np.nanmax(np.abs(d)) < 1e-9
+    n = radius_normals(p, 0.5, mode=mode, viewpoint=[5, 5, 100])
+    truth = np.array([-0.3, 0, 1]) / np.hypot(0.3, 1)
+    np.testing.assert_allclose(n, np.broadcast_to(truth, n.shape), atol=1e-9)
+    n_down = radius_normals(p, 0.5, mode=mode, viewpoint=[5, 5, -100])
+    np.testing.assert_allclose(n_down, -n, atol=1e-12)
+
+
+@pytest.mark.parametrize("mode", ["exact", "fast"])
+def test_magnitude_lies_in_unit_interval(rng, mode):
+    p = rng.normal(size=(20000, 3)) * [2, 2, 0.5]
+    m = don_magnitude(difference_of_normals(p, 0.3, 1.2, mode=mode))
+    ok = np.isfinite(m)
+    assert ok.mean() > 0.9
+    assert m[ok].min() >= 0 and m[ok].max() <= 1 + 1e-12
+
+
+def test_pole_responds_at_its_scale_and_not_at_others(rng):
+    p, n_ground = pole_scene(rng)
+    pole = np.arange(len(p)) >= n_ground
+    mid = pole & (p[:, 2] > 1.0) & (p[:, 2] < 2.0)  # away from the pole's foot and top
+    far = ~pole & (np.hypot(p[:, 0], p[:, 1]) > 3.0) & (np.abs(p[:, :2]).max(axis=1) < 4.0)
+    at_scale = don_magnitude(difference_of_normals(p, 0.2, 2.0))
+    assert np.median(at_scale[mid]) > 0.5  # horizontal small-scale normal vs near-vertical large-scale one
+    assert np.nanmax(at_scale[far]) < 1e-6  # the ground away from the pole is flat at both scales
+    # both radii far larger than the pole: the ground dominates both balls
+    large = don_magnitude(difference_of_normals(p, 6.0, 8.0))
+    assert np.nanmedian(large[mid]) < 0.1
+    # both radii smaller than the pole's radius: both normals radial
+    small = don_magnitude(difference_of_normals(p, 0.06, 0.09))
+    assert np.nanmedian(small[mid]) < 0.1
+
+
+def test_undefined_normals_are_nan_never_zero():
+    isolated = np.array([[0.0, 0, 0], [10.0, 0, 0], [10.1, 0, 0], [20, 0, 0], [20, 0.1, 0], [20, 0, 0.1]])
+    n = radius_normals(isolated, 0.5)
+    assert np.isnan(n[:3]).all()  # one point, two points (collinear)
+    assert np.isfinite(n[3:]).all()  # three non-collinear points define a plane
+    line = np.column_stack([np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)])
+    assert np.isnan(radius_normals(line, 0.2)).all()
+    d = difference_of_normals(isolated, 0.05, 0.5)
+    assert np.isnan(d).all()  # the small ball holds one point everywhere
+    assert not don_mask(d, 0.0).any()
+
+
+@pytest.mark.parametrize("mode", ["exact", "fast"])
+def test_results_do_not_depend_on_input_order(rng, mode):
+    p, _ = pole_scene(rng, spacing=0.1)
+    perm = rng.permutation(len(p))
+    vp = [0, 0, 50]
+    a = difference_of_normals(p, 0.25, 1.0, mode=mode, viewpoint=vp)
+    b = difference_of_normals(p[perm], 0.25, 1.0, mode=mode, viewpoint=vp)
+    assert np.array_equal(a[perm], b, equal_nan=True)  # bit-identical
+
+
+@pytest.mark.parametrize("mode", ["exact", "fast"])
+def test_a_region_with_its_halo_gives_the_whole_clouds_values(rng, mode):
+    """The invariant the tiled stream relies on: a box plus a halo of halo_width gives bit-identical rows."""
+    p, _ = pole_scene(rng, spacing=0.08)
+    p = p + [770512.0, 6277530.0, 35.0]  # Lambert-93-sized, as in the stream's frames
+    vp = np.array([770512.0, 6277530.0, 80.0])
+    whole = difference_of_normals(p, 0.3, 1.0, mode=mode, viewpoint=vp)
+    lo, hi = np.array([770510.0, 6277529.0, 0.0]), np.array([770513.0, 6277533.0, 100.0])
+    w = halo_width(1.0, mode)
+    near = np.all((p >= lo - w) & (p < hi + w), axis=1)
+    inside = np.flatnonzero(np.all((p[near] >= lo) & (p[near] < hi), axis=1))
+    part = difference_of_normals(p[near], 0.3, 1.0, mode=mode, viewpoint=vp, at=inside)
+    assert np.array_equal(part, whole[np.flatnonzero(near)[inside]], equal_nan=True)
+
+
+def test_fast_mode_agrees_with_exact_mode(rng):
+    p, _ = pole_scene(rng, spacing=0.05)
+    p = p + rng.normal(scale=0.005, size=p.shape)
+    e = don_magnitude(difference_of_normals(p, 0.2, 2.0, mode="exact"))
+    f = don_magnitude(difference_of_normals(p, 0.2, 2.0, mode="fast"))
+    ok = np.isfinite(e) & np.isfinite(f)
+    assert ok.mean() > 0.99
+    assert spearmanr(e[ok], f[ok]).statistic > 0.95
+    assert np.percentile(np.abs(e - f)[ok], 95) < 0.05
+
+
+def test_euclidean_clusters_equal_connected_components(rng):
+    p = rng.uniform(0, 5, (4000, 3)) * [1, 1, 0.3]
+    tol = 0.18
+    labels = euclidean_clusters(p, tol)
+    pairs = cKDTree(p).query_pairs(tol, output_type="ndarray")
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(p), len(p)))
+    k, ref = connected_components(g, directed=False)
+    assert labels.max() == k
+    # the same partition, numbered by first point
+    _, first = np.unique(ref, return_index=True)
+    order = np.argsort(first)
+    renumber = np.empty(k, dtype=np.int64)
+    renumber[order] = np.arange(1, k + 1)
+    assert np.array_equal(labels, renumber[ref])
+
+
+def test_clusters_by_hand():
+    chain = np.array([[0, 0, 0], [0.19, 0, 0], [0.38, 0, 0], [0.57, 0, 0.0]])  # steps of 0.19
+    assert euclidean_clusters(chain, 0.2).tolist() == [1, 1, 1, 1]
+    assert euclidean_clusters(chain, 0.18).tolist() == [1, 2, 3, 4]
+    two = np.vstack([chain, chain + [5, 0, 0]])
+    assert euclidean_clusters(two[::-1], 0.2).tolist() == [1, 1, 1, 1, 2, 2, 2, 2]
+    assert euclidean_clusters(two, 0.2, min_points=5).tolist() == [0] * 8
+    mixed = np.vstack([chain, [[9, 9, 9]]])
+    assert euclidean_clusters(mixed, 0.2, min_points=1, max_points=3).tolist() == [0, 0, 0, 0, 1]
+    assert euclidean_clusters(np.zeros((0, 3)), 0.2).tolist() == []
+
+
+def test_segment_don_isolates_the_pole(rng):
+    p, n_ground = pole_scene(rng, spacing=0.05)
+    d = difference_of_normals(p, 0.2, 2.0, mode="fast")
+    seg = segment_don(p, d, 0.25, 0.15, min_points=50)
+    pole = np.arange(len(p)) >= n_ground
+    # within r_l of the ground (above, the large ball holds only the pole and both normals are radial)
+    ids, counts = np.unique(seg[pole & (p[:, 2] > 0.3) & (p[:, 2] < 1.8)], return_counts=True)
+    main = ids[np.argmax(counts)]
+    assert main > 0 and counts.max() / counts.sum() > 0.95  # the pole is one segment
+    assert np.mean(seg[~pole & (np.hypot(p[:, 0], p[:, 1]) > 3)] == 0) == 1.0  # far ground is none
+
+
+def test_axis_threshold_selects_one_component():
+    d = np.array([[0.3, 0, 0], [0, 0, 0.3], [0.2, 0, 0.2]])
+    assert don_mask(d, 0.25).tolist() == [True, True, True]
+    assert don_mask(d, 0.25, axis="z", axis_threshold=0.15).tolist() == [False, True, True]
+
+
+@pytest.mark.parametrize(
+    "call, words",
+    [
+        (lambda p: difference_of_normals(p, 2.0, 0.2), "r_small must be smaller"),
+        (lambda p: difference_of_normals(p, 0.5, 0.5), "r_small must be smaller"),
+        (lambda p: difference_of_normals(p, -0.2, 2.0), "r_small must be a positive"),
+        (lambda p: radius_normals(p, 0.0), "radius must be a positive"),
+        (lambda p: radius_normals(p, float("nan")), "radius must be a positive"),
+        (lambda p: radius_normals(p, 1.0, mode="approx"), "mode must be one of exact, fast"),
+        (lambda p: radius_normals(p, 1.0, min_points=2), "min_points must be"),
+        (lambda p: radius_normals(p, 1.0, resolution=0), "resolution must be"),
+        (lambda p: radius_normals(p, 1.0, viewpoint=[0, 0]), "viewpoint must be"),
+        (lambda p: radius_normals(p[:, :2], 1.0), "must be an (N, 3) array"),
+        (lambda p: radius_normals(np.vstack([p, [[np.nan] * 3]]), 1.0), "NaN or infinite"),
+        (lambda p: don_mask(np.zeros((3, 3)), 1.5), "threshold must be a DoN magnitude in [0, 1]"),
+        (lambda p: don_mask(np.zeros((3, 3)), 0.2, axis="w", axis_threshold=0.1), "axis must be one of x, y, z"),
+        (lambda p: don_mask(np.zeros((3, 3)), 0.2, axis="z"), "needs an axis_threshold"),
+        (lambda p: euclidean_clusters(p, -1.0), "tolerance must be a positive"),
+        (lambda p: euclidean_clusters(p, 0.2, min_points=0), "min_points must be"),
+        (lambda p: euclidean_clusters(p, 0.2, min_points=5, max_points=2), "max_points must be"),
+        (lambda p: segment_don(p, np.zeros((2, 3)), 0.2, 0.1), "don must have the shape"),
+    ],
+)
+def test_bad_parameters_are_named(call, words):
+    p = np.random.default_rng(0).uniform(size=(50, 3))
+    with pytest.raises(PatchcloudValueError, match=words.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[").replace("]", r"\]")):
+        call(p)
