@@ -1,4 +1,4 @@
-"""patchcloud.stream: normals of LAS/LAZ files of any size, through a tiled zarr store and dask.
+"""patchcloud.stream: normals, Difference of Normals and segments of LAS/LAZ files of any size, through a tiled zarr store and dask.
 
 >>> from patchcloud.stream import normals                    # doctest: +SKIP
 >>> summary = normals("city.laz", "city_normals.laz")        # doctest: +SKIP
@@ -8,6 +8,7 @@
 from .info import format_info, info
 from .pipeline import NormalsSummary, normals, tile
 from .scheduling import Runner, map_tiles
+from .segmentation import DonSummary, don, segment
 from .store import Store
 
-__all__ = ["normals", "tile", "info", "format_info", "NormalsSummary", "Store", "Runner", "map_tiles"]
+__all__ = ["normals", "don", "segment", "DonSummary", "tile", "info", "format_info", "NormalsSummary", "Store", "Runner", "map_tiles"]

@@ -20,7 +20,7 @@ import numpy as np
 
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 
-__all__ = ["LasSource", "OUTPUT_DIMS", "open_source", "read_chunks", "output_header", "atomic_output", "is_laz_name"]
+__all__ = ["LasSource", "OUTPUT_DIMS", "DON_DIMS", "SEGMENT_DIMS", "open_source", "read_chunks", "output_header", "atomic_output", "is_laz_name"]
 
 #: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description.
 OUTPUT_DIMS = (
@@ -31,6 +31,15 @@ OUTPUT_DIMS = (
     ("NormalMethod", np.uint8, "1 quadric 2 blended 3 kNN"),
     ("PatchId", np.uint32, "patchcloud patch id"),
 )
+#: Dimensions ``patchcloud don`` adds (NaN where the DoN is undefined).
+DON_DIMS = (
+    ("DoN", np.float32, "DoN magnitude |n_s - n_l|/2"),
+    ("DoNX", np.float32, "DoN vector x"),
+    ("DoNY", np.float32, "DoN vector y"),
+    ("DoNZ", np.float32, "DoN vector z"),
+)
+#: Dimensions ``patchcloud segment`` adds: the DoN and PDAL's cluster id (0 = no segment).
+SEGMENT_DIMS = DON_DIMS + (("ClusterID", np.uint64, "DoN segment id, 0 = none"),)
 
 
 @dataclass(frozen=True)
@@ -162,8 +171,11 @@ def _laz_backend():
         return None
 
 
-def output_header(src: LasSource) -> laspy.LasHeader:
-    """The input's header (point format, version, scales, offsets, VLRs, CRS) with :data:`OUTPUT_DIMS` added.
+def output_header(src: LasSource, dims=OUTPUT_DIMS) -> laspy.LasHeader:
+    """The input's header (point format, version, scales, offsets, VLRs, CRS) with ``dims`` added.
+
+    ``dims``: (name, numpy type, description) of every dimension to add
+    (default :data:`OUTPUT_DIMS`, those of ``patchcloud normals``).
 
     A dimension of the same name and type already in the input (a file
     that went through ``patchcloud normals`` before) is reused; one of
@@ -173,7 +185,7 @@ def output_header(src: LasSource) -> laspy.LasHeader:
         header = reader.header
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
-    for name, dtype, desc in OUTPUT_DIMS:
+    for name, dtype, desc in dims:
         if name in existing:
             if np.dtype(existing[name].dtype) != np.dtype(dtype):
                 raise PatchcloudValueError(

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import click
 
+from .don import don_command
+from .don_scales import don_scales_command
 from .info import info_command
 from .normals import normals_command
+from .segment import segment_command
 from .tile import tile_command
 
 __all__ = ["main"]
@@ -14,15 +17,21 @@ __all__ = ["main"]
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="patchcloud")
 def main() -> None:
-    """Normals, curvature and patch models of LiDAR point clouds of any size.
+    """Normals, curvature, Difference of Normals and segments of LiDAR point clouds of any size.
 
     \b
     Start with:
       patchcloud normals in.laz out.laz       normals and curvature of a LAS/LAZ file
+      patchcloud don in.laz out.laz           Difference of Normals (DoN) of every point
+      patchcloud segment in.laz out.laz       DoN segments (street furniture, kerbs, ...)
+      patchcloud don-scales labelled.laz      which (rs, rl) separates the classes best
       patchcloud info in.laz                  what a file (or a store) holds
     """
 
 
 main.add_command(normals_command)
+main.add_command(don_command)
+main.add_command(segment_command)
+main.add_command(don_scales_command)
 main.add_command(tile_command)
 main.add_command(info_command)

@@ -21,7 +21,7 @@ from . import options
 @options.scheduler
 @options.workers
 @options.store
-@click.option("--keep-store", is_flag=True, help="Keep the default store after success.")
+@options.keep_store
 @options.overwrite
 @options.quiet
 @options.reports_errors

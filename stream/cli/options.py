@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core.errors import PatchcloudError
 
-__all__ = ["tile_size", "scheduler", "workers", "store", "overwrite", "quiet", "reports_errors"]
+__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -26,8 +26,23 @@ store = click.option(
     help="Where the tiles and intermediate results go (a path or an fsspec URL). Default: OUT.store beside "
     "the output, removed when the job succeeds; a store given here is kept, and a rerun resumes from it.",
 )
+keep_store = click.option("--keep-store", is_flag=True, help="Keep the default store after success.")
 overwrite = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 quiet = click.option("--quiet", "-q", is_flag=True, help="No progress bars or summary.")
+
+
+def don_options(func):
+    """The options of the Difference of Normals: --rs, --rl, --mode, --viewpoint."""
+    for option in reversed([
+        click.option("--rs", "r_small", type=float, default=0.2, show_default=True, metavar="METRES", help="Small support radius."),
+        click.option("--rl", "r_large", type=float, default=2.0, show_default=True, metavar="METRES", help="Large support radius."),
+        click.option("--mode", type=click.Choice(["exact", "fast"]), default="exact", show_default=True,
+                     help="Radius normals by PCA of every point in the ball (exact, PCL's definition) or from voxel moments (fast)."),
+        click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z",
+                     help="Both normals face it (file coordinates). Default: above the middle of the file, one extent above its top."),
+    ]):
+        func = option(func)
+    return func
 
 
 def reports_errors(func):

@@ -1,0 +1,43 @@
+"""``patchcloud don``."""
+
+from __future__ import annotations
+
+import click
+
+from . import options
+
+
+@click.command("don")
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.argument("output", type=click.Path(dir_okay=False))
+@options.don_options
+@options.tile_size
+@options.scheduler
+@options.workers
+@options.store
+@options.keep_store
+@options.overwrite
+@options.quiet
+@options.reports_errors
+def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet):
+    """Difference of Normals of INPUT (LAS/LAZ, any size), written to OUTPUT.
+
+    DoN = (n(p, rs) - n(p, rl)) / 2, with n(p, r) the PCA normal of the
+    points within r of p, both facing the viewpoint.  OUTPUT (LAZ when its
+    name ends in .laz) holds every input point once, in input order, every
+    original dimension unchanged, plus DoN (the magnitude, 0 to 1) and
+    DoNX, DoNY, DoNZ (float32); NaN where a ball holds too few points for
+    a normal.  Memory depends on --tile-size, not on the file.
+
+    \b
+    Example:
+      patchcloud don street.laz street_don.laz --rs 0.2 --rl 2.0
+    """
+    from patchcloud.stream import don
+
+    summary = don(
+        input, output, r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, tile_size=tile_size,
+        scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None, overwrite=overwrite, quiet=quiet,
+    )
+    if not quiet:
+        click.echo(summary.format())

@@ -1,0 +1,55 @@
+"""``patchcloud segment``."""
+
+from __future__ import annotations
+
+import click
+
+from . import options
+
+
+@click.command("segment")
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.argument("output", type=click.Path(dir_okay=False))
+@options.don_options
+@click.option("--threshold", type=float, default=0.25, show_default=True, help="Smallest DoN magnitude (0 to 1) of a point kept.")
+@click.option("--axis", type=click.Choice(["x", "y", "z"]), default=None,
+              help="Also require |DoN| along this axis >= --axis-threshold (e.g. z for kerbs).")
+@click.option("--axis-threshold", type=float, default=None, help="With --axis: smallest |DoN| along it.")
+@click.option("--tolerance", type=float, default=0.2, show_default=True, metavar="METRES", help="Largest gap between two points of one segment.")
+@click.option("--min-points", type=int, default=50, show_default=True, help="Smaller segments are dropped (ClusterID 0).")
+@click.option("--max-points", type=int, default=None, help="Larger segments are dropped (ClusterID 0). Default: no limit.")
+@options.tile_size
+@options.scheduler
+@options.workers
+@options.store
+@options.keep_store
+@options.overwrite
+@options.quiet
+@options.reports_errors
+def segment_command(
+    input, output, r_small, r_large, mode, viewpoint, threshold, axis, axis_threshold, tolerance, min_points, max_points,
+    tile_size, scheduler, workers, store, keep_store, overwrite, quiet,
+):
+    """DoN segments of INPUT (LAS/LAZ, any size), written to OUTPUT.
+
+    Points whose DoN magnitude is at least --threshold are kept, and kept
+    points closer than --tolerance are joined into segments (Euclidean
+    clustering).  OUTPUT holds the input points as they are, plus DoN,
+    DoNX, DoNY, DoNZ and ClusterID (uint64): 1, 2, ... in order of each
+    segment's first point in the file, 0 for no segment.  Segments that
+    cross tile faces get one id.
+
+    \b
+    Example:
+      patchcloud segment street.laz segments.laz --rs 0.2 --rl 2.0 --threshold 0.25 --tolerance 0.2 --min-points 50
+    """
+    from patchcloud.stream import segment
+
+    summary = segment(
+        input, output, r_small=r_small, r_large=r_large, threshold=threshold, tolerance=tolerance, min_cluster=min_points,
+        max_cluster=max_points, axis=axis, axis_threshold=axis_threshold, mode=mode, viewpoint=viewpoint or None,
+        tile_size=tile_size, scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None,
+        overwrite=overwrite, quiet=quiet,
+    )
+    if not quiet:
+        click.echo(summary.format())

@@ -1,0 +1,230 @@
+"""``patchcloud don`` / ``segment``: tile-wise DoN equal to the whole-cloud DoN, segments across tile faces, the CLI."""
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from patchcloud.core import difference_of_normals, segment_don
+from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.stream import Store, don, segment
+from patchcloud.stream.cli import main
+from patchcloud.stream.segmentation import default_viewpoint_of
+from patchcloud.stream.lasio import open_source
+
+OFFSET = np.array([770496.0, 6277504.0, 30.0])  # Lambert-93-sized; tile faces fall on whole metres of the local frame
+
+
+def street(rng, spacing=0.1):
+    """A 10 x 10 m street: ground with a 0.15 m kerb at y = 6, three poles, one of them across x = 4 and x = 8."""
+    g = np.arange(0, 10, spacing)
+    gx, gy = np.meshgrid(g, g)
+    x, y = gx.ravel() + rng.uniform(0, spacing / 3, gx.size), gy.ravel() + rng.uniform(0, spacing / 3, gx.size)
+    ground = np.column_stack([x, y, np.where(y > 6.0, 0.15, 0.0)])
+    kerb_y = np.arange(0, 10, spacing / 2)
+    kz = np.arange(spacing / 2, 0.15, spacing / 2)
+    ky, kzz = np.meshgrid(kerb_y, kz)
+    kerb = np.column_stack([ky.ravel(), np.full(ky.size, 6.0), kzz.ravel()])
+    poles = []
+    for cx, cy in [(8.0, 2.0), (2.5, 3.0), (4.0, 8.5)]:
+        th = np.arange(0, 2 * np.pi, spacing / 0.1 / 2)
+        z = np.arange(spacing, 2.5, spacing / 2)
+        tt, zz = np.meshgrid(th, z)
+        base = 0.15 if cy > 6 else 0.0
+        poles.append(np.column_stack([cx + 0.1 * np.cos(tt.ravel()), cy + 0.1 * np.sin(tt.ravel()), base + zz.ravel()]))
+    pts = np.vstack([ground, kerb, *poles])
+    label = np.concatenate([np.zeros(len(ground) + len(kerb), int)] + [np.full(len(p), k + 1) for k, p in enumerate(poles)])
+    perm = rng.permutation(len(pts))
+    return pts[perm] + OFFSET, label[perm]
+
+
+def write_las(path, pts, extra=None):
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales = [0.001] * 3
+    h.offsets = OFFSET
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    las.intensity = np.arange(len(pts)) % 65535
+    las.write(path)
+    return laspy.read(path)
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    rng = np.random.default_rng(7)
+    pts, label = street(rng)
+    path = tmp_path_factory.mktemp("don") / "street.las"
+    las = write_las(path, pts)
+    xyz = np.column_stack([las.X, las.Y, las.Z])  # the stored integers
+    return path, xyz, label
+
+
+def local_frame(path, xyz):
+    """The stream's local frame, to the last bit: X * scale + (offset - origin), origin a multiple of 4096 m."""
+    src = open_source(path)
+    origin = np.floor(np.asarray(src.mins) / 4096.0) * 4096.0
+    return xyz.astype(np.float64) * np.asarray(src.scale) + (np.asarray(src.offset) - origin), origin
+
+
+def store_don(store_path, local):
+    """Every point's float64 DoN as the tiles stored it, in input order."""
+    st = Store.open(str(store_path), mode="r")
+    T = st.grid.tile_size
+    tile = np.floor(local / T).astype(np.int64)
+    out = np.full(local.shape, np.inf)
+    for ijk in st.tiles:
+        rows = np.flatnonzero(np.all(tile == ijk, axis=1))  # the tile's points in input order
+        out[rows] = st.read(ijk, "don")
+    return out
+
+
+@pytest.mark.parametrize("mode", ["exact", "fast"])
+def test_tilewise_don_equals_the_whole_cloud_whatever_the_tile_size(scene, tmp_path, mode):
+    path, xyz, _ = scene
+    local, origin = local_frame(path, xyz)
+    vp = default_viewpoint_of(open_source(path))
+    whole = difference_of_normals(local, 0.3, 1.5, viewpoint=vp - origin, mode=mode)
+    assert np.isfinite(whole).all(axis=1).mean() > 0.99
+    for T in (2.0, 4.0, 16.0):
+        st = tmp_path / f"s{T:g}.zarr"
+        don(path, tmp_path / f"d{T:g}.las", r_small=0.3, r_large=1.5, mode=mode, tile_size=T, store=str(st),
+            scheduler="synchronous", quiet=True)
+        tiled = store_don(st, local)
+        assert np.array_equal(np.isnan(tiled), np.isnan(whole))
+        ok = np.isfinite(whole)
+        assert np.abs(tiled[ok] - whole[ok]).max() <= 1e-9, T
+
+
+def test_segments_equal_the_whole_cloud_and_cross_tile_faces(scene, tmp_path):
+    path, xyz, label = scene
+    local, origin = local_frame(path, xyz)
+    vp = default_viewpoint_of(open_source(path)) - origin
+    whole = segment_don(local, difference_of_normals(local, 0.3, 1.5, viewpoint=vp), 0.2, 0.15, min_points=30)
+    ids = {}
+    for T in (2.0, 4.0, 16.0):
+        out = tmp_path / f"seg{T:g}.laz"
+        s = segment(path, out, r_small=0.3, r_large=1.5, threshold=0.2, tolerance=0.15, min_cluster=30, tile_size=T,
+                    scheduler="threads" if T == 4.0 else "synchronous", workers=2, quiet=True)
+        las = laspy.read(out)
+        ids[T] = np.asarray(las["ClusterID"], dtype=np.int64)
+        assert s.segments == whole.max()
+        np.testing.assert_array_equal(las.intensity, np.arange(len(xyz)) % 65535)  # input order, dims kept
+    for T, got in ids.items():
+        np.testing.assert_array_equal(got, whole, err_msg=f"tile size {T}")
+    # the pole at (8, 2) stands across faces of tiles of 2, 4 and 8 m: one segment, and its own
+    for pole in (1, 2, 3):
+        z = local[:, 2] - (OFFSET[2] - origin[2])
+        on = (label == pole) & (z > 0.4) & (z < 1.2)
+        found = ids[2.0][on]
+        assert (found > 0).mean() > 0.5 and len(np.unique(found[found > 0])) == 1
+    assert len({int(np.max(ids[2.0][label == p])) for p in (1, 2, 3)}) == 3  # three poles, three segments
+
+
+def test_threshold_on_one_axis_keeps_the_kerb(scene, tmp_path):
+    path, xyz, label = scene
+    local, origin = local_frame(path, xyz)
+    y = local[:, 1] - (OFFSET[1] - origin[1])
+    out = tmp_path / "kerb.las"
+    s = segment(path, out, r_small=0.15, r_large=1.0, threshold=0.05, axis="y", axis_threshold=0.05, tolerance=0.15,
+                min_cluster=20, tile_size=4.0, scheduler="synchronous", quiet=True)
+    las = laspy.read(out)
+    seg = np.asarray(las["ClusterID"], dtype=np.int64)
+    near_kerb = (label == 0) & (np.abs(y - 6.0) < 0.2)
+    x = local[:, 0] - (OFFSET[0] - origin[0])
+    from_poles = np.min([np.hypot(x - cx, y - cy) for cx, cy in [(8.0, 2.0), (2.5, 3.0), (4.0, 8.5)]], axis=0)
+    far = (label == 0) & (np.abs(y - 6.0) > 1.5) & (from_poles > 1.5)
+    assert (seg[near_kerb] > 0).mean() > 0.5
+    assert (seg[far] == 0).all()
+    dy = np.asarray(las["DoNY"])
+    assert np.all(np.abs(dy[seg > 0]) >= 0.05 - 1e-6)
+    assert s.kept is not None and s.kept > 0
+
+
+def test_don_dims_and_undefined_points(tmp_path):
+    rng = np.random.default_rng(3)
+    g = np.arange(0, 6, 0.2)
+    gx, gy = np.meshgrid(g, g)
+    plane = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    lonely = np.array([[3.0, 3.0, 40.0]])  # nothing within r_s: undefined
+    pts = np.vstack([plane, lonely])[rng.permutation(len(plane) + 1)] + OFFSET
+    path = tmp_path / "p.las"
+    write_las(path, pts)
+    s = don(path, tmp_path / "o.las", r_small=0.5, r_large=1.5, scheduler="synchronous", quiet=True)
+    las = laspy.read(tmp_path / "o.las")
+    m = np.asarray(las["DoN"])
+    lonely_row = np.argmax(las.z)
+    assert np.isnan(m[lonely_row]) and np.isnan(las["DoNX"][lonely_row])
+    others = np.delete(np.arange(len(m)), lonely_row)
+    assert np.nanmax(np.abs(m[others])) < 1e-6  # a plane: zero
+    assert s.defined == len(pts) - 1
+
+
+def test_resume_reuses_the_store(scene, tmp_path):
+    path, _, _ = scene
+    st = tmp_path / "keep.zarr"
+    kw = dict(r_small=0.3, r_large=1.5, threshold=0.2, tolerance=0.15, min_cluster=30, tile_size=4.0, store=str(st),
+              scheduler="synchronous", quiet=True)
+    segment(path, tmp_path / "a.las", **kw)
+    s = Store.open(str(st))
+    marks = {t: s.tile_attrs(t)["done"]["don"] for t in s.tiles}
+    for t in s.tiles:  # a rerun must not recompute a finished tile: poison one array and see it survive
+        s.write(t, "keep", s.read(t, "keep"))
+    first = s.tiles[0]
+    s.write(first, "don", np.full_like(s.read(first, "don"), 0.5))
+    segment(path, tmp_path / "b.las", **kw)
+    assert np.all(Store.open(str(st)).read(first, "don") == 0.5)
+    assert {t: Store.open(str(st)).tile_attrs(t)["done"]["don"] for t in s.tiles} == marks
+    segment(path, tmp_path / "c.las", **{**kw, "r_large": 1.6})  # new parameters: recomputed
+    assert not np.all(Store.open(str(st)).read(first, "don") == 0.5)
+
+
+def test_cli_don_and_segment(scene, tmp_path):
+    path, xyz, _ = scene
+    r = CliRunner().invoke(main, ["segment", str(path), str(tmp_path / "s.laz"), "--rs", "0.3", "--rl", "1.5",
+                                  "--threshold", "0.2", "--tolerance", "0.15", "--min-points", "30", "--mode", "fast",
+                                  "--scheduler", "synchronous", "--tile-size", "4"])
+    assert r.exit_code == 0, r.output
+    assert "segments" in r.output
+    las = laspy.read(tmp_path / "s.laz")
+    assert {"DoN", "DoNX", "DoNY", "DoNZ", "ClusterID"} <= set(las.point_format.extra_dimension_names)
+    assert np.asarray(las["ClusterID"]).max() >= 3
+    r = CliRunner().invoke(main, ["don", str(path), str(tmp_path / "d.las"), "--scheduler", "synchronous", "-q"])
+    assert r.exit_code == 0, r.output
+    m = np.asarray(laspy.read(tmp_path / "d.las")["DoN"])
+    assert np.nanmax(m) <= 1 and np.nanmin(m) >= 0
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--rs", "2", "--rl", "0.2"], "r_small must be smaller than r_large"),
+        (["--rs", "-0.2"], "r_small must be a positive number"),
+        (["--threshold", "1.5"], "threshold must be a DoN magnitude in [0, 1]"),
+        (["--tolerance", "0"], "tolerance must be a positive number"),
+        (["--min-points", "0"], "min_points must be"),
+        (["--axis-threshold", "0.2"], "axis_threshold needs an axis"),
+        (["--tile-size", "-4"], "tile size must be a positive"),
+    ],
+)
+def test_cli_bad_parameters(scene, tmp_path, args, words):
+    path, _, _ = scene
+    out = tmp_path / "x.las"
+    r = CliRunner().invoke(main, ["segment", str(path), str(out), "--scheduler", "synchronous", "-q", *args])
+    assert r.exit_code == 2
+    assert r.output.strip().startswith("error:") and words in r.output
+    assert not out.exists() and not (tmp_path / "x.las.partial").exists() and not (tmp_path / "x.las.store").exists()
+
+
+def test_cli_bad_files(tmp_path, scene):
+    path, _, _ = scene
+    bad = tmp_path / "bad.las"
+    bad.write_bytes(b"not a las file at all" * 20)
+    r = CliRunner().invoke(main, ["don", str(bad), str(tmp_path / "o.las"), "-q"])
+    assert r.exit_code == 2 and str(bad) in r.output and r.output.count("\n") == 1
+    (tmp_path / "exists.las").write_bytes(b"x")
+    r = CliRunner().invoke(main, ["don", str(path), str(tmp_path / "exists.las"), "-q"])
+    assert r.exit_code == 2 and "exists" in r.output
+    with pytest.raises(PatchcloudIOError, match="no such file"):
+        don(tmp_path / "missing.las", tmp_path / "o2.las", quiet=True)
+    with pytest.raises(PatchcloudValueError, match="mode must be one of exact, fast"):
+        don(path, tmp_path / "o3.las", mode="approximate", quiet=True)
