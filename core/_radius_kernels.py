@@ -26,6 +26,21 @@ def _lookup(keys, key):
     return -1
 
 
+@njit(cache=True)
+def _add_point(acc, dx, dy, dz):
+    """Add one point's offset to the count and moments ``acc`` (layout of ball_moments_exact)."""
+    acc[0] += 1.0
+    acc[1] += dx
+    acc[2] += dy
+    acc[3] += dz
+    acc[4] += dx * dx
+    acc[5] += dx * dy
+    acc[6] += dx * dz
+    acc[7] += dy * dy
+    acc[8] += dy * dz
+    acc[9] += dz * dz
+
+
 @njit(cache=True, parallel=True)
 def ball_moments_exact(points, cell_keys, cell_start, dims, query, qcell, reach, r2, out):
     """Count and moments about each query point of the points within sqrt(r2) of it.
@@ -61,16 +76,7 @@ def ball_moments_exact(points, cell_keys, cell_start, dims, query, qcell, reach,
                         dy = points[p, 1] - qy
                         dz = points[p, 2] - qz
                         if dx * dx + dy * dy + dz * dz <= r2:
-                            acc[0] += 1.0
-                            acc[1] += dx
-                            acc[2] += dy
-                            acc[3] += dz
-                            acc[4] += dx * dx
-                            acc[5] += dx * dy
-                            acc[6] += dx * dz
-                            acc[7] += dy * dy
-                            acc[8] += dy * dz
-                            acc[9] += dz * dz
+                            _add_point(acc, dx, dy, dz)
         for t in range(10):
             out[m, t] = acc[t]
 
@@ -86,32 +92,9 @@ def voxel_moments(points, cell_start, centres, out):
             dx = points[p, 0] - cx
             dy = points[p, 1] - cy
             dz = points[p, 2] - cz
-            acc[0] += 1.0
-            acc[1] += dx
-            acc[2] += dy
-            acc[3] += dz
-            acc[4] += dx * dx
-            acc[5] += dx * dy
-            acc[6] += dx * dz
-            acc[7] += dy * dy
-            acc[8] += dy * dz
-            acc[9] += dz * dz
+            _add_point(acc, dx, dy, dz)
         for t in range(10):
             out[h, t] = acc[t]
-
-
-@njit(cache=True)
-def _add_point(acc, dx, dy, dz):
-    acc[0] += 1.0
-    acc[1] += dx
-    acc[2] += dy
-    acc[3] += dz
-    acc[4] += dx * dx
-    acc[5] += dx * dy
-    acc[6] += dx * dz
-    acc[7] += dy * dy
-    acc[8] += dy * dz
-    acc[9] += dz * dz
 
 
 @njit(cache=True, parallel=True)

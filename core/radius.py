@@ -32,7 +32,7 @@ from . import _radius_kernels as _rk
 from .errors import PatchcloudValueError
 from .grid import CellGrid
 
-__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "MODES", "check_points", "check_radius"]
+__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "MODES", "check_points", "check_radius", "check_mode"]
 
 #: Valid values of ``mode``.
 MODES = ("exact", "fast")
@@ -62,7 +62,8 @@ def check_radius(name: str, value) -> float:
     return v
 
 
-def _check_mode(mode: str, resolution: int, min_points: int) -> None:
+def check_mode(mode: str, resolution: int = 4, min_points: int = 3) -> None:
+    """Validated ``mode`` (one of :data:`MODES`), ``resolution`` (>= 1) and ``min_points`` (>= 3)."""
     if mode not in MODES:
         raise PatchcloudValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
     if not isinstance(resolution, (int, np.integer)) or resolution < 1:
@@ -126,7 +127,7 @@ def radius_moments(
     """
     pts = check_points(points)
     r = check_radius("radius", radius)
-    _check_mode(mode, resolution, 3)
+    check_mode(mode, resolution, 3)
     q = pts if at is None else pts[np.asarray(at, dtype=np.int64)]
     out = np.zeros((q.shape[0], 10))
     if q.shape[0] == 0:
@@ -216,7 +217,7 @@ def radius_normals(
     """
     pts = check_points(points)
     r = check_radius("radius", radius)
-    _check_mode(mode, resolution, min_points)
+    check_mode(mode, resolution, min_points)
     vp = default_viewpoint(pts) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(-1)
     if vp.shape != (3,) or not np.isfinite(vp).all():
         raise PatchcloudValueError(f"viewpoint must be three finite coordinates (x, y, z), got {viewpoint!r}")

@@ -39,7 +39,7 @@ from .scheduling import Runner, map_tiles
 from .seams import orient_tiles
 from .store import Store
 
-__all__ = ["normals", "tile", "NormalsSummary", "default_store_path"]
+__all__ = ["normals", "tile", "NormalsSummary", "default_store_path", "check_output"]
 
 
 @dataclass
@@ -81,6 +81,16 @@ class NormalsSummary:
 def default_store_path(output: str | os.PathLike) -> str:
     """Where ``normals`` keeps its store when none is given: beside the output."""
     return str(output) + ".store"
+
+
+def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
+    """``output`` as a Path, after checking it can be written: not there (or ``overwrite``), its directory there."""
+    out = Path(output)
+    if out.exists() and not overwrite:
+        raise PatchcloudIOError(f"{out}: exists (use --overwrite to replace it)")
+    if not out.parent.exists():
+        raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
+    return out
 
 
 def _params_key(d: dict) -> str:
@@ -247,11 +257,7 @@ def normals(
         tile_size, criterion=criterion, orient=orient, viewpoint=viewpoint, threshold=threshold, d_min=d_min,
         max_edge=max_edge, n_min=n_min, min_sigma2=min_sigma2, k_fallback=k_fallback,
     )
-    out = Path(output)
-    if out.exists() and not overwrite:
-        raise PatchcloudIOError(f"{out}: exists (use --overwrite to replace it)")
-    if not out.parent.exists():
-        raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
+    out = check_output(output, overwrite)
     src = open_source(input)
     url = store or default_store_path(out)
     if keep_store is None:

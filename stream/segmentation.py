@@ -25,19 +25,18 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from patchcloud.core.cluster import check_cluster_sizes
 from patchcloud.core.don import check_scales, check_threshold
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
-from patchcloud.core.radius import MODES, check_radius, halo_width
+from patchcloud.core.errors import PatchcloudValueError
+from patchcloud.core.radius import check_mode, check_radius, halo_width
 
 from . import don_steps
 from .export import Column, FirstSeenIds, export_columns
 from .lasio import DON_DIMS, SEGMENT_DIMS, LasSource, open_source
-from .pipeline import _ensure_tiled, _params_key, _validate, default_store_path
+from .pipeline import _ensure_tiled, _params_key, _validate, check_output, default_store_path
 from .scheduling import Runner, map_tiles
 from .store import Store
 
@@ -107,12 +106,7 @@ def default_viewpoint_of(src: LasSource) -> np.ndarray:
 
 def _check(r_small, r_large, mode, resolution, min_points, viewpoint) -> None:
     check_scales(r_small, r_large)
-    if mode not in MODES:
-        raise PatchcloudValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
-    if not isinstance(resolution, (int, np.integer)) or resolution < 1:
-        raise PatchcloudValueError(f"resolution must be a whole number of voxels per radius, at least 1; got {resolution!r}")
-    if not isinstance(min_points, (int, np.integer)) or min_points < 3:
-        raise PatchcloudValueError(f"min_points must be a whole number, at least 3; got {min_points!r}")
+    check_mode(mode, resolution, min_points)
     if viewpoint is not None:
         vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
         if vp.shape != (3,) or not np.isfinite(vp).all():
@@ -130,11 +124,7 @@ def _run(
         check_threshold(threshold, axis, axis_threshold)
         check_radius("tolerance", tolerance)
         min_cluster, max_cluster = check_cluster_sizes(min_cluster, max_cluster)
-    out = Path(output)
-    if out.exists() and not overwrite:
-        raise PatchcloudIOError(f"{out}: exists (use --overwrite to replace it)")
-    if not out.parent.exists():
-        raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
+    out = check_output(output, overwrite)
     src = open_source(input)
     url = store or default_store_path(out)
     if keep_store is None:

@@ -11,13 +11,7 @@ from . import options
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.argument("output", type=click.Path(dir_okay=False))
 @options.don_options
-@options.tile_size
-@options.scheduler
-@options.workers
-@options.store
-@options.keep_store
-@options.overwrite
-@options.quiet
+@options.job_options
 @options.reports_errors
 def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet):
     """Difference of Normals of INPUT (LAS/LAZ, any size), written to OUTPUT.

@@ -10,7 +10,6 @@ from . import options
 @click.command("normals")
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.argument("output", type=click.Path(dir_okay=False))
-@options.tile_size
 @click.option("--criterion", type=click.Choice(["rmse", "sigma3"]), default="rmse", show_default=True,
               help="When an octree node is one smooth patch: quadric fit RMSE below the threshold (metres), or surface variation.")
 @click.option("--threshold", type=float, default=None, help="Threshold of the criterion. Default: from the scanner noise (rmse), 0.005 (sigma3).")
@@ -18,12 +17,7 @@ from . import options
               help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule.")
 @click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z", help="With --orient viewpoint, in the file's coordinates.")
 @click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
-@options.scheduler
-@options.workers
-@options.store
-@options.keep_store
-@options.overwrite
-@options.quiet
+@options.job_options
 @options.reports_errors
 def normals_command(input, output, tile_size, criterion, threshold, orient, viewpoint, no_blend, scheduler, workers, store, keep_store, overwrite, quiet):
     """Normals and curvature of INPUT (LAS/LAZ, any size), written to OUTPUT.

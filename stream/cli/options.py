@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core.errors import PatchcloudError
 
-__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options"]
+__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options", "job_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -29,6 +29,13 @@ store = click.option(
 keep_store = click.option("--keep-store", is_flag=True, help="Keep the default store after success.")
 overwrite = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 quiet = click.option("--quiet", "-q", is_flag=True, help="No progress bars or summary.")
+
+
+def job_options(func):
+    """The options every out-of-core job shares: --tile-size, --scheduler, --workers, --store, --keep-store, --overwrite, -q."""
+    for option in reversed([tile_size, scheduler, workers, store, keep_store, overwrite, quiet]):
+        func = option(func)
+    return func
 
 
 def don_options(func):

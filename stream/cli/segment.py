@@ -18,13 +18,7 @@ from . import options
 @click.option("--tolerance", type=float, default=0.2, show_default=True, metavar="METRES", help="Largest gap between two points of one segment.")
 @click.option("--min-points", type=int, default=50, show_default=True, help="Smaller segments are dropped (ClusterID 0).")
 @click.option("--max-points", type=int, default=None, help="Larger segments are dropped (ClusterID 0). Default: no limit.")
-@options.tile_size
-@options.scheduler
-@options.workers
-@options.store
-@options.keep_store
-@options.overwrite
-@options.quiet
+@options.job_options
 @options.reports_errors
 def segment_command(
     input, output, r_small, r_large, mode, viewpoint, threshold, axis, axis_threshold, tolerance, min_points, max_points,
