@@ -32,11 +32,12 @@ OUTPUT_DIMS = (
     ("PatchId", np.uint32, "patchcloud patch id"),
 )
 #: Dimensions ``patchcloud don`` adds (NaN where the DoN is undefined).
+#: The extra-bytes VLR declares NaN as their no-data value.
 DON_DIMS = (
-    ("DoN", np.float32, "DoN magnitude |n_s - n_l|/2"),
-    ("DoNX", np.float32, "DoN vector x"),
-    ("DoNY", np.float32, "DoN vector y"),
-    ("DoNZ", np.float32, "DoN vector z"),
+    ("DoN", np.float32, "DoN magnitude |n_s - n_l|/2", np.nan),
+    ("DoNX", np.float32, "DoN vector x", np.nan),
+    ("DoNY", np.float32, "DoN vector y", np.nan),
+    ("DoNZ", np.float32, "DoN vector z", np.nan),
 )
 #: Dimensions ``patchcloud segment`` adds: the DoN and PDAL's cluster id (0 = no segment).
 SEGMENT_DIMS = DON_DIMS + (("ClusterID", np.uint64, "DoN segment id, 0 = none"),)
@@ -174,8 +175,9 @@ def _laz_backend():
 def output_header(src: LasSource, dims=OUTPUT_DIMS) -> laspy.LasHeader:
     """The input's header (point format, version, scales, offsets, VLRs, CRS) with ``dims`` added.
 
-    ``dims``: (name, numpy type, description) of every dimension to add
-    (default :data:`OUTPUT_DIMS`, those of ``patchcloud normals``).
+    ``dims``: (name, numpy type, description[, no-data value]) of every
+    dimension to add (default :data:`OUTPUT_DIMS`, those of ``patchcloud
+    normals``).
 
     A dimension of the same name and type already in the input (a file
     that went through ``patchcloud normals`` before) is reused; one of
@@ -185,14 +187,14 @@ def output_header(src: LasSource, dims=OUTPUT_DIMS) -> laspy.LasHeader:
         header = reader.header
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
-    for name, dtype, desc in dims:
+    for name, dtype, desc, *no_data in dims:
         if name in existing:
             if np.dtype(existing[name].dtype) != np.dtype(dtype):
                 raise PatchcloudValueError(
                     f"{src.path}: already has a dimension {name} of type {existing[name].dtype}, not {np.dtype(dtype)}"
                 )
             continue
-        new.append(laspy.ExtraBytesParams(name=name, type=dtype, description=desc))
+        new.append(laspy.ExtraBytesParams(name=name, type=dtype, description=desc, no_data=no_data or None))
     if new:
         header.add_extra_dims(new)
     return header

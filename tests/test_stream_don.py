@@ -157,6 +157,9 @@ def test_don_dims_and_undefined_points(tmp_path):
     others = np.delete(np.arange(len(m)), lonely_row)
     assert np.nanmax(np.abs(m[others])) < 1e-6  # a plane: zero
     assert s.defined == len(pts) - 1
+    structs = [e for v in las.header.vlrs if hasattr(v, "extra_bytes_structs") for e in v.extra_bytes_structs]
+    declared = {e.name.decode(): e.no_data for e in structs}
+    assert all(np.isnan(declared[d][0]) for d in ("DoN", "DoNX", "DoNY", "DoNZ"))  # NaN is the declared no-data value
 
 
 def test_resume_reuses_the_store(scene, tmp_path):
