@@ -14,7 +14,7 @@ from numba import njit, prange
 
 from ._kernels import _eigh3
 
-__all__ = ["ball_moments_exact", "ball_moments_voxels", "voxel_moments", "pca_normals", "union_cells"]
+__all__ = ["ball_moments", "build_row_table", "voxel_moments", "pca_normals", "union_cells"]
 
 
 @njit(cache=True)
@@ -42,46 +42,6 @@ def _add_point(acc, dx, dy, dz):
 
 
 @njit(cache=True, parallel=True)
-def ball_moments_exact(points, cell_keys, cell_start, dims, query, qcell, reach, r2, out):
-    """Count and moments about each query point of the points within sqrt(r2) of it.
-
-    ``points`` (N, 3) sorted by cell; ``cell_keys`` (C,) sorted keys of the
-    occupied cells, ``cell_start`` (C + 1,); ``dims`` the grid's size in
-    cells per axis; ``query`` (M, 3); ``qcell`` (M, 3) the query's cell;
-    ``reach`` how many cells around the query's cell to look in.
-    ``out[m]`` gets n, sum(d) (3), sum(d d^T) (xx, xy, xz, yy, yz, zz) for
-    the offsets d = p - query[m] of the points with |d|^2 <= r2.
-    """
-    M = query.shape[0]
-    for m in prange(M):
-        qx, qy, qz = query[m, 0], query[m, 1], query[m, 2]
-        acc = np.zeros(10)
-        for a in range(-reach, reach + 1):
-            i = qcell[m, 0] + a
-            if i < 0 or i >= dims[0]:
-                continue
-            for b in range(-reach, reach + 1):
-                j = qcell[m, 1] + b
-                if j < 0 or j >= dims[1]:
-                    continue
-                for c in range(-reach, reach + 1):
-                    k = qcell[m, 2] + c
-                    if k < 0 or k >= dims[2]:
-                        continue
-                    h = _lookup(cell_keys, (i * dims[1] + j) * dims[2] + k)
-                    if h < 0:
-                        continue
-                    for p in range(cell_start[h], cell_start[h + 1]):
-                        dx = points[p, 0] - qx
-                        dy = points[p, 1] - qy
-                        dz = points[p, 2] - qz
-                        if dx * dx + dy * dy + dz * dz <= r2:
-                            _add_point(acc, dx, dy, dz)
-        for t in range(10):
-            out[m, t] = acc[t]
-
-
-@njit(cache=True, parallel=True)
 def voxel_moments(points, cell_start, centres, out):
     """Count and moments of every voxel's points about the voxel's centre (layout as ball_moments_exact)."""
     C = cell_start.size - 1
@@ -97,82 +57,131 @@ def voxel_moments(points, cell_start, centres, out):
             out[h, t] = acc[t]
 
 
-@njit(cache=True, parallel=True)
-def ball_moments_voxels(
-    points, vox_start, vox_keys, vox_moments, vox_centres, dims, rows, query, qgroup_start, qblock, r2, out
-):
-    """Moments about each query point of the voxels whose centre lies within sqrt(r2) of it.
+_GOLDEN = np.uint64(11400714819323198485)
 
-    The queries come grouped by block (a cube of voxels; ``qblock`` the
-    grid index of each group's first voxel).  A group first gathers the
-    occupied voxels that can hold a point within reach of its block:
-    ``rows[t] = (a, b, c_lo, c_hi)`` are runs of voxel offsets from the
-    block's first voxel, each found by two binary searches.  Every query of
-    the group then sums the moments of the gathered voxels whose centre is
-    within reach, shifted from the voxel centre to the query point: the
-    cost per query is the number of voxels near it, not of points.  Where
-    those voxels hold at most twice as many points as there are voxels (a
-    sparse neighbourhood), summing the points themselves is as cheap, and
-    the query takes the exact ball of points instead.  Both choices depend
-    only on the voxels near the query, never on how the cloud was cut.
+
+@njit(cache=True)
+def _slot(key, bits):
+    return np.int64((np.uint64(key) * _GOLDEN) >> np.uint64(64 - bits))
+
+
+@njit(cache=True)
+def build_row_table(row_keys, bits):
+    """Open-addressing hash table (size 2**bits) from row key to row index; -1 marks a free slot."""
+    size = 1 << bits
+    keys = np.full(size, -1, dtype=np.int64)
+    vals = np.empty(size, dtype=np.int64)
+    for r in range(row_keys.size):
+        h = _slot(row_keys[r], bits)
+        while keys[h] != -1:
+            h = (h + 1) & (size - 1)
+        keys[h] = row_keys[r]
+        vals[h] = r
+    return keys, vals
+
+
+@njit(cache=True)
+def _row_of(table_keys, table_vals, bits, key):
+    h = _slot(key, bits)
+    size = table_keys.size
+    while table_keys[h] != -1:
+        if table_keys[h] == key:
+            return table_vals[h]
+        h = (h + 1) & (size - 1)
+    return -1
+
+
+@njit(cache=True, parallel=True)
+def ball_moments(
+    voxels, points, cell_start, cell_k, row_start, table_keys, table_vals, bits, dims, rows,
+    query, qorder, qgroup_start, qblock, r2, cell_moments, cell_centres, out,
+):
+    """Count and moments about each query point of the points within sqrt(r2) of it.
+
+    The occupied cells are sorted by key, so the cells of one row (i, j) are
+    contiguous (``row_start``; ``cell_k`` their k index) and a hash table
+    finds a row in one or two probes.  Queries come grouped by block (a
+    cube of cells; ``qblock`` the grid index of each group's first cell):
+    a group gathers once the runs of cells that can hold a point within
+    reach of its block, ``rows[t] = (a, b, c_lo, c_hi)`` offsets from the
+    block's first cell, then every query of the group scans them.  The
+    groups' queries are ``query[qorder[qgroup_start[g]:qgroup_start[g + 1]]]``.
+
+    ``voxels`` False (exact): the query sums the points within reach.
+    ``voxels`` True (fast): the query sums the moments of the cells
+    (voxels) whose centre is within reach, shifted from the voxel centre
+    to the query point; where those voxels hold at most two points each on
+    average, the query sums the points within reach instead (as cheap, and
+    exact).  Every choice depends only on the cells near the query and
+    every sum runs in a fixed order, so a tile with its halo gives the
+    whole cloud's values bit for bit.
+
+    ``out[i]`` (query ``i``): n, sum(d) (3), sum(d d^T) (xx, xy, xz, yy, yz,
+    zz), d the offset from the query point.
     """
     G = qgroup_start.size - 1
-    K = 0
-    for t in range(rows.shape[0]):
-        K += rows[t, 3] - rows[t, 2] + 1
+    R = rows.shape[0]
     for g in prange(G):
-        cand = np.empty(K, dtype=np.int64)
-        nc = 0
-        for t in range(rows.shape[0]):
+        lo_cell = np.empty(R, dtype=np.int64)
+        hi_cell = np.empty(R, dtype=np.int64)
+        nr = 0
+        for t in range(R):
             i = qblock[g, 0] + rows[t, 0]
             j = qblock[g, 1] + rows[t, 1]
             if i < 0 or j < 0 or i >= dims[0] or j >= dims[1]:
                 continue
-            klo = max(qblock[g, 2] + rows[t, 2], 0)
-            khi = min(qblock[g, 2] + rows[t, 3], dims[2] - 1)
-            if klo > khi:
+            r = _row_of(table_keys, table_vals, bits, i * dims[1] + j)
+            if r < 0:
                 continue
-            row = (i * dims[1] + j) * dims[2]
-            lo = np.searchsorted(vox_keys, row + klo)
-            hi = np.searchsorted(vox_keys, row + khi, side="right")
-            for h in range(lo, hi):
-                cand[nc] = h
-                nc += 1
+            s, e = row_start[r], row_start[r + 1]
+            klo = qblock[g, 2] + rows[t, 2]
+            khi = qblock[g, 2] + rows[t, 3]
+            a = s + np.searchsorted(cell_k[s:e], klo)
+            b = s + np.searchsorted(cell_k[s:e], khi, side="right")
+            if a < b:
+                lo_cell[nr] = a
+                hi_cell[nr] = b
+                nr += 1
         for m in range(qgroup_start[g], qgroup_start[g + 1]):
+            row = qorder[m]
+            qx, qy, qz = query[row, 0], query[row, 1], query[row, 2]
             acc = np.zeros(10)
-            used = 0
-            for t in range(nc):
-                h = cand[t]
-                dx = vox_centres[h, 0] - query[m, 0]
-                dy = vox_centres[h, 1] - query[m, 1]
-                dz = vox_centres[h, 2] - query[m, 2]
-                if dx * dx + dy * dy + dz * dz > r2:
-                    continue
-                used += 1
-                n = vox_moments[h, 0]
-                s1x, s1y, s1z = vox_moments[h, 1], vox_moments[h, 2], vox_moments[h, 3]
-                acc[0] += n
-                acc[1] += s1x + n * dx
-                acc[2] += s1y + n * dy
-                acc[3] += s1z + n * dz
-                acc[4] += vox_moments[h, 4] + 2.0 * s1x * dx + n * dx * dx
-                acc[5] += vox_moments[h, 5] + s1x * dy + s1y * dx + n * dx * dy
-                acc[6] += vox_moments[h, 6] + s1x * dz + s1z * dx + n * dx * dz
-                acc[7] += vox_moments[h, 7] + 2.0 * s1y * dy + n * dy * dy
-                acc[8] += vox_moments[h, 8] + s1y * dz + s1z * dy + n * dy * dz
-                acc[9] += vox_moments[h, 9] + 2.0 * s1z * dz + n * dz * dz
-            if acc[0] <= 2.0 * used:
-                acc[:] = 0.0
-                for t in range(nc):
-                    h = cand[t]
-                    for p in range(vox_start[h], vox_start[h + 1]):
-                        dx = points[p, 0] - query[m, 0]
-                        dy = points[p, 1] - query[m, 1]
-                        dz = points[p, 2] - query[m, 2]
+            exact = not voxels
+            if voxels:
+                used = 0
+                for t in range(nr):
+                    for h in range(lo_cell[t], hi_cell[t]):
+                        dx = cell_centres[h, 0] - qx
+                        dy = cell_centres[h, 1] - qy
+                        dz = cell_centres[h, 2] - qz
+                        if dx * dx + dy * dy + dz * dz > r2:
+                            continue
+                        used += 1
+                        n = cell_moments[h, 0]
+                        s1x, s1y, s1z = cell_moments[h, 1], cell_moments[h, 2], cell_moments[h, 3]
+                        acc[0] += n
+                        acc[1] += s1x + n * dx
+                        acc[2] += s1y + n * dy
+                        acc[3] += s1z + n * dz
+                        acc[4] += cell_moments[h, 4] + 2.0 * s1x * dx + n * dx * dx
+                        acc[5] += cell_moments[h, 5] + s1x * dy + s1y * dx + n * dx * dy
+                        acc[6] += cell_moments[h, 6] + s1x * dz + s1z * dx + n * dx * dz
+                        acc[7] += cell_moments[h, 7] + 2.0 * s1y * dy + n * dy * dy
+                        acc[8] += cell_moments[h, 8] + s1y * dz + s1z * dy + n * dy * dz
+                        acc[9] += cell_moments[h, 9] + 2.0 * s1z * dz + n * dz * dz
+                if acc[0] <= 2.0 * used:
+                    exact = True
+                    acc[:] = 0.0
+            if exact:
+                for t in range(nr):
+                    for p in range(cell_start[lo_cell[t]], cell_start[hi_cell[t]]):
+                        dx = points[p, 0] - qx
+                        dy = points[p, 1] - qy
+                        dz = points[p, 2] - qz
                         if dx * dx + dy * dy + dz * dz <= r2:
                             _add_point(acc, dx, dy, dz)
             for t in range(10):
-                out[m, t] = acc[t]
+                out[row, t] = acc[t]
 
 
 @njit(cache=True, parallel=True)

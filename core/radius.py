@@ -14,8 +14,9 @@ Two modes:
     moments to the query point.  The cost per query is the number of
     occupied voxels in its ball, whatever the density; the ball is
     approximated to within half a voxel diagonal at its boundary.  Where
-    the voxels in a ball hold at most two points each on average, the
-    points themselves are summed (the exact ball), which is then no slower.
+    voxels would hold three points or fewer on average (the cloud is sparse
+    at this radius), or a ball's voxels hold at most two each, the points
+    themselves are summed (the exact ball), which is then no slower.
 
 Both compute in float64 on offsets from the query point, so large
 projected coordinates (UTM, Lambert-93) lose nothing.  A point with fewer
@@ -32,7 +33,7 @@ from . import _radius_kernels as _rk
 from .errors import PatchcloudValueError
 from .grid import CellGrid
 
-__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "MODES", "check_points", "check_radius", "check_mode"]
+__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "MODES", "check_points", "check_radius", "check_mode"]
 
 #: Valid values of ``mode``.
 MODES = ("exact", "fast")
@@ -96,10 +97,10 @@ def halo_width(radius: float, mode: str = "exact", resolution: int = 4) -> float
     return radius * (1.0 + 1e-9)
 
 
-def _block_rows(resolution: int, block: int) -> np.ndarray:
-    """Runs of voxels (a, b, c_lo, c_hi), offsets from a block's first voxel, that can hold a point within
-    ``resolution`` voxels of the block (voxel a spans [a, a + 1), the block [0, block))."""
-    s = float(resolution) + 1e-9
+def _block_rows(reach: int, block: int) -> np.ndarray:
+    """Runs of cells (a, b, c_lo, c_hi), offsets from a block's first cell, that can hold a point within
+    ``reach`` cells of the block (cell a spans [a, a + 1), the block [0, block))."""
+    s = float(reach) + 1e-9
     span = int(np.ceil(s)) + 1
     rows = []
     for a in range(-span, block + span):
@@ -114,10 +115,45 @@ def _block_rows(resolution: int, block: int) -> np.ndarray:
     return np.asarray(rows, dtype=np.int64)
 
 
+def cell_density(points: np.ndarray, edge: float) -> float:
+    """Mean points per occupied cell of edge ``2**floor(log2(edge))`` (metres), cells anchored at 0.
+
+    Power-of-two cells anchored at 0 are those of the stream's tile octree,
+    so the stream gets the whole file's value from its occupancy counts
+    without a pass over the points.
+    """
+    pts = check_points(points)
+    if pts.shape[0] == 0:
+        return 0.0
+    e = 2.0 ** np.floor(np.log2(edge))
+    c = np.floor(pts / e).astype(np.int64)
+    c -= c.min(axis=0)
+    d = c.max(axis=0) + 1
+    key = np.sort((c[:, 0] * d[1] + c[:, 1]) * d[2] + c[:, 2])
+    return pts.shape[0] / (1 + np.count_nonzero(key[1:] != key[:-1]))
+
+
+def uses_voxels(radius: float, resolution: int, density: float) -> bool:
+    """Whether fast mode sums voxels at ``radius``: only where a voxel holds more than 3 points on average.
+
+    ``density`` is :func:`cell_density` at the voxel edge ``radius /
+    resolution``; scaled from its power-of-two cell to the voxel as a
+    surface's count scales (with the area).  Sparser, a voxel costs as much
+    as its points, and fast mode sums the points (exact) instead.
+    """
+    h = radius / resolution
+    e = 2.0 ** np.floor(np.log2(h))
+    return density * (h / e) ** 2 > 3.0
+
+
 def radius_moments(
     points: np.ndarray, radius: float, *, mode: str = "exact", resolution: int = 4, at: np.ndarray | None = None,
+    density: float | None = None,
 ) -> np.ndarray:
     """Count and moments of the points within ``radius`` of each query point (the PCA's input).
+
+    ``density``: fast mode's :func:`cell_density` at the voxel edge
+    (default: from ``points``; the stream passes the whole file's).
 
     Returns
     -------
@@ -132,30 +168,35 @@ def radius_moments(
     out = np.zeros((q.shape[0], 10))
     if q.shape[0] == 0:
         return out
-    if mode == "exact":
-        # Cells of edge r/2 and a reach of 2 cells: the searched cube is 2.5 r wide instead of 3 r.
-        g = CellGrid.build(pts, r / 2.0)
-        _rk.ball_moments_exact(pts[g.order], g.keys, g.start, g.dims, q, g.cell_of(q), 2, r * r, out)
-    else:
-        h = r / resolution
-        block = max(1, resolution // 2)  # queries are grouped by blocks of block**3 voxels
-        g = CellGrid.build(pts, h, pad=resolution + block + 2)
-        sorted_pts = pts[g.order]
+    if mode == "fast" and density is None:
+        density = cell_density(pts, r / resolution)
+    voxels = mode == "fast" and uses_voxels(r, resolution, density)
+    # exact: cells of r/2 and blocks of one cell; voxels: cells of r/resolution and blocks about r wide
+    edge, block, reach = (r / resolution, resolution, resolution) if voxels else (r / 2.0, 1, 2)
+    g = CellGrid.build(pts, edge, pad=reach + block + 1)
+    sorted_pts = pts[g.order]
+    row_key = g.keys // g.dims[2]
+    first = np.flatnonzero(np.r_[True, row_key[1:] != row_key[:-1]])
+    row_start = np.r_[first, g.keys.size].astype(np.int64)
+    bits = max(4, int(np.ceil(np.log2(2 * first.size + 1))))
+    table_keys, table_vals = _rk.build_row_table(row_key[first], bits)
+    if voxels:
         centres = g.centres()
-        vm = np.empty((g.keys.size, 10))
-        _rk.voxel_moments(sorted_pts, g.start, centres, vm)
-        qb = (np.floor(q / (block * h)).astype(np.int64) * block) - g.base  # first voxel of each query's block
-        qkey = (qb[:, 0] * g.dims[1] + qb[:, 1]) * g.dims[2] + qb[:, 2]
-        qorder = np.argsort(qkey, kind="stable")
-        sk = qkey[qorder]
-        first = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
-        gstart = np.r_[first, sk.size].astype(np.int64)
-        tmp = np.empty_like(out)
-        _rk.ball_moments_voxels(
-            sorted_pts, g.start, g.keys, vm, centres, g.dims, _block_rows(resolution, block),
-            np.ascontiguousarray(q[qorder]), gstart, qb[qorder[first]], r * r, tmp,
-        )
-        out[qorder] = tmp
+        moments = np.empty((g.keys.size, 10))
+        _rk.voxel_moments(sorted_pts, g.start, centres, moments)
+    else:
+        centres = moments = np.zeros((1, 10))
+    qb = np.floor(q / (block * edge)).astype(np.int64) * block - g.base  # first cell of each query's block
+    qkey = (qb[:, 0] * g.dims[1] + qb[:, 1]) * g.dims[2] + qb[:, 2]
+    qorder = np.argsort(qkey, kind="stable")
+    sk = qkey[qorder]
+    del qkey
+    gfirst = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
+    _rk.ball_moments(
+        voxels, sorted_pts, g.start, np.ascontiguousarray(g.cells[:, 2]), row_start, table_keys, table_vals, bits,
+        g.dims, _block_rows(reach, block), q, qorder, np.r_[gfirst, sk.size].astype(np.int64), qb[qorder[gfirst]],
+        r * r, moments, centres, out,
+    )
     return out
 
 
@@ -168,6 +209,7 @@ def radius_normals(
     resolution: int = 4,
     min_points: int = 3,
     at: np.ndarray | None = None,
+    density: float | None = None,
     return_variation: bool = False,
 ):
     """Unit normals from the PCA of all points within ``radius`` of each point.
@@ -191,6 +233,10 @@ def radius_normals(
     at : (M,) int array, optional
         Indices of the points to compute normals at (neighbours are still
         all of ``points``).  Default: every point.
+    density : float, optional
+        Fast mode: :func:`cell_density` of the cloud at the voxel edge,
+        which decides whether voxels pay off at this radius (default: from
+        ``points``; give the whole cloud's when ``points`` is a part of it).
     return_variation : bool
         Also return the surface variation l3 / (l1 + l2 + l3) of each ball.
 
@@ -222,7 +268,7 @@ def radius_normals(
     if vp.shape != (3,) or not np.isfinite(vp).all():
         raise PatchcloudValueError(f"viewpoint must be three finite coordinates (x, y, z), got {viewpoint!r}")
     q = pts if at is None else pts[np.asarray(at, dtype=np.int64)]
-    mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at)
+    mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at, density=density)
     normals = np.empty((q.shape[0], 3))
     variation = np.empty(q.shape[0])
     if q.shape[0]:

@@ -101,7 +101,9 @@ def don_tile(url: str, ijk: tuple, params: dict, neighbours: list) -> dict:
         viewpoint=np.asarray(params["viewpoint_local"]), mode=params["mode"], resolution=params["resolution"],
         min_points=params["min_points"], at=at,
     )
-    don = (radius_normals(pts, params["r_small"], **kw) - radius_normals(pts, params["r_large"], **kw)) / 2.0
+    n_small = radius_normals(pts, params["r_small"], density=params.get("density_small"), **kw)
+    n_large = radius_normals(pts, params["r_large"], density=params.get("density_large"), **kw)
+    don = (n_small - n_large) / 2.0
     mag = don_magnitude(don)
     defined = np.isfinite(mag)
     if params.get("threshold") is not None:

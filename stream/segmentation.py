@@ -139,6 +139,9 @@ def _run(
             viewpoint_local=(vp - origin).tolist(), threshold=None if threshold is None else float(threshold), axis=axis,
             axis_threshold=None if axis_threshold is None else float(axis_threshold),
         )
+        if mode == "fast":  # whether voxels pay off, from the whole file (as a whole-cloud run decides it)
+            params["density_small"] = _density(st, params["r_small"] / params["resolution"])
+            params["density_large"] = _density(st, params["r_large"] / params["resolution"])
         params["don_width"] = halo_width(params["r_large"], mode, params["resolution"])
         params["don_key"] = _params_key(params)
         width = params["don_width"]
@@ -179,6 +182,23 @@ def _run(
         histogram=np.sum([i["hist"] for i in v], axis=0).astype(int).tolist() if v else [],
         seconds=seconds, peak_memory=peak, scheduler=scheduler, store=url if keep_store else "",
     )
+
+
+def _density(st: Store, edge: float) -> float:
+    """:func:`patchcloud.core.radius.cell_density` of the whole file, from the store's occupancy counts.
+
+    Cells of a power-of-two edge no larger than a tile are cells of the
+    tiles' octrees, so the counts add up over tiles exactly.  A cell larger
+    than the tiles is scaled from the tile level as a surface's count
+    scales (an estimate, the same for every tile).
+    """
+    occ = {int(k): int(v) for k, v in st.attrs["occupancy"].items()}
+    n = int(st.tile_counts.sum())
+    e = int(np.floor(np.log2(edge)))
+    if e in occ:
+        return n / occ[e]
+    top = max(occ)
+    return n / occ[top] * 4.0 ** (e - top)
 
 
 def _export(st: Store, src: LasSource, output: str, segmenting: bool, overwrite: bool, quiet: bool) -> None:

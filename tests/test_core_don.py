@@ -219,3 +219,14 @@ def test_bad_parameters_are_named(call, words):
     p = np.random.default_rng(0).uniform(size=(50, 3))
     with pytest.raises(PatchcloudValueError, match=words.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[").replace("]", r"\]")):
         call(p)
+
+
+def test_fast_mode_sums_points_where_voxels_would_not_pay(rng):
+    """Sparse for the radius (about one point per voxel): fast mode takes the exact ball, bit for bit."""
+    p = rng.uniform(0, 20, (20000, 3)) * [1, 1, 0.05]
+    from patchcloud.core.radius import cell_density, uses_voxels
+
+    assert not uses_voxels(0.3, 4, cell_density(p, 0.075))
+    assert np.array_equal(radius_normals(p, 0.3, mode="fast"), radius_normals(p, 0.3), equal_nan=True)
+    assert uses_voxels(3.0, 4, cell_density(p, 0.75))
+    assert not np.array_equal(radius_normals(p, 3.0, mode="fast"), radius_normals(p, 3.0), equal_nan=True)
