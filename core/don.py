@@ -57,7 +57,7 @@ def difference_of_normals(
     r_large: float,
     *,
     viewpoint: np.ndarray | None = None,
-    mode: str = "exact",
+    mode: str = "fast",
     resolution: int = 4,
     min_points: int = 3,
     at: np.ndarray | None = None,

@@ -147,7 +147,7 @@ def uses_voxels(radius: float, resolution: int, density: float) -> bool:
 
 
 def radius_moments(
-    points: np.ndarray, radius: float, *, mode: str = "exact", resolution: int = 4, at: np.ndarray | None = None,
+    points: np.ndarray, radius: float, *, mode: str = "fast", resolution: int = 4, at: np.ndarray | None = None,
     density: float | None = None,
 ) -> np.ndarray:
     """Count and moments of the points within ``radius`` of each query point (the PCA's input).
@@ -205,7 +205,7 @@ def radius_normals(
     radius: float,
     *,
     viewpoint: np.ndarray | None = None,
-    mode: str = "exact",
+    mode: str = "fast",
     resolution: int = 4,
     min_points: int = 3,
     at: np.ndarray | None = None,
@@ -223,9 +223,12 @@ def radius_normals(
     viewpoint : (3,) array, optional
         Every normal is turned to face it.  Default: :func:`default_viewpoint`
         (above the middle of the cloud).
-    mode : {"exact", "fast"}
-        The reference PCA of the ball's points, or voxel moments (see the
-        module's text); "exact" by default.
+    mode : {"fast", "exact"}
+        Voxel moments (default; see the module's text) or the reference PCA
+        of the ball's points (PCL's values).  Measured on the synthetic city
+        and the real files, fast-mode DoN magnitudes rank like exact ones
+        (Spearman 0.96-0.99+, median difference below 0.01) at 2-6 times
+        the speed at r = 2 m, hence the default.
     resolution : int
         Fast mode: voxels per radius (voxel edge ``radius / resolution``).
     min_points : int

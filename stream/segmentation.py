@@ -223,10 +223,10 @@ def _export(st: Store, src: LasSource, output: str, segmenting: bool, overwrite:
 
 _COMMON_DOC = """r_small, r_large : float
         Support radii of the two normals (metres), ``r_small < r_large``.
-    mode : {"exact", "fast"}
-        Radius normals by PCA of every point in the ball (the reference,
-        PCL's definition) or from voxel moments (cost independent of the
-        points per ball); see :func:`patchcloud.core.radius_normals`.
+    mode : {"fast", "exact"}
+        Radius normals from voxel moments (default: cost independent of the
+        points per ball) or by PCA of every point in the ball (the
+        reference, PCL's definition); see :func:`patchcloud.core.radius_normals`.
     viewpoint : (3,) array, optional
         Both normals face it (the file's coordinates).  Default: above the
         middle of the file's bounding box, one extent above its top.
@@ -238,7 +238,7 @@ _COMMON_DOC = """r_small, r_large : float
 
 
 def don(
-    input: str | os.PathLike, output: str | os.PathLike, *, r_small: float = 0.2, r_large: float = 2.0, mode: str = "exact",
+    input: str | os.PathLike, output: str | os.PathLike, *, r_small: float = 0.2, r_large: float = 2.0, mode: str = "fast",
     viewpoint=None, resolution: int = 4, min_points: int = 3, tile_size: float | None = None, scheduler: str = "threads",
     workers: int | None = None, store: str | None = None, keep_store: bool | None = None, overwrite: bool = False,
     quiet: bool = False, chunk: int = 1 << 20,
@@ -275,7 +275,7 @@ def don(
 def segment(
     input: str | os.PathLike, output: str | os.PathLike, *, r_small: float = 0.2, r_large: float = 2.0,
     threshold: float = 0.25, tolerance: float = 0.2, min_cluster: int = 50, max_cluster: int | None = None,
-    axis: str | None = None, axis_threshold: float | None = None, mode: str = "exact", viewpoint=None,
+    axis: str | None = None, axis_threshold: float | None = None, mode: str = "fast", viewpoint=None,
     resolution: int = 4, min_points: int = 3, tile_size: float | None = None, scheduler: str = "threads",
     workers: int | None = None, store: str | None = None, keep_store: bool | None = None, overwrite: bool = False,
     quiet: bool = False, chunk: int = 1 << 20,

@@ -52,7 +52,7 @@ def test_exact_normals_equal_the_reference_pca(rng):
     p = rng.uniform(0, 3, (3000, 3)) * [1, 1, 0.2] + [650000.0, 6860000.0, 40.0]  # UTM-sized coordinates
     at = rng.choice(len(p), 200, replace=False)
     vp = np.array([650001.0, 6860001.0, 100.0])
-    ours = radius_normals(p, 0.4, viewpoint=vp, at=at)
+    ours = radius_normals(p, 0.4, viewpoint=vp, at=at, mode="exact")
     ref = brute_normals(p, 0.4, vp, at)
     assert np.array_equal(np.isnan(ours), np.isnan(ref))
     ok = ~np.isnan(ref[:, 0])
@@ -87,14 +87,14 @@ def test_pole_responds_at_its_scale_and_not_at_others(rng):
     pole = np.arange(len(p)) >= n_ground
     mid = pole & (p[:, 2] > 1.0) & (p[:, 2] < 2.0)  # away from the pole's foot and top
     far = ~pole & (np.hypot(p[:, 0], p[:, 1]) > 3.0) & (np.abs(p[:, :2]).max(axis=1) < 4.0)
-    at_scale = don_magnitude(difference_of_normals(p, 0.2, 2.0))
+    at_scale = don_magnitude(difference_of_normals(p, 0.2, 2.0, mode="exact"))
     assert np.median(at_scale[mid]) > 0.5  # horizontal small-scale normal vs near-vertical large-scale one
     assert np.nanmax(at_scale[far]) < 1e-6  # the ground away from the pole is flat at both scales
     # both radii far larger than the pole: the ground dominates both balls
-    large = don_magnitude(difference_of_normals(p, 6.0, 8.0))
+    large = don_magnitude(difference_of_normals(p, 6.0, 8.0, mode="exact"))
     assert np.nanmedian(large[mid]) < 0.1
     # both radii smaller than the pole's radius: both normals radial
-    small = don_magnitude(difference_of_normals(p, 0.06, 0.09))
+    small = don_magnitude(difference_of_normals(p, 0.06, 0.09, mode="exact"))
     assert np.nanmedian(small[mid]) < 0.1
 
 
@@ -227,6 +227,6 @@ def test_fast_mode_sums_points_where_voxels_would_not_pay(rng):
     from patchcloud.core.radius import cell_density, uses_voxels
 
     assert not uses_voxels(0.3, 4, cell_density(p, 0.075))
-    assert np.array_equal(radius_normals(p, 0.3, mode="fast"), radius_normals(p, 0.3), equal_nan=True)
+    assert np.array_equal(radius_normals(p, 0.3, mode="fast"), radius_normals(p, 0.3, mode="exact"), equal_nan=True)
     assert uses_voxels(3.0, 4, cell_density(p, 0.75))
-    assert not np.array_equal(radius_normals(p, 3.0, mode="fast"), radius_normals(p, 3.0), equal_nan=True)
+    assert not np.array_equal(radius_normals(p, 3.0, mode="fast"), radius_normals(p, 3.0, mode="exact"), equal_nan=True)

@@ -154,7 +154,9 @@ def test_don_dims_and_undefined_points(tmp_path):
     pts = np.vstack([plane, lonely])[rng.permutation(len(plane) + 1)] + OFFSET
     path = tmp_path / "p.las"
     write_las(path, pts)
-    s = don(path, tmp_path / "o.las", r_small=0.5, r_large=1.5, scheduler="synchronous", quiet=True)
+    # 2 m tiles: the lonely point is a tile of its own, with nothing kept and no neighbour
+    s = don(path, tmp_path / "o.las", r_small=0.5, r_large=1.5, tile_size=2.0, scheduler="synchronous", quiet=True)
+    assert s.tiles == 10
     las = laspy.read(tmp_path / "o.las")
     m = np.asarray(las["DoN"])
     lonely_row = np.argmax(las.z)
@@ -165,6 +167,10 @@ def test_don_dims_and_undefined_points(tmp_path):
     structs = [e for v in las.header.vlrs if hasattr(v, "extra_bytes_structs") for e in v.extra_bytes_structs]
     declared = {e.name.decode(): e.no_data for e in structs}
     assert all(np.isnan(declared[d][0]) for d in ("DoN", "DoNX", "DoNY", "DoNZ"))  # NaN is the declared no-data value
+    g = segment(path, tmp_path / "g.las", r_small=0.5, r_large=1.5, threshold=0.1, tolerance=0.3, min_cluster=1,
+                tile_size=2.0, scheduler="synchronous", quiet=True)
+    assert g.kept == 0 and g.segments == 0
+    assert not np.asarray(laspy.read(tmp_path / "g.las")["ClusterID"]).any()
 
 
 def test_resume_reuses_the_store(scene, tmp_path):

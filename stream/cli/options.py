@@ -43,7 +43,7 @@ def don_options(func):
     for option in reversed([
         click.option("--rs", "r_small", type=float, default=0.2, show_default=True, metavar="METRES", help="Small support radius."),
         click.option("--rl", "r_large", type=float, default=2.0, show_default=True, metavar="METRES", help="Large support radius."),
-        click.option("--mode", type=click.Choice(["exact", "fast"]), default="exact", show_default=True,
+        click.option("--mode", type=click.Choice(["exact", "fast"]), default="fast", show_default=True,
                      help="Radius normals by PCA of every point in the ball (exact, PCL's definition) or from voxel moments (fast)."),
         click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z",
                      help="Both normals face it (file coordinates). Default: above the middle of the file, one extent above its top."),
