@@ -1,7 +1,7 @@
-"""Benchmark of ``patchcloud normals`` on synthetic city scans of growing size, against the I/O floor.
+"""Benchmark of ``patchcloud normals`` (or ``don``, ``segment``) on synthetic city scans of growing size, against the I/O floor.
 
     python tools/bench_stream.py [--sizes 5e6 20e6 100e6] [--workdir /tmp/bench_stream] [--ext laz]
-                                 [--scheduler threads]
+                                 [--scheduler threads] [--job normals|don|segment] [--options "--rs 0.2 --rl 2"]
 
 For every size: a synthetic city (tools/city_las.py, streamed to disk) is
 made once; then, each in its own process,
@@ -9,7 +9,7 @@ made once; then, each in its own process,
 * the I/O floor: laspy reads the file in chunks of 2**20 points and writes
   it back with four float32 extra dimensions (what any tool writing
   normals must at least do);
-* ``patchcloud normals IN OUT`` with default settings.
+* ``patchcloud JOB IN OUT`` with default settings (plus ``--options``).
 
 Printed: wall seconds, points/s, the ratio to the floor, peak RSS (of the
 whole process tree: the child's own high-water mark, and patchcloud's sum
@@ -54,16 +54,16 @@ def run_floor(src: Path, dst: Path) -> tuple[float, int]:
     return float(t), int(rss)
 
 
-def run_normals(src: Path, dst: Path, scheduler: str) -> tuple[float, int, int, str]:
+def run_job(job: str, src: Path, dst: Path, scheduler: str, options: list[str]) -> tuple[float, int, int, str]:
     exe = Path(sys.executable).with_name("patchcloud")
-    cmd = [str(exe), "normals", str(src), str(dst), "--overwrite", "--scheduler", scheduler]
+    cmd = [str(exe), job, str(src), str(dst), "--overwrite", "--scheduler", scheduler, *options]
     t = time.perf_counter()
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     _, status, usage = os.wait4(p.pid, 0)
     wall = time.perf_counter() - t
     text = p.stdout.read()
     if status != 0:
-        raise RuntimeError(f"patchcloud normals failed on {src}:\n{text}")
+        raise RuntimeError(f"patchcloud {job} failed on {src}:\n{text}")
     m = re.search(r"peak memory\s+([\d,]+) MiB", text)
     summed = int(m.group(1).replace(",", "")) * 2**20 if m else 0
     return wall, usage.ru_maxrss * 1024, summed, text
@@ -75,6 +75,8 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/bench_stream"))
     ap.add_argument("--ext", choices=["las", "laz"], default="laz")
     ap.add_argument("--scheduler", default="threads")
+    ap.add_argument("--job", choices=["normals", "don", "segment"], default="normals")
+    ap.add_argument("--options", default="", help="more options of the job, as one string")
     a = ap.parse_args()
     sys.path.insert(0, str(HERE))
     import city_las
@@ -89,14 +91,14 @@ def main() -> None:
             city_las.write_city(src, n)
             print(f"generated {src} in {time.perf_counter() - t:.0f} s", flush=True)
         t_floor, rss_floor = run_floor(src, a.workdir / f"floor.{a.ext}")
-        wall, rss_child, rss_sum, text = run_normals(src, a.workdir / f"out.{a.ext}", a.scheduler)
+        wall, rss_child, rss_sum, text = run_job(a.job, src, a.workdir / f"out.{a.ext}", a.scheduler, a.options.split())
         print(text, flush=True)
         rows.append((n, t_floor, rss_floor, wall, rss_child, rss_sum))
-        print(f"{n:>12,}  floor {t_floor:7.1f} s  normals {wall:7.1f} s  ratio {wall / t_floor:4.2f}  peak {max(rss_child, rss_sum) / 2**20:6.0f} MiB", flush=True)
+        print(f"{n:>12,}  floor {t_floor:7.1f} s  {a.job} {wall:7.1f} s  ratio {wall / t_floor:4.2f}  peak {max(rss_child, rss_sum) / 2**20:6.0f} MiB", flush=True)
     base = rows[0][3] / rows[0][0]
     print()
-    print(f"patchcloud normals vs I/O floor ({a.ext}, scheduler {a.scheduler}, {os.cpu_count()} cores)")
-    print(f"{'points':>12} | {'floor s':>8} | {'floor pts/s':>11} | {'normals s':>9} | {'pts/s':>9} | {'x floor':>7} | {'peak RSS MiB':>12} | {'floor RSS':>9} | {'s/pt vs first':>13}")
+    print(f"patchcloud {a.job} {a.options} vs I/O floor ({a.ext}, scheduler {a.scheduler}, {os.cpu_count()} cores)")
+    print(f"{'points':>12} | {'floor s':>8} | {'floor pts/s':>11} | {a.job + ' s':>9} | {'pts/s':>9} | {'x floor':>7} | {'peak RSS MiB':>12} | {'floor RSS':>9} | {'s/pt vs first':>13}")
     for n, tf, rf, w, rc, rs in rows:
         print(f"{n:>12,} | {tf:8.1f} | {n / tf:11,.0f} | {w:9.1f} | {n / w:9,.0f} | {w / tf:7.2f} | {max(rc, rs) / 2**20:12,.0f} | {rf / 2**20:9,.0f} | {(w / n) / base:13.2f}")
 
