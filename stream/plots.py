@@ -23,6 +23,8 @@ from matplotlib.patches import Rectangle
 
 from patchcloud.core.errors import PatchcloudIOError
 
+from .lasio import atomic_output
+
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
 
@@ -92,21 +94,17 @@ def save_png(fig: Figure, path: str | os.PathLike) -> Path:
     True
     """
     p = Path(path)
-    if not p.parent.exists():
-        raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
     if p.is_dir():
         raise PatchcloudIOError(f"{p}: is a directory")
     if not isinstance(fig.canvas, FigureCanvasAgg):
         FigureCanvasAgg(fig)
-    tmp = p.with_name(p.name + ".partial")
     try:
-        fig.savefig(tmp, format="png", dpi=STYLE["dpi"])
-        os.replace(tmp, p)
+        with atomic_output(p, overwrite=True) as f:
+            fig.savefig(f, format="png", dpi=STYLE["dpi"])
+    except PatchcloudIOError:
+        raise
     except OSError as exc:
         raise PatchcloudIOError(f"{p}: cannot write the figure ({exc})") from exc
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return p
 
 

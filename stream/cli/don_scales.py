@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import click
 
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 
+from ..lasio import atomic_output
 from . import options
 
 __all__ = ["don_scales_command", "parse_list"]
@@ -43,18 +43,13 @@ def _class_value(text: str):
 
 
 def _write_text(path: str, text: str) -> None:
-    p = Path(path)
-    if not p.parent.exists():
-        raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
-    tmp = p.with_name(p.name + ".partial")
     try:
-        tmp.write_text(text + "\n", encoding="utf-8")
-        os.replace(tmp, p)
+        with atomic_output(path, overwrite=True) as f:
+            f.write((text + "\n").encode("utf-8"))
+    except PatchcloudIOError:
+        raise
     except OSError as exc:
-        raise PatchcloudIOError(f"{p}: cannot write the table ({exc})") from exc
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+        raise PatchcloudIOError(f"{path}: cannot write the table ({exc})") from exc
 
 
 @click.command("don-scales")
