@@ -242,3 +242,11 @@ def test_cli_bad_files(tmp_path, scene):
         don(tmp_path / "missing.las", tmp_path / "o2.las", quiet=True)
     with pytest.raises(PatchcloudValueError, match="mode must be one of exact, fast"):
         don(path, tmp_path / "o3.las", mode="approximate", quiet=True)
+
+
+def test_worker_processes_give_identical_files(scene, tmp_path):
+    path, _, _ = scene
+    kw = dict(r_small=0.3, r_large=1.5, threshold=0.2, tolerance=0.15, min_cluster=30, tile_size=4.0, quiet=True)
+    segment(path, tmp_path / "a.las", scheduler="synchronous", **kw)
+    segment(path, tmp_path / "b.las", scheduler="processes", workers=2, **kw)
+    assert (tmp_path / "a.las").read_bytes() == (tmp_path / "b.las").read_bytes()
