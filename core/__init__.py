@@ -15,6 +15,7 @@ from .don import difference_of_normals, don_magnitude, don_mask, segment_don
 from .errors import PatchcloudError, PatchcloudIOError, PatchcloudValueError
 from .normals import Method, NormalsParameters, NormalsResult, estimate_normals
 from .patches import PatchKind, PatchTable
+from .patchmodel import ModelFit, PatchModels, fit_models, sample_models
 from .radius import default_viewpoint, radius_normals
 
 __all__ = [
@@ -31,6 +32,10 @@ __all__ = [
     "don_mask",
     "segment_don",
     "euclidean_clusters",
+    "fit_models",
+    "sample_models",
+    "PatchModels",
+    "ModelFit",
     "PatchcloudError",
     "PatchcloudValueError",
     "PatchcloudIOError",

@@ -1,0 +1,283 @@
+"""Patch models of one cloud: the quadric surfaces that stand for its points, and points sampled back from them.
+
+The anisotropic octree (criterion ``rmse`` with the error budget as its
+threshold) splits the cloud into leaves whose quadric fits within the
+budget.  A *surface* leaf becomes a patch model: its octree cell, point
+count, PCA frame, quadric, and where its points lie in the frame (the
+``(u, v)`` box and an 8 x 8 occupancy mask of that box).  Every other point
+is *residual*: the points of edge and sparse leaves (vegetation, wires,
+isolated returns), and the points of a surface leaf farther than
+``outlier_factor`` x the budget from its quadric.  So every input point is
+represented either by a surface or by itself.
+
+Sampling a patch draws its point count (or any other) uniformly over the
+occupied cells of its mask and lifts each ``(u, v)`` onto the quadric.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from .errors import PatchcloudValueError
+from .octree import estimate_spacing, sort_points
+from .patches import PatchKind
+from .tiles import fit_tile
+
+__all__ = ["PatchModels", "ModelFit", "fit_models", "sample_models", "MASK_SIDE"]
+
+#: The occupancy mask of a patch is MASK_SIDE x MASK_SIDE cells over its (u, v) box (one uint64).
+MASK_SIDE = 8
+#: Draws per sampled point at most: a draw outside the patch's octree cell is drawn again.
+MAX_DRAWS = 8
+
+
+@dataclass(frozen=True)
+class PatchModels:
+    """Quadric patch models (P rows) that stand for a cloud's smooth surfaces.
+
+    The surface of patch ``k``, in its frame, is ``w = a u^2 + b uv + c v^2
+    + d u + e v + f`` (``coeffs[k]``), with ``(u, v, w) = frame[k].T @ (p -
+    centroid[k])``; it is kept where ``extent[k]`` and ``mask[k]`` say the
+    patch's points were.
+
+    Attributes
+    ----------
+    root_corner : (3,) float64
+        Minimum corner of the octree's root cube (metres, caller's frame).
+    root_edge : float
+        Edge of the root cube (metres).
+    level : (P,) uint8
+        Octree level of the patch's cell.
+    ijk : (P, 3) int64
+        Integer coordinates of the cell at its level.
+    count : (P,) int64
+        Points the patch stands for.
+    centroid : (P, 3) float64
+        Origin of the patch frame (metres, caller's frame).
+    frame : (P, 3, 3) float64
+        Axes ``e1, e2, e3`` as columns (e3: the normal of the PCA plane).
+    coeffs : (P, 6) float64
+        Quadric coefficients ``a, b, c, d, e, f``.
+    extent : (P, 4) float64
+        ``u_min, u_max, v_min, v_max`` of the patch's points in its frame (metres).
+    mask : (P,) uint64
+        Bit ``i * MASK_SIDE + j`` set where cell (i, j) of the extent's
+        MASK_SIDE x MASK_SIDE grid (i along u) holds a point.
+    rmse : (P,) float64
+        RMS distance (along e3) of the patch's points to its quadric (metres).
+    """
+
+    root_corner: np.ndarray
+    root_edge: float
+    level: np.ndarray
+    ijk: np.ndarray
+    count: np.ndarray
+    centroid: np.ndarray
+    frame: np.ndarray
+    coeffs: np.ndarray
+    extent: np.ndarray
+    mask: np.ndarray
+    rmse: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.level.shape[0])
+
+    def take(self, index: np.ndarray) -> "PatchModels":
+        """The models of rows ``index`` (an index array or a boolean mask)."""
+        return PatchModels(**{f.name: getattr(self, f.name) if f.name.startswith("root_") else getattr(self, f.name)[index] for f in fields(self)})
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """What :func:`fit_models` gives.
+
+    Attributes
+    ----------
+    models : PatchModels
+    patch : (N,) int64
+        Row of ``models`` each input point is represented by; -1 for a residual point.
+    residual : (R,) int64
+        Input rows of the residual points, ascending.
+    error : (N,) float64
+        Distance along the patch normal from each point to its quadric (metres); 0 for residual points.
+    """
+
+    models: PatchModels
+    patch: np.ndarray
+    residual: np.ndarray
+    error: np.ndarray
+
+
+def _quadric(c: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return c[:, 0] * u * u + c[:, 1] * u * v + c[:, 2] * v * v + c[:, 3] * u + c[:, 4] * v + c[:, 5]
+
+
+def _cells(u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    span = np.where(hi > lo, hi - lo, 1.0)
+    return np.clip(np.floor((u - lo) / span * MASK_SIDE), 0, MASK_SIDE - 1).astype(np.int64)
+
+
+def fit_models(
+    points: np.ndarray,
+    max_error: float,
+    *,
+    d_min: float | None = None,
+    max_edge: float | None = None,
+    n_min: int = 12,
+    min_sigma2: float = 0.01,
+    outlier_factor: float = 3.0,
+    root: tuple[np.ndarray, float] | None = None,
+) -> ModelFit:
+    """Patch models of a cloud within an error budget, and its residual points.
+
+    Parameters
+    ----------
+    points : (N, 3) array
+        Coordinates (metres); any order.
+    max_error : float
+        The error budget (metres): the octree splits a leaf until its
+        quadric's fit RMSE is below it (criterion ``rmse``), down to ``d_min``.
+    d_min, max_edge, n_min, min_sigma2 :
+        As :func:`patchcloud.core.estimate_normals` (defaults from the point spacing).
+    outlier_factor : float
+        A point of a surface leaf farther than ``outlier_factor * max_error``
+        from the quadric is kept as a residual point.
+    root : (corner, edge), optional
+        The octree's root cube (a tile of the stream); default: the points' bounding cube.
+
+    Returns
+    -------
+    ModelFit
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> xy = np.random.default_rng(0).uniform(0, 8, (20000, 2))
+    >>> fit = fit_models(np.column_stack([xy, 0.05 * xy[:, 0] ** 2]), 0.01)
+    >>> len(fit.models) < 40, fit.residual.size, int(fit.models.count.sum())
+    (True, 0, 20000)
+    """
+    from .normals import _root_cube, _validate_points  # the checks estimate_normals makes
+
+    pts, lo, hi = _validate_points(points)
+    try:
+        budget = float(max_error)
+    except (TypeError, ValueError):
+        budget = float("nan")
+    if not np.isfinite(budget) or budget <= 0:
+        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
+    if not np.isfinite(outlier_factor) or outlier_factor < 1:
+        raise PatchcloudValueError(f"outlier_factor must be at least 1, got {outlier_factor!r}")
+    n = pts.shape[0]
+    if n < n_min:
+        raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")
+    corner, edge = _root_cube(lo, hi, root)
+    sorted_input = sort_points(pts - corner, np.zeros(3), edge)
+    spacing = estimate_spacing(sorted_input[1], edge)
+    if d_min is None:
+        d_min = 3.0 * spacing if spacing > 0 else edge / 2.0**21
+    if max_edge is None:
+        max_edge = 256.0 * spacing if spacing > 0 else np.inf
+    fit = fit_tile(
+        pts, corner, edge, criterion="rmse", threshold=budget, d_min=d_min, max_edge=max_edge, n_min=n_min,
+        min_sigma2=min_sigma2, orient="none", spacing=spacing, sorted_input=sorted_input,
+    )
+    t = fit.patches
+    leaf = np.repeat(np.arange(len(t)), t.count)  # patch of each sorted point
+    world = fit.local + corner
+    surface = t.kind[leaf] == PatchKind.SURFACE
+    d = world - t.centroid[leaf]
+    uvw = np.einsum("nij,ni->nj", t.frame[leaf], d)
+    err = np.zeros(n)
+    err[surface] = uvw[surface, 2] - _quadric(t.coeffs[leaf[surface]], uvw[surface, 0], uvw[surface, 1])
+    kept = surface & (np.abs(err) <= outlier_factor * budget)
+    count = np.bincount(leaf[kept], minlength=len(t))
+    keep_patch = count >= 3
+    kept &= keep_patch[leaf]
+    count = np.where(keep_patch, count, 0)
+    rows = np.flatnonzero(keep_patch)
+    new_row = np.full(len(t), -1, dtype=np.int64)
+    new_row[rows] = np.arange(rows.size)
+
+    # extents and occupancy masks of the kept points, per patch (kept points of a patch are contiguous)
+    kp = leaf[kept]
+    u, v = uvw[kept, 0], uvw[kept, 1]
+    starts = np.r_[0, np.cumsum(count[rows])[:-1]] if rows.size else np.zeros(0, np.int64)
+    extent = np.zeros((rows.size, 4))
+    mask = np.zeros(rows.size, dtype=np.uint64)
+    rms = np.zeros(rows.size)
+    if rows.size:
+        extent[:, 0] = np.minimum.reduceat(u, starts)
+        extent[:, 1] = np.maximum.reduceat(u, starts)
+        extent[:, 2] = np.minimum.reduceat(v, starts)
+        extent[:, 3] = np.maximum.reduceat(v, starts)
+        r = new_row[kp]
+        bit = _cells(u, extent[r, 0], extent[r, 1]) * MASK_SIDE + _cells(v, extent[r, 2], extent[r, 3])
+        mask = np.bitwise_or.reduceat(np.left_shift(np.uint64(1), bit.astype(np.uint64)), starts)
+        rms = np.sqrt(np.bincount(r, weights=err[kept] ** 2, minlength=rows.size) / count[rows])
+    models = PatchModels(
+        root_corner=corner.copy(), root_edge=float(edge), level=t.level[rows], ijk=t.ijk[rows], count=count[rows],
+        centroid=t.centroid[rows], frame=t.frame[rows], coeffs=t.coeffs[rows], extent=extent, mask=mask, rmse=rms,
+    )
+    patch = np.full(n, -1, dtype=np.int64)
+    patch[fit.order[kept]] = new_row[kp]
+    error = np.zeros(n)
+    error[fit.order[kept]] = err[kept]
+    return ModelFit(models=models, patch=patch, residual=np.sort(fit.order[~kept]), error=error)
+
+
+def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the patch surfaces: ``counts[k]`` (default: the patches' own counts) per patch.
+
+    Each point is drawn uniformly over the occupied cells of the patch's
+    mask, then lifted onto its quadric; a point that falls outside the
+    patch's octree cell (where the box of its points overhangs the cell)
+    is drawn again, up to :data:`MAX_DRAWS` times.  The same models,
+    counts and seed give the same points.
+
+    Returns
+    -------
+    points : (M, 3) float64
+        Caller's frame (metres).
+    patch : (M,) int64
+        Row of ``models`` of each point; points come patch after patch.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> xy = np.random.default_rng(0).uniform(0, 8, (20000, 2))
+    >>> fit = fit_models(np.column_stack([xy, np.zeros(20000)]), 0.01)
+    >>> p, k = sample_models(fit.models)
+    >>> p.shape, float(np.abs(p[:, 2]).max()) < 1e-9
+    ((20000, 3), True)
+    """
+    P = len(models)
+    counts = models.count if counts is None else np.asarray(counts, dtype=np.int64)
+    if counts.shape != (P,) or (counts < 0).any():
+        raise PatchcloudValueError(f"counts must be {P} non-negative whole numbers, one per patch")
+    k = np.repeat(np.arange(P), counts)
+    rng = np.random.default_rng(seed)
+    bits = ((models.mask[:, None] >> np.arange(MASK_SIDE * MASK_SIDE, dtype=np.uint64)) & np.uint64(1)).astype(bool)
+    occupied = bits.sum(axis=1)
+    cell_order = np.argsort(~bits, axis=1, kind="stable")  # the occupied cells first, in index order
+    edge = models.root_edge / 2.0 ** models.level.astype(np.float64)
+    lo = models.root_corner + models.ijk * edge[:, None]
+    pts = np.empty((k.size, 3))
+    todo = np.arange(k.size)
+    for attempt in range(MAX_DRAWS):  # a draw outside the patch's octree cell is drawn again
+        kk = k[todo]
+        r = rng.random((todo.size, 3))
+        pick = np.minimum((r[:, 0] * occupied[kk]).astype(np.int64), np.maximum(occupied[kk] - 1, 0))
+        cell = cell_order[kk, pick]
+        e = models.extent[kk]
+        u = e[:, 0] + (cell // MASK_SIDE + r[:, 1]) * (e[:, 1] - e[:, 0]) / MASK_SIDE
+        v = e[:, 2] + (cell % MASK_SIDE + r[:, 2]) * (e[:, 3] - e[:, 2]) / MASK_SIDE
+        w = _quadric(models.coeffs[kk], u, v)
+        pts[todo] = models.centroid[kk] + np.einsum("nij,nj->ni", models.frame[kk], np.column_stack([u, v, w]))
+        outside = np.any((pts[todo] < lo[kk]) | (pts[todo] > lo[kk] + edge[kk, None]), axis=1)
+        todo = todo[outside]
+        if todo.size == 0:
+            break
+    return pts, k
