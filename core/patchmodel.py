@@ -25,7 +25,7 @@ from .octree import estimate_spacing, sort_points
 from .patches import PatchKind
 from .tiles import fit_tile
 
-__all__ = ["PatchModels", "ModelFit", "fit_models", "sample_models", "MASK_SIDE"]
+__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "MASK_SIDE"]
 
 #: The occupancy mask of a patch is MASK_SIDE x MASK_SIDE cells over its (u, v) box (one uint64).
 MASK_SIDE = 8
@@ -281,3 +281,116 @@ def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed
         if todo.size == 0:
             break
     return pts, k
+
+
+#: Share of the error budget each quantised quantity may use at most (four of them: < half the budget in all).
+QUANT_SHARE = 1.0 / 8.0
+#: Steps of the (u, v) extent: the cell edge over this (an extent only says where samples go along the surface).
+EXTENT_STEPS = 1024
+
+
+@dataclass(frozen=True)
+class QuantisedModels:
+    """Patch models as integers, each quantity with a step derived from the error budget and the patch's cell.
+
+    With ``E`` the edge of a patch's octree cell and ``eps`` the budget,
+    every point of the cell lies within ``sqrt(3) E`` of the centroid, so
+    the steps below keep the surface of the dequantised model within
+    ``4 * QUANT_SHARE * eps`` (half the budget) of the fitted one over the
+    cell: centroid ``eps/8 / (sqrt(3)/2)`` per axis (offsets from the cell
+    corner), rotation vector ``eps/8 / (3 E)`` radians per component,
+    ``f`` ``eps/8``, ``d, e`` ``eps/8 / (2 sqrt(3) E)``, ``a, b, c``
+    ``eps/8 / (9 E^2)``; extents in steps of ``E / EXTENT_STEPS`` from the
+    centroid.
+
+    Attributes
+    ----------
+    max_error : float
+        The budget the steps derive from (metres).
+    root_corner, root_edge, level, ijk, count, mask :
+        As :class:`PatchModels` (exact).
+    centroid : (P, 3) int64
+    rotation : (P, 3) int64
+        Rotation vector of the frame.
+    coeffs : (P, 6) int64
+    extent : (P, 4) int64
+    rmse : (P,) float32
+    """
+
+    max_error: float
+    root_corner: np.ndarray
+    root_edge: float
+    level: np.ndarray
+    ijk: np.ndarray
+    count: np.ndarray
+    centroid: np.ndarray
+    rotation: np.ndarray
+    coeffs: np.ndarray
+    extent: np.ndarray
+    mask: np.ndarray
+    rmse: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.level.shape[0])
+
+
+def _steps(root_edge: float, level: np.ndarray, max_error: float) -> dict[str, np.ndarray]:
+    """Quantisation steps per patch (see :class:`QuantisedModels`)."""
+    E = root_edge / 2.0 ** level.astype(np.float64)
+    share = QUANT_SHARE * max_error
+    quad = share / (9.0 * E * E)
+    lin = share / (2.0 * np.sqrt(3.0) * E)
+    return {
+        "centroid": np.full_like(E, share / (np.sqrt(3.0) / 2.0)),
+        "rotation": share / (3.0 * E),
+        "coeffs": np.column_stack([quad, quad, quad, lin, lin, np.full_like(E, share)]),
+        "extent": E / EXTENT_STEPS,
+        "edge": E,
+    }
+
+
+def quantise_models(models: PatchModels, max_error: float) -> QuantisedModels:
+    """Integers standing for ``models`` within half of ``max_error`` (metres); see :class:`QuantisedModels`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> d = np.random.default_rng(0).normal(size=(20000, 3))
+    >>> fit = fit_models(d / np.linalg.norm(d, axis=1)[:, None], 0.005)
+    >>> back = dequantise_models(quantise_models(fit.models, 0.005))
+    >>> float(np.abs(back.coeffs - fit.models.coeffs).max()) < 0.005
+    True
+    """
+    from scipy.spatial.transform import Rotation
+
+    budget = float(max_error)
+    if not np.isfinite(budget) or budget <= 0:
+        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
+    st = _steps(models.root_edge, models.level, budget)
+    corner = models.root_corner + models.ijk * st["edge"][:, None]
+    rot = Rotation.from_matrix(models.frame).as_rotvec() if len(models) else np.zeros((0, 3))
+    return QuantisedModels(
+        max_error=budget, root_corner=models.root_corner.copy(), root_edge=models.root_edge, level=models.level.copy(),
+        ijk=models.ijk.copy(), count=models.count.copy(), mask=models.mask.copy(),
+        centroid=np.rint((models.centroid - corner) / st["centroid"][:, None]).astype(np.int64),
+        rotation=np.rint(rot / st["rotation"][:, None]).astype(np.int64),
+        coeffs=np.rint(models.coeffs / st["coeffs"]).astype(np.int64),
+        extent=np.stack([np.floor(models.extent[:, [0, 2]] / st["extent"][:, None]),
+                         np.ceil(models.extent[:, [1, 3]] / st["extent"][:, None])], axis=2).reshape(-1, 4).astype(np.int64),
+        rmse=models.rmse.astype(np.float32),
+    )
+
+
+def dequantise_models(q: QuantisedModels) -> PatchModels:
+    """The patch models a :class:`QuantisedModels` stands for."""
+    from scipy.spatial.transform import Rotation
+
+    st = _steps(q.root_edge, q.level, q.max_error)
+    corner = q.root_corner + q.ijk * st["edge"][:, None]
+    frame = Rotation.from_rotvec(q.rotation * st["rotation"][:, None]).as_matrix() if len(q) else np.zeros((0, 3, 3))
+    return PatchModels(
+        root_corner=q.root_corner.copy(), root_edge=q.root_edge, level=q.level.copy(), ijk=q.ijk.copy(),
+        count=q.count.copy(), centroid=corner + q.centroid * st["centroid"][:, None], frame=frame.reshape(-1, 3, 3),
+        coeffs=q.coeffs * st["coeffs"], extent=q.extent * st["extent"][:, None], mask=q.mask.copy(),
+        rmse=q.rmse.astype(np.float64),
+    )

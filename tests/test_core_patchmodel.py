@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from patchcloud.core import PatchcloudValueError
-from patchcloud.core.patchmodel import fit_models, sample_models
+from patchcloud.core.patchmodel import dequantise_models, fit_models, quantise_models, sample_models
 
 
 def sphere(rng, n=40000, radius=5.0, noise=0.0):
@@ -112,3 +112,29 @@ def test_bad_counts(rng):
     fit = fit_models(sphere(rng, n=5000), 0.01)
     with pytest.raises(PatchcloudValueError, match="counts must be"):
         sample_models(fit.models, -fit.models.count)
+
+
+def _off_surface(models, points, patch):
+    """Distance along each patch's normal from points to the patch's quadric (metres)."""
+    d = points - models.centroid[patch]
+    u, v, w = np.einsum("nij,ni->nj", models.frame[patch], d).T
+    c = models.coeffs[patch]
+    return np.abs(w - (c[:, 0] * u * u + c[:, 1] * u * v + c[:, 2] * v * v + c[:, 3] * u + c[:, 4] * v + c[:, 5]))
+
+
+@pytest.mark.parametrize("budget", [0.002, 0.01, 0.05])
+def test_quantised_models_stay_within_half_the_budget(rng, budget):
+    p = np.vstack([sphere(rng, n=20000, radius=3.0, noise=budget / 4), box(rng, per_face=3000) + 10.0])
+    fit = fit_models(p, budget)
+    q = quantise_models(fit.models, budget)
+    back = dequantise_models(q)
+    for name in ("level", "ijk", "count", "mask"):
+        assert np.array_equal(getattr(back, name), getattr(fit.models, name))
+    for name in ("centroid", "rotation", "coeffs", "extent"):
+        assert getattr(q, name).dtype == np.int64
+    pts, k = sample_models(back, seed=1)
+    off = _off_surface(fit.models, pts, k)  # dequantised samples against the fitted surfaces
+    assert off.max() <= budget / 2
+    # the quantised extents hold the fitted ones
+    assert np.all(back.extent[:, [0, 2]] <= fit.models.extent[:, [0, 2]] + 1e-12)
+    assert np.all(back.extent[:, [1, 3]] >= fit.models.extent[:, [1, 3]] - 1e-12)
