@@ -1,0 +1,286 @@
+"""The patch-model file (``.pcz``): a cloud as quantised quadric patches plus residual points, in one zip.
+
+A ``.pcz`` is a zarr (format 3) store in a single zip file (entries
+stored, not deflated: every chunk is already Zstd-compressed).  No pickle
+anywhere: integers, floats, JSON attributes.  Layout, version 1::
+
+    zarr.json                     attrs: format "patchcloud-pcz", version, max_error (metres),
+                                  grid (origin, tile_size, scale, offset), counts, source
+                                  (the input's name, point format, LAS version, bounds, CRS WKT),
+                                  record_bytes
+    header                        (H,) uint8    the input's LAS header and VLRs, as they were
+    tiles/ijk                     (T, 3) int64  tile indices (tile = cube of edge tile_size from origin)
+    tiles/patch_start             (T + 1,) int64 rows of each tile's patches
+    tiles/residual_start          (T + 1,) int64 rows of each tile's residual points
+    patches/level                 (P,) uint8    octree level in the tile (root = the tile)
+    patches/ijk                   (P, 3) int32  cell at that level
+    patches/count                 (P,) uint32   points the patch stands for
+    patches/centroid              (P, 3) int32  } quantised as
+    patches/rotation              (P, 3) int32  } patchcloud.core.patchmodel.QuantisedModels
+    patches/coeffs                (P, 6) int64  } (steps from max_error and the cell edge)
+    patches/extent                (P, 4) int32  }
+    patches/mask                  (P,) uint64   8 x 8 occupancy of the (u, v) extent
+    patches/rmse                  (P,) float32  fit RMS error (metres)
+    patches/classification        (P,) uint8    majority class of the patch's points
+    patches/intensity             (P,) uint16   mean intensity of the patch's points
+    residual/xyz                  (R, 3) int32  LAS integer coordinates of the residual points
+    residual/record               (R, B) uint8  the rest of their point records, byte for byte
+
+Reading checks the format mark and the version, and names the file in
+every error (:class:`patchcloud.core.errors.PatchcloudIOError`): a file
+that is not a zip, truncated, of another version or made by something else.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import zipfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import zarr
+
+from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core.patchmodel import QuantisedModels
+
+__all__ = ["FORMAT", "VERSION", "TilePart", "write_pcz", "PczFile", "open_pcz", "iter_parts"]
+
+FORMAT = "patchcloud-pcz"
+VERSION = 1
+#: Rows per chunk of every per-patch and per-residual-point array.
+CHUNK = 1 << 16
+
+_PATCH_ARRAYS = (
+    ("level", np.uint8, ()), ("ijk", np.int32, (3,)), ("count", np.uint32, ()), ("centroid", np.int32, (3,)),
+    ("rotation", np.int32, (3,)), ("coeffs", np.int64, (6,)), ("extent", np.int32, (4,)), ("mask", np.uint64, ()),
+    ("rmse", np.float32, ()), ("classification", np.uint8, ()), ("intensity", np.uint16, ()),
+)
+
+
+@dataclass(frozen=True)
+class TilePart:
+    """One tile's share of a ``.pcz``: its quantised patches (root = the tile), their attributes, its residual points.
+
+    ``models.root_corner``/``root_edge`` must be the tile's cube.
+    """
+
+    ijk: tuple[int, int, int]
+    models: QuantisedModels
+    classification: np.ndarray
+    intensity: np.ndarray
+    residual_xyz: np.ndarray
+    residual_record: np.ndarray
+
+
+class _Column:
+    """Rows appended to one array of a zarr group, written one whole chunk at a time."""
+
+    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...]):
+        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(CHUNK,) + tail)
+        self.buffer: list[np.ndarray] = []
+        self.held = 0
+        self.dtype = np.dtype(dtype)
+        self.tail = tail
+
+    def add(self, rows: np.ndarray) -> None:
+        rows = np.asarray(rows)
+        if rows.shape[1:] != self.tail:
+            raise PatchcloudValueError(f"{self.array.path}: rows of shape {rows.shape[1:]} given, {self.tail} expected")
+        if rows.size and (np.issubdtype(self.dtype, np.integer)):
+            info = np.iinfo(self.dtype)
+            if rows.min() < info.min or rows.max() > info.max:
+                raise PatchcloudValueError(f"{self.array.path}: values beyond {self.dtype} (a quantisation step too small for the cell?)")
+        self.buffer.append(rows.astype(self.dtype, copy=False))
+        self.held += rows.shape[0]
+        if self.held >= CHUNK:
+            self._flush(final=False)
+
+    def _flush(self, final: bool) -> None:
+        data = np.concatenate(self.buffer) if self.buffer else np.zeros((0,) + self.tail, self.dtype)
+        whole = data.shape[0] if final else (data.shape[0] // CHUNK) * CHUNK
+        if whole:
+            n = self.array.shape[0]
+            self.array.resize((n + whole,) + self.tail)
+            self.array[n : n + whole] = data[:whole]
+        rest = data[whole:]
+        self.buffer = [rest] if rest.shape[0] else []
+        self.held = rest.shape[0]
+
+    def close(self) -> None:
+        self._flush(final=True)
+
+
+def write_pcz(
+    path: str | os.PathLike, parts: Iterable[TilePart], *, max_error: float, grid: dict, header: bytes, source: dict,
+    record_bytes: int, overwrite: bool = False,
+) -> dict:
+    """Write a ``.pcz`` from tile parts, in the order given; memory: a chunk per array, not the file.
+
+    The store is built in a temporary directory beside ``path`` and zipped
+    to ``path + ".partial"``, which is renamed to ``path`` when complete.
+
+    Returns the file's counts (tiles, patches, residual points, points).
+    """
+    out = Path(path)
+    if out.exists() and not overwrite:
+        raise PatchcloudIOError(f"{out}: exists (use --overwrite to replace it)")
+    if not out.parent.exists():
+        raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
+    work = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))
+    tmp = out.with_name(out.name + ".partial")
+    try:
+        root = zarr.open_group(str(work / "store"), mode="w")
+        patches = root.require_group("patches")
+        residual = root.require_group("residual")
+        cols = {name: _Column(patches, name, dt, tail) for name, dt, tail in _PATCH_ARRAYS}
+        rxyz = _Column(residual, "xyz", np.int32, (3,))
+        rrec = _Column(residual, "record", np.uint8, (record_bytes,))
+        tiles, pstart, rstart = [], [0], [0]
+        points = 0
+        for part in parts:
+            m = part.models
+            if m.max_error != max_error:
+                raise PatchcloudValueError(f"tile {part.ijk}: quantised for max_error {m.max_error}, the file says {max_error}")
+            values = dict(
+                level=m.level, ijk=m.ijk, count=m.count, centroid=m.centroid, rotation=m.rotation, coeffs=m.coeffs,
+                extent=m.extent, mask=m.mask, rmse=m.rmse, classification=part.classification, intensity=part.intensity,
+            )
+            for name, col in cols.items():
+                col.add(values[name])
+            rxyz.add(part.residual_xyz)
+            rrec.add(part.residual_record.reshape(-1, record_bytes))
+            tiles.append(part.ijk)
+            pstart.append(pstart[-1] + len(m))
+            rstart.append(rstart[-1] + part.residual_xyz.shape[0])
+            points += int(m.count.sum()) + part.residual_xyz.shape[0]
+        for col in [*cols.values(), rxyz, rrec]:
+            col.close()
+        t = root.require_group("tiles")
+        t.create_array("ijk", data=np.asarray(tiles, dtype=np.int64).reshape(-1, 3))
+        t.create_array("patch_start", data=np.asarray(pstart, dtype=np.int64))
+        t.create_array("residual_start", data=np.asarray(rstart, dtype=np.int64))
+        root.create_array("header", data=np.frombuffer(header, dtype=np.uint8))
+        counts = dict(tiles=len(tiles), patches=pstart[-1], residual=rstart[-1], points=points)
+        root.attrs.update(
+            format=FORMAT, version=VERSION, max_error=float(max_error), grid=grid, source=source, counts=counts,
+            record_bytes=int(record_bytes),
+        )
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as z:
+            base = work / "store"
+            for f in sorted(base.rglob("*")):
+                if f.is_file():
+                    z.write(f, f.relative_to(base).as_posix())
+        os.replace(tmp, out)
+        return counts
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+        if tmp.exists():
+            tmp.unlink()
+
+
+class PczFile:
+    """An open ``.pcz`` (see :func:`open_pcz`): its attributes, and its patches and residual points by tile or region."""
+
+    def __init__(self, path: str, root: zarr.Group, store) -> None:
+        self.path = path
+        self.root = root
+        self._store = store
+        self.attrs = dict(root.attrs)
+        self.tiles = root["tiles/ijk"][...]
+        self.patch_start = root["tiles/patch_start"][...]
+        self.residual_start = root["tiles/residual_start"][...]
+
+    # -- what the file says -------------------------------------------------
+    @property
+    def max_error(self) -> float:
+        return float(self.attrs["max_error"])
+
+    @property
+    def tile_size(self) -> float:
+        return float(self.attrs["grid"]["tile_size"])
+
+    @property
+    def header_bytes(self) -> bytes:
+        return bytes(self.root["header"][...])
+
+    def tiles_in(self, lo, hi) -> np.ndarray:
+        """Positions of the tiles whose cube meets the box ``lo``..``hi`` (the grid's local frame, metres)."""
+        T = self.tile_size
+        a = self.tiles * T
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        return np.flatnonzero(np.all((a <= hi) & (a + T >= lo), axis=1))
+
+    # -- contents -------------------------------------------------------------
+    def patches(self, t: int) -> tuple[QuantisedModels, np.ndarray, np.ndarray]:
+        """Tile ``t``'s quantised models (root = the tile), classification and intensity."""
+        s = slice(int(self.patch_start[t]), int(self.patch_start[t + 1]))
+        g = self.root["patches"]
+        v = {name: g[name][s] for name, _, _ in _PATCH_ARRAYS}
+        T = self.tile_size
+        m = QuantisedModels(
+            max_error=self.max_error, root_corner=self.tiles[t] * T, root_edge=T, level=v["level"],
+            ijk=v["ijk"].astype(np.int64), count=v["count"].astype(np.int64), centroid=v["centroid"].astype(np.int64),
+            rotation=v["rotation"].astype(np.int64), coeffs=v["coeffs"].astype(np.int64), extent=v["extent"].astype(np.int64),
+            mask=v["mask"], rmse=v["rmse"],
+        )
+        return m, v["classification"], v["intensity"]
+
+    def residual(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """Tile ``t``'s residual points: LAS integer xyz (R, 3) and the rest of their records (R, B)."""
+        s = slice(int(self.residual_start[t]), int(self.residual_start[t + 1]))
+        return self.root["residual/xyz"][s], self.root["residual/record"][s]
+
+    def close(self) -> None:
+        self._store.close()
+
+    def __enter__(self) -> "PczFile":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_pcz(path: str | os.PathLike) -> PczFile:
+    """Open a ``.pcz`` for reading; a PatchcloudIOError naming the file when it is not one this version reads."""
+    from zarr.storage import ZipStore
+
+    p = Path(path)
+    if not p.exists():
+        raise PatchcloudIOError(f"{p}: no such file")
+    if not zipfile.is_zipfile(p):
+        raise PatchcloudIOError(f"{p}: not a patchcloud .pcz file (not a zip archive; truncated?)")
+    try:
+        with zipfile.ZipFile(p) as z:
+            bad = z.testzip()
+        if bad is not None:
+            raise PatchcloudIOError(f"{p}: damaged .pcz file (entry {bad} fails its checksum)")
+        store = ZipStore(str(p), mode="r")
+        root = zarr.open_group(store, mode="r")
+        a = dict(root.attrs)
+    except PatchcloudIOError:
+        raise
+    except Exception as exc:
+        raise PatchcloudIOError(f"{p}: not a readable .pcz file ({exc})") from exc
+    if a.get("format") != FORMAT:
+        store.close()
+        raise PatchcloudIOError(f"{p}: not a patchcloud .pcz file (no '{FORMAT}' format mark)")
+    if a.get("version") != VERSION:
+        store.close()
+        raise PatchcloudIOError(f"{p}: .pcz version {a.get('version')} is not supported (this is version {VERSION})")
+    try:
+        return PczFile(str(p), root, store)
+    except Exception as exc:
+        store.close()
+        raise PatchcloudIOError(f"{p}: incomplete .pcz file ({exc})") from exc
+
+
+def iter_parts(f: PczFile) -> Iterator[TilePart]:
+    """Every tile part of an open file, in file order (what :func:`write_pcz` was given)."""
+    for t in range(len(f.tiles)):
+        m, cls, inten = f.patches(t)
+        xyz, rec = f.residual(t)
+        yield TilePart(tuple(int(v) for v in f.tiles[t]), m, cls, inten, xyz, rec)

@@ -1,0 +1,94 @@
+"""The .pcz patch-model file: written tile by tile, read back field by field, and refused when it is not one."""
+
+import zipfile
+
+import numpy as np
+import pytest
+
+from patchcloud.core.errors import PatchcloudIOError
+from patchcloud.core.patchmodel import dequantise_models, fit_models, quantise_models, sample_models
+from patchcloud.stream import pcz
+
+BUDGET = 0.01
+T = 8.0
+
+
+def parts(rng, record_bytes=18):
+    """Two 8 m tiles: a tilted plane with a few spikes, and a sphere cap; residual records of random bytes."""
+    out = []
+    for t, ijk in enumerate([(0, 0, 0), (1, 0, 0)]):
+        corner = np.asarray(ijk, float) * T
+        xy = rng.uniform(0.01, T - 0.01, (6000, 2))
+        z = 0.1 * xy[:, 0] + 1.0 if t == 0 else 4.0 - 0.05 * ((xy[:, 0] - 4) ** 2 + (xy[:, 1] - 4) ** 2)
+        p = corner + np.column_stack([xy, z])
+        p[:25, 2] += 0.5  # spikes: residual
+        fit = fit_models(p, BUDGET, root=(corner, T))
+        q = quantise_models(fit.models, BUDGET)
+        P, R = len(q), fit.residual.size
+        xyz = np.rint(p[fit.residual] / 0.001).astype(np.int32)
+        out.append(pcz.TilePart(ijk, q, rng.integers(1, 7, P).astype(np.uint8), rng.integers(0, 60000, P).astype(np.uint16),
+                                xyz, rng.integers(0, 256, (R, record_bytes)).astype(np.uint8)))
+    return out
+
+
+def write(tmp_path, rng, name="c.pcz", **kw):
+    ps = parts(rng)
+    grid = dict(origin=[0.0, 0.0, 0.0], tile_size=T, scale=[0.001] * 3, offset=[0.0] * 3)
+    counts = pcz.write_pcz(tmp_path / name, ps, max_error=BUDGET, grid=grid, header=b"LASF" + bytes(223),
+                           source={"path": "x.las"}, record_bytes=18, **kw)
+    return ps, counts
+
+
+def test_written_file_reads_back_field_by_field(tmp_path, rng, monkeypatch):
+    monkeypatch.setattr(pcz, "CHUNK", 64)  # several chunks per array, flushed across tiles
+    ps, counts = write(tmp_path, rng)
+    assert counts["points"] == 12000 and counts["residual"] >= 50
+    with pcz.open_pcz(tmp_path / "c.pcz") as f:
+        assert f.max_error == BUDGET and f.header_bytes[:4] == b"LASF"
+        assert [tuple(t) for t in f.tiles] == [(0, 0, 0), (1, 0, 0)]
+        for t, part in enumerate(ps):
+            m, cls, inten = f.patches(t)
+            for name in ("level", "ijk", "count", "centroid", "rotation", "coeffs", "extent", "mask", "rmse"):
+                assert np.array_equal(getattr(m, name), getattr(part.models, name)), name
+            assert np.array_equal(m.root_corner, part.models.root_corner) and m.root_edge == part.models.root_edge
+            assert np.array_equal(cls, part.classification) and np.array_equal(inten, part.intensity)
+            xyz, rec = f.residual(t)
+            assert np.array_equal(xyz, part.residual_xyz) and np.array_equal(rec, part.residual_record)
+        # a region: only the second tile
+        assert f.tiles_in([9.0, 1.0, 0.0], [10.0, 2.0, 5.0]).tolist() == [1]
+        # the models sample back within the budget of the surfaces they came from
+        m, _, _ = f.patches(0)
+        q, _ = sample_models(dequantise_models(m))
+        assert np.abs(q[:, 2] - (0.1 * q[:, 0] + 1.0)).max() <= BUDGET / 2
+    names = zipfile.ZipFile(tmp_path / "c.pcz").namelist()
+    assert len(names) == len(set(names))  # every entry once
+    assert not any(p.name.endswith(".partial") or p.is_dir() for p in tmp_path.iterdir())
+
+
+def test_refuses_what_it_cannot_read(tmp_path, rng, monkeypatch):
+    with pytest.raises(PatchcloudIOError, match="no such file"):
+        pcz.open_pcz(tmp_path / "none.pcz")
+    (tmp_path / "text.pcz").write_text("hello")
+    with pytest.raises(PatchcloudIOError, match="not a zip archive"):
+        pcz.open_pcz(tmp_path / "text.pcz")
+    write(tmp_path, rng)
+    data = (tmp_path / "c.pcz").read_bytes()
+    (tmp_path / "cut.pcz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(PatchcloudIOError, match="cut.pcz"):
+        pcz.open_pcz(tmp_path / "cut.pcz")
+    with zipfile.ZipFile(tmp_path / "other.pcz", "w") as z:
+        z.writestr("zarr.json", '{"zarr_format": 3, "node_type": "group", "attributes": {"format": "something"}}')
+    with pytest.raises(PatchcloudIOError, match="no 'patchcloud-pcz' format mark"):
+        pcz.open_pcz(tmp_path / "other.pcz")
+    monkeypatch.setattr(pcz, "VERSION", 2)
+    write(tmp_path, rng, name="v2.pcz")
+    monkeypatch.setattr(pcz, "VERSION", 1)
+    with pytest.raises(PatchcloudIOError, match="version 2 is not supported"):
+        pcz.open_pcz(tmp_path / "v2.pcz")
+
+
+def test_never_overwrites_unasked(tmp_path, rng):
+    write(tmp_path, rng)
+    with pytest.raises(PatchcloudIOError, match="exists"):
+        write(tmp_path, rng)
+    write(tmp_path, rng, overwrite=True)
