@@ -84,6 +84,20 @@ class PatchModels:
     def __len__(self) -> int:
         return int(self.level.shape[0])
 
+    @classmethod
+    def empty(cls, root_corner, root_edge: float) -> "PatchModels":
+        """No patches (a cube whose points are all residual)."""
+        z = np.zeros
+        return cls(
+            root_corner=np.asarray(root_corner, dtype=np.float64).copy(), root_edge=float(root_edge), level=z(0, np.uint8),
+            ijk=z((0, 3), np.int64), count=z(0, np.int64), centroid=z((0, 3)), frame=z((0, 3, 3)), coeffs=z((0, 6)),
+            extent=z((0, 4)), mask=z(0, np.uint64), rmse=z(0),
+        )
+
+    def occupied(self) -> np.ndarray:
+        """(P,) number of occupied cells of each patch's mask."""
+        return ((self.mask[:, None] >> np.arange(MASK_SIDE * MASK_SIDE, dtype=np.uint64)) & np.uint64(1)).sum(axis=1).astype(np.int64)
+
     def take(self, index: np.ndarray) -> "PatchModels":
         """The models of rows ``index`` (an index array or a boolean mask)."""
         return PatchModels(**{f.name: getattr(self, f.name) if f.name.startswith("root_") else getattr(self, f.name)[index] for f in fields(self)})

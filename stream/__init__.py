@@ -5,10 +5,11 @@
 >>> print(summary.format())                                  # doctest: +SKIP
 """
 
+from .compression import CompressSummary, DecompressSummary, compress, decompress
 from .info import format_info, info
 from .pipeline import NormalsSummary, normals, tile
 from .scheduling import Runner, map_tiles
 from .segmentation import DonSummary, don, segment
 from .store import Store
 
-__all__ = ["normals", "don", "segment", "DonSummary", "tile", "info", "format_info", "NormalsSummary", "Store", "Runner", "map_tiles"]
+__all__ = ["normals", "don", "segment", "DonSummary", "compress", "decompress", "CompressSummary", "DecompressSummary", "tile", "info", "format_info", "NormalsSummary", "Store", "Runner", "map_tiles"]

@@ -20,7 +20,7 @@ from .lasio import LasSource, read_chunks
 from .progress import Progress
 from .store import ANCHOR, MAX_TILE, Grid, Store
 
-__all__ = ["auto_tile_size", "make_grid", "bucket", "TARGET_TILE_POINTS"]
+__all__ = ["auto_tile_size", "make_grid", "bucket", "bucket_records", "TARGET_TILE_POINTS"]
 
 #: Points per tile the default tile size aims at (in the densest places of the header's extent).
 TARGET_TILE_POINTS = 1_000_000
@@ -65,6 +65,48 @@ def tile_keys(grid: Grid, xyz: np.ndarray) -> np.ndarray:
     return _pack(grid.tile_of(grid.local(xyz)))
 
 
+def _route(grid: Grid, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points of a chunk by tile: the stable order that groups them, the sorted tile keys, and each run's start and end."""
+    keys = _pack(grid.tile_of(local))
+    order = np.argsort(keys, kind="stable")
+    sk = keys[order]
+    starts = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
+    return order, sk, starts, np.r_[starts[1:], sk.size]
+
+
+def bucket_records(store: Store, src: LasSource, name: str = "record", chunk: int = 1 << 20, buffer: int = 4_000_000,
+                   quiet: bool = False) -> None:
+    """Append every point's whole record (its bytes) to its tile's array ``name``, in input order.
+
+    Row ``r`` of a tile's ``name`` belongs to the tile's point of ``rank`` r
+    (the tile's points in input order), as the stored ``raw`` points were.
+    """
+    grid = store.grid
+    buffers: dict[int, list[np.ndarray]] = {}
+    held = 0
+    bar = Progress("records", src.point_count, quiet=quiet)
+
+    def flush() -> None:
+        nonlocal held
+        for key in sorted(buffers):
+            store.append(tuple(_unpack(np.array([key]))[0]), name, np.concatenate(buffers[key]))
+        buffers.clear()
+        held = 0
+
+    for _, pts in read_chunks(src, chunk):
+        rec = pts.array.view(np.uint8).reshape(len(pts), pts.array.dtype.itemsize)
+        xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]])
+        order, sk, starts, ends = _route(grid, grid.local(xyz))
+        for s, e in zip(starts.tolist(), ends.tolist()):
+            buffers.setdefault(int(sk[s]), []).append(rec[order[s:e]])
+        held += len(pts)
+        if held >= buffer:
+            flush()
+        bar.update(len(pts))
+    flush()
+    bar.close()
+
+
 def bucket(store: Store, src: LasSource, grid: Grid, chunk: int = 1 << 20, buffer: int = 4_000_000, quiet: bool = False) -> None:
     """Read ``src`` and append its points to the tiles' ``raw`` arrays; record the chunk/tile counts."""
     buffers: dict[int, list[np.ndarray]] = {}
@@ -85,11 +127,7 @@ def bucket(store: Store, src: LasSource, grid: Grid, chunk: int = 1 << 20, buffe
         xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]]).astype(np.int32, copy=False)
         local = grid.local(xyz)
         total += local.sum(axis=0)
-        keys = _pack(grid.tile_of(local))
-        order = np.argsort(keys, kind="stable")
-        sk = keys[order]
-        starts = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
-        ends = np.r_[starts[1:], sk.size]
+        order, sk, starts, ends = _route(grid, local)
         for s, e in zip(starts.tolist(), ends.tolist()):
             buffers.setdefault(int(sk[s]), []).append(xyz[order[s:e]])
         records.append(np.column_stack([np.full(starts.size, c), sk[starts], ends - starts]))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from .compress import compress_command, decompress_command
 from .don import don_command
 from .don_scales import don_scales_command
 from .info import info_command
@@ -25,6 +26,8 @@ def main() -> None:
       patchcloud don in.laz out.laz           Difference of Normals (DoN) of every point
       patchcloud segment in.laz out.laz       DoN segments (street furniture, kerbs, ...)
       patchcloud don-scales labelled.laz      which (rs, rl) separates the classes best
+      patchcloud compress in.laz out.pcz      quadric patch models + residual points
+      patchcloud decompress in.pcz out.laz    points back, at any density
       patchcloud info in.laz                  what a file (or a store) holds
     """
 
@@ -33,5 +36,7 @@ main.add_command(normals_command)
 main.add_command(don_command)
 main.add_command(segment_command)
 main.add_command(don_scales_command)
+main.add_command(compress_command)
+main.add_command(decompress_command)
 main.add_command(tile_command)
 main.add_command(info_command)

@@ -1,0 +1,60 @@
+"""``patchcloud compress`` and ``patchcloud decompress``."""
+
+from __future__ import annotations
+
+import click
+
+from . import options
+
+
+@click.command("compress")
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.argument("output", type=click.Path(dir_okay=False))
+@click.option("--max-error", type=float, default=0.02, show_default=True, metavar="METRES",
+              help="Error budget: patches fit their points within it (RMS); points no patch models within it are kept exactly.")
+@options.job_options
+@options.reports_errors
+def compress_command(input, output, max_error, tile_size, scheduler, workers, store, keep_store, overwrite, quiet):
+    """Compress INPUT (LAS/LAZ, any size) to OUTPUT, a .pcz of quadric patch models and residual points.
+
+    Smooth surfaces become quantised quadric patches (octree cell, point
+    count, frame, quadric, extent); the points of edges, vegetation and
+    other rough parts are kept as they were (every byte of their records).
+    Memory depends on --tile-size, not on the file.
+
+    \b
+    Example:
+      patchcloud compress city.laz city.pcz --max-error 0.02
+      patchcloud decompress city.pcz preview.laz --lod 2
+    """
+    from patchcloud.stream import compress
+
+    summary = compress(input, output, max_error=max_error, tile_size=tile_size, scheduler=scheduler, workers=workers,
+                       store=store, keep_store=keep_store or None, overwrite=overwrite, quiet=quiet)
+    if not quiet:
+        click.echo(summary.format())
+
+
+@click.command("decompress")
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.argument("output", type=click.Path(dir_okay=False))
+@click.option("--density", type=float, default=None, metavar="PER_M2", help="Points per square metre of each patch.")
+@click.option("--lod", type=int, default=None, metavar="K", help="Level of detail: each patch's point count / 4**K. Default: the count (K = 0).")
+@click.option("--bbox", type=float, nargs=6, default=None, metavar="XMIN YMIN ZMIN XMAX YMAX ZMAX",
+              help="Only this box (file coordinates); only the tiles that meet it are read.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the sampling.")
+@options.overwrite
+@options.quiet
+@options.reports_errors
+def decompress_command(input, output, density, lod, bbox, seed, overwrite, quiet):
+    """Points of INPUT (a .pcz) written to OUTPUT (LAS/LAZ): patch samples and the residual points.
+
+    OUTPUT has the original file's header and VLRs and a Reconstructed
+    dimension (1: sampled from a patch, with the patch's majority class and
+    mean intensity; 0: a residual point, exactly as it was).
+    """
+    from patchcloud.stream import decompress
+
+    summary = decompress(input, output, density=density, lod=lod, bbox=bbox or None, seed=seed, overwrite=overwrite)
+    if not quiet:
+        click.echo(summary.format())

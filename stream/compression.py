@@ -1,0 +1,334 @@
+"""``compress`` and ``decompress``: a LAS/LAZ file to a ``.pcz`` patch-model file and back, out of core.
+
+``compress`` runs on the tiled store of :mod:`.pipeline` (a store made by
+``normals``, ``don`` or ``segment`` is reused):
+
+1. tile (shared), and every point's record bytes bucketed by tile;
+2. per tile (one dask task each): :func:`patchcloud.core.fit_models` with
+   the budget as the RMSE threshold, the tile as the octree's root and the
+   whole file's spacing; the models quantised within half the budget; the
+   majority class and mean intensity of each patch's points; the residual
+   points' coordinates and records;
+3. pack: the tiles' parts into one ``.pcz`` (:mod:`.pcz`), tile after tile.
+
+``decompress`` reads a ``.pcz`` tile by tile (or only the tiles that meet
+a box), samples every patch (its own count, a density, or a level of
+detail) and writes the samples and the residual points to LAS/LAZ with
+the original header and a ``Reconstructed`` dimension (1 sampled from a
+patch, 0 a residual point, byte for byte as it was).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+
+import laspy
+import numpy as np
+
+from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core.patchmodel import MASK_SIDE, PatchModels, dequantise_models, fit_models, quantise_models, sample_models
+
+from . import pcz, steps
+from .ingest import bucket_records
+from .lasio import LasSource, _laz_backend, atomic_output, is_laz_name, open_source
+from .pipeline import _ensure_tiled, _params_key, _validate, check_output, default_store_path
+from .scheduling import Runner, map_tiles
+from .store import Store
+
+__all__ = ["compress", "decompress", "CompressSummary", "DecompressSummary", "compress_tile"]
+
+#: n_min of the compression octree (as the normals' default).
+N_MIN = 12
+_PART = ("level", "ijk", "count", "centroid", "rotation", "coeffs", "extent", "mask", "rmse", "classification", "intensity")
+
+
+@dataclass
+class CompressSummary:
+    """What a ``compress`` run did (sizes in bytes, times in seconds)."""
+
+    input: str
+    output: str
+    points: int
+    patches: int
+    residual: int
+    max_error: float
+    input_bytes: int
+    output_bytes: int
+    mean_error: float
+    seconds: dict[str, float] = field(default_factory=dict)
+    peak_memory: int = 0
+
+    def format(self) -> str:
+        n = max(self.points, 1)
+        total = sum(self.seconds.values())
+        return "\n".join([
+            f"{self.input} -> {self.output}",
+            f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches "
+            f"({(self.points - self.residual) / n:.1%}), {self.residual:,} residual ({self.residual / n:.1%})",
+            f"  error           budget {self.max_error:g} m; mean distance of the modelled points to their surface "
+            f"{self.mean_error:.4f} m (before quantisation, which adds at most half the budget)",
+            f"  size            {self.output_bytes:,} bytes, {8 * self.output_bytes / n:.2f} bits/point; input "
+            f"{self.input_bytes:,} bytes ({self.input_bytes / max(self.output_bytes, 1):.1f}x larger)",
+            "  time            " + ", ".join(f"{s} {t:.1f} s" for s, t in self.seconds.items()) + f"; total {total:.1f} s",
+            f"  peak memory     {self.peak_memory / 2**20:,.0f} MiB",
+        ])
+
+
+def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
+    """Patch models of one tile within the budget, quantised; its residual points; stored as the tile's ``pcz_*`` arrays."""
+    store = Store.open(url)
+    key = params["key"]
+    if store.tile_attrs(ijk).get("done", {}).get("compress") == key:
+        return store.tile_attrs(ijk)["compress"]
+    grid = store.grid
+    T = grid.tile_size
+    corner = grid.corner(ijk)
+    xyz = store.read(ijk, "xyz")
+    local = grid.local(xyz)
+    rank = store.read(ijk, "rank").astype(np.int64)
+    records = store.read(ijk, "record")[rank]  # in the order of xyz
+    budget = params["max_error"]
+    if xyz.shape[0] >= N_MIN:
+        fit = fit_models(local, budget, d_min=params["d_min"], max_edge=params["max_edge"], n_min=N_MIN, root=(corner, T))
+        models, patch, residual, err = fit.models, fit.patch, fit.residual, fit.error
+    else:  # too few points for a surface: all residual
+        n = xyz.shape[0]
+        models, patch, residual, err = PatchModels.empty(corner, T), np.full(n, -1), np.arange(n), np.zeros(n)
+    q = quantise_models(models, budget)
+    pf = laspy.PointFormat(params["point_format"])
+    for name in params["extra_dims"]:
+        pf.add_extra_dimension(laspy.ExtraBytesParams(name=name["name"], type=np.dtype(name["type"])))
+    rec = laspy.PackedPointRecord(np.frombuffer(records.tobytes(), dtype=pf.dtype()), pf)
+    on = patch >= 0
+    P = len(models)
+    cls = np.asarray(rec["classification"]).astype(np.int64)
+    votes = np.bincount(patch[on] * 256 + cls[on], minlength=P * 256).reshape(P, 256)
+    inten = np.bincount(patch[on], weights=np.asarray(rec["intensity"], dtype=np.float64)[on], minlength=P)
+    values = dict(
+        level=q.level, ijk=q.ijk, count=q.count, centroid=q.centroid, rotation=q.rotation, coeffs=q.coeffs,
+        extent=q.extent, mask=q.mask, rmse=q.rmse, classification=votes.argmax(axis=1).astype(np.uint8),
+        intensity=np.rint(inten / np.maximum(q.count, 1)).astype(np.uint16),
+    )
+    for name in _PART:
+        store.write(ijk, "pcz_" + name, values[name])
+    store.write(ijk, "pcz_residual_xyz", xyz[residual])
+    store.write(ijk, "pcz_residual_record", records[residual][:, 12:])
+    info = dict(patches=P, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()))
+    store.mark_tile(ijk, "compress", key, compress=info)
+    return info
+
+
+def _parts(st: Store, max_error: float):
+    T = st.grid.tile_size
+    for ijk in st.tiles:
+        v = {name: st.read(ijk, "pcz_" + name) for name in _PART}
+        q = pcz.QuantisedModels(
+            max_error=max_error, root_corner=st.grid.corner(ijk), root_edge=T, level=v["level"], ijk=v["ijk"],
+            count=v["count"], centroid=v["centroid"], rotation=v["rotation"], coeffs=v["coeffs"], extent=v["extent"],
+            mask=v["mask"], rmse=v["rmse"],
+        )
+        yield pcz.TilePart(ijk, q, v["classification"], v["intensity"], st.read(ijk, "pcz_residual_xyz"),
+                           st.read(ijk, "pcz_residual_record"))
+
+
+def _header_bytes(src: LasSource) -> bytes:
+    with open(src.path, "rb") as f:
+        h = laspy.LasHeader.read_from(f)
+        f.seek(0)
+        return f.read(h.offset_to_point_data)
+
+
+def compress(
+    input: str | os.PathLike, output: str | os.PathLike, *, max_error: float = 0.02, tile_size: float | None = None,
+    scheduler: str = "threads", workers: int | None = None, store: str | None = None, keep_store: bool | None = None,
+    overwrite: bool = False, quiet: bool = False, chunk: int = 1 << 20,
+) -> CompressSummary:
+    """Compress a LAS/LAZ file of any size to a ``.pcz`` of quadric patch models and residual points.
+
+    Parameters
+    ----------
+    input : path
+        LAS or LAZ.
+    output : path
+        The ``.pcz`` (see :mod:`patchcloud.stream.pcz`).
+    max_error : float
+        The error budget (metres): patches are split until their quadric
+        fits their points with an RMS error below it; points farther than 3
+        times it from their patch's surface, and the points of edge and
+        sparse leaves, are kept as residual points, exactly.  Quantising the
+        models adds at most half the budget.
+    tile_size, scheduler, workers, store, keep_store, overwrite, quiet :
+        As :func:`patchcloud.stream.normals`.
+
+    Returns
+    -------
+    CompressSummary
+    """
+    _validate(tile_size, criterion="rmse", orient="up")
+    try:
+        budget = float(max_error)
+    except (TypeError, ValueError):
+        budget = float("nan")
+    if not np.isfinite(budget) or budget <= 0:
+        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
+    out = check_output(output, overwrite)
+    src = open_source(input)
+    url = store or default_store_path(out)
+    if keep_store is None:
+        keep_store = store is not None
+    seconds: dict[str, float] = {}
+    with Runner(scheduler, workers, quiet=quiet) as runner:
+        st, seconds["tile"] = _ensure_tiled(src, url, tile_size, runner, quiet, chunk)
+        t0 = time.perf_counter()
+        if not st.step_done("records"):
+            for t in st.tiles:
+                st.delete(t, "record")
+            bucket_records(st, src, chunk=chunk, quiet=quiet)
+            st.mark_step("records", {"chunk": chunk})
+        seconds["records"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        occ = {int(k): int(v) for k, v in st.attrs["occupancy"].items()}
+        spacing = steps.occupancy_spacing(occ, int(st.tile_counts.sum()))
+        with laspy.open(src.path) as r:
+            pf = r.header.point_format
+        params = dict(
+            max_error=budget, d_min=3.0 * spacing if spacing > 0 else st.grid.tile_size / 2.0**21,
+            max_edge=256.0 * spacing if spacing > 0 else float("inf"), point_format=pf.id,
+            extra_dims=[{"name": d.name, "type": np.dtype(d.dtype).str} for d in pf.extra_dimensions],
+        )
+        params["key"] = _params_key(params)
+        infos = map_tiles(compress_tile, st, runner=runner, label="compress", params=params)
+        seconds["fit"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        grid = st.grid.to_json()
+        source = dict(src.to_json(), point_format=pf.id)
+        counts = pcz.write_pcz(
+            out, _parts(st, budget), max_error=budget, grid=grid, header=_header_bytes(src), source=source,
+            record_bytes=pf.size - 12, overwrite=overwrite,
+        )
+        seconds["pack"] = time.perf_counter() - t0
+        peak = runner.peak_memory()
+    if not keep_store and "://" not in url:
+        shutil.rmtree(url, ignore_errors=True)
+    v = list(infos.values())
+    modelled = counts["points"] - counts["residual"]
+    return CompressSummary(
+        input=src.path, output=str(out), points=counts["points"], patches=counts["patches"], residual=counts["residual"],
+        max_error=budget, input_bytes=src.size, output_bytes=out.stat().st_size,
+        mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=seconds, peak_memory=peak,
+    )
+
+
+@dataclass
+class DecompressSummary:
+    """What a ``decompress`` run wrote."""
+
+    input: str
+    output: str
+    reconstructed: int
+    residual: int
+    seconds: float
+
+    def format(self) -> str:
+        return (f"{self.input} -> {self.output}\n  points          {self.reconstructed + self.residual:,}: "
+                f"{self.reconstructed:,} sampled from patches, {self.residual:,} residual\n  time            {self.seconds:.1f} s")
+
+
+def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
+    """Points to sample per patch: its own count, ``density`` per square metre of its occupied extent, or count / 4**lod."""
+    if density is not None:
+        e = models.extent
+        area = (e[:, 1] - e[:, 0]) * (e[:, 3] - e[:, 2]) * models.occupied() / MASK_SIDE**2
+        return np.maximum(np.rint(area * density), 1).astype(np.int64)
+    if lod is not None:
+        return np.maximum(models.count // 4**lod, 1).astype(np.int64)
+    return models.count.astype(np.int64)
+
+
+def decompress(
+    input: str | os.PathLike, output: str | os.PathLike, *, density: float | None = None, lod: int | None = None,
+    bbox=None, seed: int = 0, overwrite: bool = False,
+) -> DecompressSummary:
+    """Points of a ``.pcz``, written to LAS/LAZ: samples of every patch and the residual points as they were.
+
+    Parameters
+    ----------
+    input : path
+        A ``.pcz`` written by :func:`compress`.
+    output : path
+        LAS or LAZ (by its name), with the input file's header and VLRs and
+        a ``Reconstructed`` dimension (uint8: 1 sampled from a patch, 0 a
+        residual point).  Sampled points carry their patch's majority class
+        and mean intensity; their other dimensions are 0.
+    density : float, optional
+        Points per square metre of each patch's occupied extent.
+    lod : int, optional
+        Level of detail: each patch's own count divided by ``4**lod`` (at
+        least one point); 0 (the default, with no density) is the count.
+    bbox : (xmin, ymin, zmin, xmax, ymax, zmax), optional
+        Only this box (the file's coordinates): only the tiles that meet it
+        are read, and only points inside it are written.
+    seed : int
+        Seed of the sampling (the same seed, the same points).
+
+    Returns
+    -------
+    DecompressSummary
+    """
+    if density is not None and lod is not None:
+        raise PatchcloudValueError("give density or lod, not both")
+    if density is not None and (not np.isfinite(density) or density <= 0):
+        raise PatchcloudValueError(f"density must be a positive number of points per square metre, got {density!r}")
+    if lod is not None and (not isinstance(lod, (int, np.integer)) or lod < 0):
+        raise PatchcloudValueError(f"lod must be a whole number, at least 0; got {lod!r}")
+    box = None
+    if bbox is not None:
+        box = np.asarray(bbox, dtype=np.float64).reshape(-1)
+        if box.shape != (6,) or not np.isfinite(box).all() or np.any(box[:3] > box[3:]):
+            raise PatchcloudValueError(f"bbox must be xmin ymin zmin xmax ymax zmax with each min <= max; got {bbox!r}")
+    check_output(output, overwrite)
+    t0 = time.perf_counter()
+    with pcz.open_pcz(input) as f:
+        header = laspy.LasHeader.read_from(io.BytesIO(f.header_bytes))
+        header.vlrs = [v for v in header.vlrs if v.user_id != "laszip encoded"]
+        header.add_extra_dims([laspy.ExtraBytesParams(name="Reconstructed", type=np.uint8, description="1 from a patch, 0 residual")])
+        g = f.attrs["grid"]
+        origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
+        tiles = range(len(f.tiles)) if box is None else f.tiles_in(box[:3] - origin, box[3:] - origin)
+        L = header.point_format.size
+        n_rec = n_res = 0
+        with atomic_output(output, overwrite) as out:
+            with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
+                            laz_backend=_laz_backend()) as writer:
+                for t in tiles:
+                    q, cls, inten = f.patches(int(t))
+                    models = dequantise_models(q)
+                    pts, k = sample_models(models, _counts(models, density, lod), seed=seed + int(t))
+                    xyz = np.rint((pts + origin - offset) / scale).astype(np.int64)
+                    rxyz, rrec = f.residual(int(t))
+                    sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
+                    sampled["X"], sampled["Y"], sampled["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+                    sampled["classification"] = cls[k]
+                    sampled["intensity"] = inten[k]
+                    sampled["Reconstructed"] = np.ones(len(xyz), np.uint8)
+                    resid = laspy.PackedPointRecord.zeros(len(rxyz), header.point_format)
+                    raw = resid.array.view(np.uint8).reshape(len(rxyz), L)
+                    raw[:, :12] = rxyz.astype("<i4").view(np.uint8).reshape(len(rxyz), 12)
+                    raw[:, 12 : 12 + rrec.shape[1]] = rrec
+                    for rec, is_res in ((sampled, False), (resid, True)):
+                        if box is not None and len(rec):
+                            p = np.column_stack([rec["X"], rec["Y"], rec["Z"]]) * scale + offset
+                            inside = np.all((p >= box[:3]) & (p <= box[3:]), axis=1)
+                            rec = laspy.PackedPointRecord(rec.array[inside], header.point_format)
+                        if len(rec):
+                            writer.write_points(rec)
+                        if is_res:
+                            n_res += len(rec)
+                        else:
+                            n_rec += len(rec)
+    return DecompressSummary(input=str(input), output=str(output), reconstructed=n_rec, residual=n_res,
+                             seconds=time.perf_counter() - t0)

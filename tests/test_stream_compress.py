@@ -1,0 +1,125 @@
+"""``patchcloud compress`` / ``decompress``: LAS -> .pcz -> LAS, out of core."""
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.stream import compress, decompress
+from patchcloud.stream.cli import main
+
+OFFSET = np.array([650000.0, 6860000.0, 0.0])
+BUDGET = 0.02
+
+
+def scene(rng):
+    """Ground (class 2), a 4 m box-shaped building (class 6) on it, and a noisy bush (class 5): 46k points."""
+    g = rng.uniform(0, 16, (30000, 2))
+    g = g[~((g[:, 0] > 4) & (g[:, 0] < 8) & (g[:, 1] > 4) & (g[:, 1] < 8))]
+    ground = np.column_stack([g, np.zeros(len(g))])
+    walls = []
+    for axis in (0, 1):
+        for s in (4.0, 8.0):
+            q = np.column_stack([rng.uniform(4, 8, 2000), rng.uniform(4, 8, 2000), rng.uniform(0, 4, 2000)])
+            q[:, axis] = s
+            walls.append(q)
+    roof = np.column_stack([rng.uniform(4, 8, (3000, 2)), np.full(3000, 4.0)])
+    bush = rng.normal([12.0, 12.0, 1.0], 0.6, (4000, 3))
+    pts = np.vstack([ground, *walls, roof, bush])
+    cls = np.concatenate([np.full(len(ground), 2), np.full(8000 + 3000, 6), np.full(4000, 5)]).astype(np.uint8)
+    return pts, cls
+
+
+@pytest.fixture(scope="module")
+def las_file(tmp_path_factory):
+    rng = np.random.default_rng(5)
+    pts, cls = scene(rng)
+    perm = rng.permutation(len(pts))
+    pts, cls = pts[perm], cls[perm]
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales = [0.001] * 3
+    h.offsets = OFFSET
+    h.add_extra_dims([laspy.ExtraBytesParams(name="Deviation", type=np.float32)])
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = pts[:, 0] + OFFSET[0], pts[:, 1] + OFFSET[1], pts[:, 2]
+    las.classification = cls
+    las.intensity = rng.integers(0, 4000, len(pts))
+    las.gps_time = np.sort(rng.uniform(0, 1000, len(pts)))
+    las["Deviation"] = rng.normal(size=len(pts)).astype(np.float32)
+    path = tmp_path_factory.mktemp("pcz") / "scene.las"
+    las.write(path)
+    return path
+
+
+def rows(points):
+    a = points.array
+    return np.ascontiguousarray(a).view(np.dtype((np.void, a.dtype.itemsize)))
+
+
+def test_round_trip(las_file, tmp_path):
+    src = laspy.read(las_file)
+    s = compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True)
+    assert s.points == len(src.points) and 0 < s.residual < s.points and s.patches > 0
+    assert s.mean_error <= BUDGET
+    d = decompress(tmp_path / "s.pcz", tmp_path / "back.laz")
+    out = laspy.read(tmp_path / "back.laz")
+    assert len(out.points) == len(src.points)  # every point: a sample of its patch or itself
+    rec = np.asarray(out["Reconstructed"])
+    assert int((rec == 0).sum()) == s.residual == d.residual
+    # residual points come back byte for byte (all of their record but the new dimension)
+    L = src.points.array.dtype.itemsize
+    back = np.ascontiguousarray(out.points.array.view(np.uint8).reshape(len(out.points), -1)[rec == 0, :L])
+    orig = np.ascontiguousarray(src.points.array.view(np.uint8).reshape(len(src.points), L))
+    v = np.dtype((np.void, L))
+    assert np.isin(back.view(v).ravel(), orig.view(v).ravel()).all()
+    # the bush is residual; the sampled points lie on the ground, the walls and the roof
+    xyz = np.column_stack([out.x, out.y, out.z]) - OFFSET
+    s_xyz = xyz[rec == 1]
+    ground = np.abs(s_xyz[:, 2])
+    roof = np.abs(s_xyz[:, 2] - 4.0)
+    walls = np.min(np.abs(s_xyz[:, :2, None] - np.array([4.0, 8.0])).reshape(-1, 4), axis=1)
+    inside_box = np.all((s_xyz[:, :2] >= 4 - BUDGET) & (s_xyz[:, :2] <= 8 + BUDGET), axis=1)
+    dist = np.where(inside_box, np.minimum(roof, walls), ground)
+    assert dist.mean() <= BUDGET and np.percentile(dist, 95) <= 2 * BUDGET
+    cls = np.asarray(out.classification)
+    assert np.mean(cls[rec == 1][(s_xyz[:, 2] < 0.05) & ~inside_box] == 2) > 0.99  # patches carry their majority class
+    assert np.mean(rec[cls == 5] == 0) > 0.9  # the bush (a volume, 0.6 m of scatter) stays points
+
+
+def test_levels_of_detail_density_and_region(las_file, tmp_path):
+    compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True)
+    full = decompress(tmp_path / "s.pcz", tmp_path / "full.las")
+    lod1 = decompress(tmp_path / "s.pcz", tmp_path / "lod1.las", lod=1)
+    assert lod1.residual == full.residual
+    assert 0.2 < lod1.reconstructed / full.reconstructed < 0.3
+    dense = decompress(tmp_path / "s.pcz", tmp_path / "dense.las", density=400.0)
+    assert dense.reconstructed > full.reconstructed  # the scene has about 100 points per square metre
+    box = (OFFSET[0] + 0, OFFSET[1] + 0, -1.0, OFFSET[0] + 3.0, OFFSET[1] + 3.0, 10.0)
+    part = decompress(tmp_path / "s.pcz", tmp_path / "part.las", bbox=box)
+    las = laspy.read(tmp_path / "part.las")
+    assert 0 < len(las.points) < 0.1 * (full.reconstructed + full.residual)
+    assert np.all((las.x >= box[0]) & (las.x <= box[3]) & (las.y >= box[1]) & (las.y <= box[4]))
+    again = decompress(tmp_path / "s.pcz", tmp_path / "full2.las")
+    assert (tmp_path / "full.las").read_bytes() == (tmp_path / "full2.las").read_bytes() and again.residual == full.residual
+
+
+def test_cli_and_bad_input(las_file, tmp_path):
+    r = CliRunner().invoke(main, ["compress", str(las_file), str(tmp_path / "c.pcz"), "--max-error", "0.05",
+                                  "--scheduler", "synchronous", "--tile-size", "8"])
+    assert r.exit_code == 0, r.output
+    assert "bits/point" in r.output
+    r = CliRunner().invoke(main, ["decompress", str(tmp_path / "c.pcz"), str(tmp_path / "c.laz"), "--lod", "1", "-q"])
+    assert r.exit_code == 0 and (tmp_path / "c.laz").exists()
+    r = CliRunner().invoke(main, ["decompress", str(las_file), str(tmp_path / "x.las")])
+    assert r.exit_code == 2 and r.output.startswith("error:") and "not a patchcloud .pcz" in r.output
+    assert not (tmp_path / "x.las").exists()
+    r = CliRunner().invoke(main, ["compress", str(las_file), str(tmp_path / "y.pcz"), "--max-error", "-1", "-q"])
+    assert r.exit_code == 2 and "max_error must be a positive number" in r.output
+    assert not (tmp_path / "y.pcz").exists() and not (tmp_path / "y.pcz.store").exists()
+    with pytest.raises(PatchcloudValueError, match="density or lod, not both"):
+        decompress(tmp_path / "c.pcz", tmp_path / "z.las", density=10.0, lod=1)
+    with pytest.raises(PatchcloudValueError, match="bbox must be"):
+        decompress(tmp_path / "c.pcz", tmp_path / "z.las", bbox=(1, 1, 1, 0, 0, 0))
+    with pytest.raises(PatchcloudIOError, match="exists"):
+        decompress(tmp_path / "c.pcz", tmp_path / "c.laz")
