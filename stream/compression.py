@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import laspy
 import numpy as np
 
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core.errors import PatchcloudValueError
 from patchcloud.core.patchmodel import MASK_SIDE, PatchModels, dequantise_models, fit_models, quantise_models, sample_models
 
 from . import pcz, steps

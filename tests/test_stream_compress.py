@@ -96,7 +96,7 @@ def test_levels_of_detail_density_and_region(las_file, tmp_path):
     dense = decompress(tmp_path / "s.pcz", tmp_path / "dense.las", density=400.0)
     assert dense.reconstructed > full.reconstructed  # the scene has about 100 points per square metre
     box = (OFFSET[0] + 0, OFFSET[1] + 0, -1.0, OFFSET[0] + 3.0, OFFSET[1] + 3.0, 10.0)
-    part = decompress(tmp_path / "s.pcz", tmp_path / "part.las", bbox=box)
+    decompress(tmp_path / "s.pcz", tmp_path / "part.las", bbox=box)
     las = laspy.read(tmp_path / "part.las")
     assert 0 < len(las.points) < 0.1 * (full.reconstructed + full.residual)
     assert np.all((las.x >= box[0]) & (las.x <= box[3]) & (las.y >= box[1]) & (las.y <= box[4]))
