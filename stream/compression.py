@@ -90,7 +90,8 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     xyz = store.read(ijk, "xyz")
     local = grid.local(xyz)
     rank = store.read(ijk, "rank").astype(np.int64)
-    records = store.read(ijk, "record")[rank]  # in the order of xyz
+    in_order = store.read(ijk, "record")  # the tile's records in input order
+    records = in_order[rank]  # in the order of xyz
     budget = params["max_error"]
     if xyz.shape[0] >= N_MIN:
         fit = fit_models(local, budget, d_min=params["d_min"], max_edge=params["max_edge"], n_min=N_MIN, root=(corner, T))
@@ -115,8 +116,9 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     )
     for name in _PART:
         store.write(ijk, "pcz_" + name, values[name])
-    store.write(ijk, "pcz_residual_xyz", xyz[residual])
-    store.write(ijk, "pcz_residual_record", records[residual][:, 12:])
+    # in input order: LAZ predicts each record from the previous one (scan order: GPS time, returns, intensity)
+    laz = pcz.residual_laz(in_order[np.sort(rank[residual])], pf, params["version"], grid.scale, grid.offset)
+    store.write(ijk, "pcz_residual_laz", np.frombuffer(laz, dtype=np.uint8))
     info = dict(patches=P, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()))
     store.mark_tile(ijk, "compress", key, compress=info)
     return info
@@ -131,8 +133,8 @@ def _parts(st: Store, max_error: float):
             count=v["count"], centroid=v["centroid"], rotation=v["rotation"], coeffs=v["coeffs"], extent=v["extent"],
             mask=v["mask"], rmse=v["rmse"],
         )
-        yield pcz.TilePart(ijk, q, v["classification"], v["intensity"], st.read(ijk, "pcz_residual_xyz"),
-                           st.read(ijk, "pcz_residual_record"))
+        yield pcz.TilePart(ijk, q, v["classification"], v["intensity"], int(st.tile_attrs(ijk)["compress"]["residual"]),
+                           st.read(ijk, "pcz_residual_laz").tobytes())
 
 
 def _header_bytes(src: LasSource) -> bytes:
@@ -197,7 +199,7 @@ def compress(
             pf = r.header.point_format
         params = dict(
             max_error=budget, d_min=3.0 * spacing if spacing > 0 else st.grid.tile_size / 2.0**21,
-            max_edge=256.0 * spacing if spacing > 0 else float("inf"), point_format=pf.id,
+            max_edge=256.0 * spacing if spacing > 0 else float("inf"), point_format=pf.id, version=src.version,
             extra_dims=[{"name": d.name, "type": np.dtype(d.dtype).str} for d in pf.extra_dimensions],
         )
         params["key"] = _params_key(params)

@@ -12,6 +12,7 @@ anywhere: integers, floats, JSON attributes.  Layout, version 1::
     tiles/ijk                     (T, 3) int64  tile indices (tile = cube of edge tile_size from origin)
     tiles/patch_start             (T + 1,) int64 rows of each tile's patches
     tiles/residual_start          (T + 1,) int64 rows of each tile's residual points
+    tiles/residual_byte_start     (T + 1,) int64 bytes of each tile's residual LAZ
     patches/level                 (P,) uint8    octree level in the tile (root = the tile)
     patches/ijk                   (P, 3) int32  cell at that level
     patches/count                 (P,) uint32   points the patch stands for
@@ -23,8 +24,9 @@ anywhere: integers, floats, JSON attributes.  Layout, version 1::
     patches/rmse                  (P,) float32  fit RMS error (metres)
     patches/classification        (P,) uint8    majority class of the patch's points
     patches/intensity             (P,) uint16   mean intensity of the patch's points
-    residual/xyz                  (R, 3) int32  LAS integer coordinates of the residual points
-    residual/record               (R, B) uint8  the rest of their point records, byte for byte
+    residual/laz                  (S,) uint8    per tile, the residual points' records, byte for
+                                  byte, as a LAZ file (lazrs: LAS records compress best
+                                  with LAZ's field-wise predictive coding)
 
 Reading checks the format mark and the version, and names the file in
 every error (:class:`patchcloud.core.errors.PatchcloudIOError`): a file
@@ -33,26 +35,32 @@ that is not a zip, truncated, of another version or made by something else.
 
 from __future__ import annotations
 
+import io
 import os
 import shutil
 import tempfile
 import zipfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+import laspy
 import numpy as np
 import zarr
+from zarr.codecs import BloscCodec
 
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 from patchcloud.core.patchmodel import QuantisedModels
 
-__all__ = ["FORMAT", "VERSION", "TilePart", "write_pcz", "PczFile", "open_pcz", "iter_parts"]
+__all__ = ["FORMAT", "VERSION", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
 
 FORMAT = "patchcloud-pcz"
 VERSION = 1
 #: Rows per chunk of every per-patch and per-residual-point array.
 CHUNK = 1 << 16
+#: Byte shuffle + Zstd at its strongest level through Blosc (measured on an IGN tile's patches:
+#: 22 % smaller than zarr's default Zstd level 3; the arrays are small next to the points they replace).
+CODEC = BloscCodec(cname="zstd", clevel=9, shuffle="shuffle")
 
 _PATCH_ARRAYS = (
     ("level", np.uint8, ()), ("ijk", np.int32, (3,)), ("count", np.uint32, ()), ("centroid", np.int32, (3,)),
@@ -65,22 +73,24 @@ _PATCH_ARRAYS = (
 class TilePart:
     """One tile's share of a ``.pcz``: its quantised patches (root = the tile), their attributes, its residual points.
 
-    ``models.root_corner``/``root_edge`` must be the tile's cube.
+    ``models.root_corner``/``root_edge`` must be the tile's cube;
+    ``residual_laz`` is a LAZ file of the residual points' records (see
+    :func:`residual_laz`), holding ``residual_count`` points.
     """
 
     ijk: tuple[int, int, int]
     models: QuantisedModels
     classification: np.ndarray
     intensity: np.ndarray
-    residual_xyz: np.ndarray
-    residual_record: np.ndarray
+    residual_count: int
+    residual_laz: bytes
 
 
 class _Column:
     """Rows appended to one array of a zarr group, written one whole chunk at a time."""
 
     def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...]):
-        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(CHUNK,) + tail)
+        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(CHUNK,) + tail, compressors=[CODEC])
         self.buffer: list[np.ndarray] = []
         self.held = 0
         self.dtype = np.dtype(dtype)
@@ -137,9 +147,8 @@ def write_pcz(
         patches = root.require_group("patches")
         residual = root.require_group("residual")
         cols = {name: _Column(patches, name, dt, tail) for name, dt, tail in _PATCH_ARRAYS}
-        rxyz = _Column(residual, "xyz", np.int32, (3,))
-        rrec = _Column(residual, "record", np.uint8, (record_bytes,))
-        tiles, pstart, rstart = [], [0], [0]
+        laz = _Column(residual, "laz", np.uint8, ())
+        tiles, pstart, rstart, bstart = [], [0], [0], [0]
         points = 0
         for part in parts:
             m = part.models
@@ -151,18 +160,19 @@ def write_pcz(
             )
             for name, col in cols.items():
                 col.add(values[name])
-            rxyz.add(part.residual_xyz)
-            rrec.add(part.residual_record.reshape(-1, record_bytes))
+            laz.add(np.frombuffer(part.residual_laz, dtype=np.uint8))
             tiles.append(part.ijk)
             pstart.append(pstart[-1] + len(m))
-            rstart.append(rstart[-1] + part.residual_xyz.shape[0])
-            points += int(m.count.sum()) + part.residual_xyz.shape[0]
-        for col in [*cols.values(), rxyz, rrec]:
+            rstart.append(rstart[-1] + int(part.residual_count))
+            bstart.append(bstart[-1] + len(part.residual_laz))
+            points += int(m.count.sum()) + int(part.residual_count)
+        for col in [*cols.values(), laz]:
             col.close()
         t = root.require_group("tiles")
         t.create_array("ijk", data=np.asarray(tiles, dtype=np.int64).reshape(-1, 3))
         t.create_array("patch_start", data=np.asarray(pstart, dtype=np.int64))
         t.create_array("residual_start", data=np.asarray(rstart, dtype=np.int64))
+        t.create_array("residual_byte_start", data=np.asarray(bstart, dtype=np.int64))
         root.create_array("header", data=np.frombuffer(header, dtype=np.uint8))
         counts = dict(tiles=len(tiles), patches=pstart[-1], residual=rstart[-1], points=points)
         root.attrs.update(
@@ -193,6 +203,7 @@ class PczFile:
         self.tiles = root["tiles/ijk"][...]
         self.patch_start = root["tiles/patch_start"][...]
         self.residual_start = root["tiles/residual_start"][...]
+        self.residual_byte_start = root["tiles/residual_byte_start"][...]
 
     # -- what the file says -------------------------------------------------
     @property
@@ -230,9 +241,21 @@ class PczFile:
         return m, v["classification"], v["intensity"]
 
     def residual(self, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """Tile ``t``'s residual points: LAS integer xyz (R, 3) and the rest of their records (R, B)."""
-        s = slice(int(self.residual_start[t]), int(self.residual_start[t + 1]))
-        return self.root["residual/xyz"][s], self.root["residual/record"][s]
+        """Tile ``t``'s residual points: LAS integer xyz (R, 3) int32 and the rest of their records (R, B) uint8."""
+        s = slice(int(self.residual_byte_start[t]), int(self.residual_byte_start[t + 1]))
+        n = int(self.residual_start[t + 1] - self.residual_start[t])
+        B = int(self.attrs["record_bytes"])
+        if n == 0:
+            return np.zeros((0, 3), np.int32), np.zeros((0, B), np.uint8)
+        try:
+            las = laspy.read(io.BytesIO(self.root["residual/laz"][s].tobytes()))
+        except Exception as exc:
+            raise PatchcloudIOError(f"{self.path}: the residual points of tile {tuple(self.tiles[t])} cannot be read ({exc})") from exc
+        raw = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
+        if raw.shape != (n, B + 12):
+            raise PatchcloudIOError(f"{self.path}: tile {tuple(self.tiles[t])} holds {raw.shape[0]} residual points of "
+                                    f"{raw.shape[1]} bytes, the index says {n} of {B + 12}")
+        return raw[:, :12].copy().view("<i4").reshape(n, 3), raw[:, 12:].copy()
 
     def close(self) -> None:
         self._store.close()
@@ -278,9 +301,13 @@ def open_pcz(path: str | os.PathLike) -> PczFile:
         raise PatchcloudIOError(f"{p}: incomplete .pcz file ({exc})") from exc
 
 
-def iter_parts(f: PczFile) -> Iterator[TilePart]:
-    """Every tile part of an open file, in file order (what :func:`write_pcz` was given)."""
-    for t in range(len(f.tiles)):
-        m, cls, inten = f.patches(t)
-        xyz, rec = f.residual(t)
-        yield TilePart(tuple(int(v) for v in f.tiles[t]), m, cls, inten, xyz, rec)
+def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets) -> bytes:
+    """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout)."""
+    h = laspy.LasHeader(point_format=point_format, version=version)
+    h.scales, h.offsets = np.asarray(scales, dtype=np.float64), np.asarray(offsets, dtype=np.float64)
+    las = laspy.LasData(h)
+    rows = np.frombuffer(np.ascontiguousarray(records).tobytes(), dtype=point_format.dtype()).copy()
+    las.points = laspy.PackedPointRecord(rows, point_format)
+    buf = io.BytesIO()
+    las.write(buf, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
+    return buf.getvalue()
