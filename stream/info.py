@@ -1,8 +1,9 @@
-"""``info``: what a LAS/LAZ file or a patchcloud store holds."""
+"""``info``: what a LAS/LAZ file, a patchcloud store or a .pcz holds."""
 
 from __future__ import annotations
 
 import os
+import zipfile
 
 import laspy
 import numpy as np
@@ -10,13 +11,14 @@ import numpy as np
 from patchcloud.core.errors import PatchcloudIOError
 
 from .lasio import open_source
+from .pcz import open_pcz
 from .store import Store
 
 __all__ = ["info", "format_info"]
 
 
 def info(path: str | os.PathLike) -> dict:
-    """A description of a LAS/LAZ file (header) or of a store (source, grid, tiles, steps done).
+    """A description of a LAS/LAZ file (header), a store (source, grid, tiles, steps done) or a .pcz (counts).
 
     Raises
     ------
@@ -24,6 +26,11 @@ def info(path: str | os.PathLike) -> dict:
         ``path`` is neither a readable LAS/LAZ file nor a patchcloud store.
     """
     p = str(path)
+    if os.path.isfile(p) and zipfile.is_zipfile(p):
+        with open_pcz(p) as f:
+            a = f.attrs
+            return {"kind": "pcz", "path": p, "bytes": os.path.getsize(p), "version": a["version"],
+                    "max_error": a["max_error"], "counts": a["counts"], "source": a["source"], "grid": a["grid"]}
     if os.path.isfile(p):
         src = open_source(p)
         with laspy.open(p) as r:
@@ -50,6 +57,16 @@ def info(path: str | os.PathLike) -> dict:
 
 def format_info(d: dict) -> str:
     """``info``'s dictionary as a few lines of text."""
+    if d["kind"] == "pcz":
+        c = d["counts"]
+        n = max(c["points"], 1)
+        return "\n".join([
+            f"{d['path']}: patchcloud .pcz version {d['version']}, {d['bytes']:,} bytes ({8 * d['bytes'] / n:.2f} bits/point)",
+            f"  source       {d['source'].get('path')} ({d['source'].get('point_count', 0):,} points)",
+            f"  points       {c['points']:,}: {c['points'] - c['residual']:,} on {c['patches']:,} patches, {c['residual']:,} residual",
+            f"  max error    {d['max_error']:g} m",
+            f"  tiles        {c['tiles']:,} of {d['grid']['tile_size']:g} m",
+        ])
     if d["kind"] == "las":
         lines = [
             f"{d['path']}: LAS {d['version']} point format {d['point_format']}{' (LAZ)' if d['compressed'] else ''}",
