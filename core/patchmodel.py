@@ -25,7 +25,7 @@ from .octree import estimate_spacing, sort_points
 from .patches import PatchKind
 from .tiles import fit_tile
 
-__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "MASK_SIDE"]
+__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "check_budget", "MASK_SIDE"]
 
 #: The occupancy mask of a patch is MASK_SIDE x MASK_SIDE cells over its (u, v) box (one uint64).
 MASK_SIDE = 8
@@ -124,6 +124,17 @@ class ModelFit:
     error: np.ndarray
 
 
+def check_budget(max_error) -> float:
+    """The error budget as a positive float (metres), or a PatchcloudValueError."""
+    try:
+        budget = float(max_error)
+    except (TypeError, ValueError):
+        budget = float("nan")
+    if not np.isfinite(budget) or budget <= 0:
+        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
+    return budget
+
+
 def _quadric(c: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return c[:, 0] * u * u + c[:, 1] * u * v + c[:, 2] * v * v + c[:, 3] * u + c[:, 4] * v + c[:, 5]
 
@@ -176,12 +187,7 @@ def fit_models(
     from .normals import _root_cube, _validate_points  # the checks estimate_normals makes
 
     pts, lo, hi = _validate_points(points)
-    try:
-        budget = float(max_error)
-    except (TypeError, ValueError):
-        budget = float("nan")
-    if not np.isfinite(budget) or budget <= 0:
-        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
+    budget = check_budget(max_error)
     if not np.isfinite(outlier_factor) or outlier_factor < 1:
         raise PatchcloudValueError(f"outlier_factor must be at least 1, got {outlier_factor!r}")
     n = pts.shape[0]
@@ -377,9 +383,7 @@ def quantise_models(models: PatchModels, max_error: float) -> QuantisedModels:
     """
     from scipy.spatial.transform import Rotation
 
-    budget = float(max_error)
-    if not np.isfinite(budget) or budget <= 0:
-        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
+    budget = check_budget(max_error)
     st = _steps(models.root_edge, models.level, budget)
     corner = models.root_corner + models.ijk * st["edge"][:, None]
     rot = Rotation.from_matrix(models.frame).as_rotvec() if len(models) else np.zeros((0, 3))

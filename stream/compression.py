@@ -30,12 +30,14 @@ import laspy
 import numpy as np
 
 from patchcloud.core.errors import PatchcloudValueError
-from patchcloud.core.patchmodel import MASK_SIDE, PatchModels, dequantise_models, fit_models, quantise_models, sample_models
+from patchcloud.core.patchmodel import (
+    MASK_SIDE, PatchModels, check_budget, dequantise_models, fit_models, quantise_models, sample_models,
+)
 
 from . import pcz, steps
 from .ingest import bucket_records
-from .lasio import LasSource, _laz_backend, atomic_output, is_laz_name, open_source
-from .pipeline import _ensure_tiled, _params_key, _validate, check_output, default_store_path
+from .lasio import LasSource, _laz_backend, atomic_output, is_laz_name
+from .pipeline import _ensure_tiled, _params_key, _validate, check_output, open_job
 from .scheduling import Runner, map_tiles
 from .store import Store
 
@@ -175,17 +177,8 @@ def compress(
     CompressSummary
     """
     _validate(tile_size, criterion="rmse", orient="up")
-    try:
-        budget = float(max_error)
-    except (TypeError, ValueError):
-        budget = float("nan")
-    if not np.isfinite(budget) or budget <= 0:
-        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
-    out = check_output(output, overwrite)
-    src = open_source(input)
-    url = store or default_store_path(out)
-    if keep_store is None:
-        keep_store = store is not None
+    budget = check_budget(max_error)
+    out, src, url, keep_store = open_job(input, output, store, keep_store, overwrite)
     seconds: dict[str, float] = {}
     with Runner(scheduler, workers, quiet=quiet) as runner:
         st, seconds["tile"] = _ensure_tiled(src, url, tile_size, runner, quiet, chunk)

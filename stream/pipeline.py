@@ -39,7 +39,7 @@ from .scheduling import Runner, map_tiles
 from .seams import orient_tiles
 from .store import Store
 
-__all__ = ["normals", "tile", "NormalsSummary", "default_store_path", "check_output"]
+__all__ = ["normals", "tile", "NormalsSummary", "default_store_path", "check_output", "open_job"]
 
 
 @dataclass
@@ -91,6 +91,18 @@ def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
     if not out.parent.exists():
         raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
     return out
+
+
+def open_job(input, output, store: str | None, keep_store: bool | None, overwrite: bool) -> tuple[Path, LasSource, str, bool]:
+    """What every out-of-core job starts with: the output checked, the input opened, where the store goes and whether it stays.
+
+    The default store is ``OUTPUT.store``, removed after success unless
+    ``keep_store``; a store given is kept unless ``keep_store`` is False.
+    """
+    out = check_output(output, overwrite)
+    src = open_source(input)
+    url = store or default_store_path(out)
+    return out, src, url, (store is not None) if keep_store is None else bool(keep_store)
 
 
 def _params_key(d: dict) -> str:
@@ -257,11 +269,7 @@ def normals(
         tile_size, criterion=criterion, orient=orient, viewpoint=viewpoint, threshold=threshold, d_min=d_min,
         max_edge=max_edge, n_min=n_min, min_sigma2=min_sigma2, k_fallback=k_fallback,
     )
-    out = check_output(output, overwrite)
-    src = open_source(input)
-    url = store or default_store_path(out)
-    if keep_store is None:
-        keep_store = store is not None
+    out, src, url, keep_store = open_job(input, output, store, keep_store, overwrite)
     seconds: dict[str, float] = {}
     with Runner(scheduler, workers, quiet=quiet) as runner:
         st, seconds["tile"] = _ensure_tiled(src, url, tile_size, runner, quiet, chunk)

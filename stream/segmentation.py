@@ -35,8 +35,8 @@ from patchcloud.core.radius import check_mode, check_radius, halo_width
 
 from . import don_steps
 from .export import Column, FirstSeenIds, export_columns
-from .lasio import DON_DIMS, SEGMENT_DIMS, LasSource, open_source
-from .pipeline import _ensure_tiled, _params_key, _validate, check_output, default_store_path
+from .lasio import DON_DIMS, SEGMENT_DIMS, LasSource
+from .pipeline import _ensure_tiled, _params_key, _validate, open_job
 from .scheduling import Runner, map_tiles
 from .store import Store
 
@@ -124,11 +124,7 @@ def _run(
         check_threshold(threshold, axis, axis_threshold)
         check_radius("tolerance", tolerance)
         min_cluster, max_cluster = check_cluster_sizes(min_cluster, max_cluster)
-    out = check_output(output, overwrite)
-    src = open_source(input)
-    url = store or default_store_path(out)
-    if keep_store is None:
-        keep_store = store is not None
+    out, src, url, keep_store = open_job(input, output, store, keep_store, overwrite)
     seconds: dict[str, float] = {}
     with Runner(scheduler, workers, quiet=quiet) as runner:
         st, seconds["tile"] = _ensure_tiled(src, url, tile_size, runner, quiet, chunk)
