@@ -16,11 +16,12 @@ occupied cells of its mask and lifts each ``(u, v)`` onto the quadric.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from .errors import PatchcloudValueError
+from .normals import _root_cube, _validate_points
 from .octree import estimate_spacing, sort_points
 from .patches import PatchKind
 from .tiles import fit_tile
@@ -94,13 +95,18 @@ class PatchModels:
             extent=z((0, 4)), mask=z(0, np.uint64), rmse=z(0),
         )
 
+    @property
+    def edge(self) -> np.ndarray:
+        """(P,) edge of every patch's octree cell (metres)."""
+        return _cell_edge(self.root_edge, self.level)
+
+    def mask_bits(self) -> np.ndarray:
+        """(P, MASK_SIDE**2) bool: the occupied cells of each patch's mask, bit by bit."""
+        return ((self.mask[:, None] >> np.arange(MASK_SIDE * MASK_SIDE, dtype=np.uint64)) & np.uint64(1)).astype(bool)
+
     def occupied(self) -> np.ndarray:
         """(P,) number of occupied cells of each patch's mask."""
-        return ((self.mask[:, None] >> np.arange(MASK_SIDE * MASK_SIDE, dtype=np.uint64)) & np.uint64(1)).sum(axis=1).astype(np.int64)
-
-    def take(self, index: np.ndarray) -> "PatchModels":
-        """The models of rows ``index`` (an index array or a boolean mask)."""
-        return PatchModels(**{f.name: getattr(self, f.name) if f.name.startswith("root_") else getattr(self, f.name)[index] for f in fields(self)})
+        return self.mask_bits().sum(axis=1).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -122,6 +128,11 @@ class ModelFit:
     patch: np.ndarray
     residual: np.ndarray
     error: np.ndarray
+
+
+def _cell_edge(root_edge: float, level: np.ndarray) -> np.ndarray:
+    """Edge (metres) of octree cells at ``level`` below a root cube of edge ``root_edge``."""
+    return root_edge / 2.0 ** level.astype(np.float64)
 
 
 def check_budget(max_error) -> float:
@@ -184,8 +195,6 @@ def fit_models(
     >>> len(fit.models) < 40, fit.residual.size, int(fit.models.count.sum())
     (True, 0, 20000)
     """
-    from .normals import _root_cube, _validate_points  # the checks estimate_normals makes
-
     pts, lo, hi = _validate_points(points)
     budget = check_budget(max_error)
     if not np.isfinite(outlier_factor) or outlier_factor < 1:
@@ -279,10 +288,10 @@ def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed
         raise PatchcloudValueError(f"counts must be {P} non-negative whole numbers, one per patch")
     k = np.repeat(np.arange(P), counts)
     rng = np.random.default_rng(seed)
-    bits = ((models.mask[:, None] >> np.arange(MASK_SIDE * MASK_SIDE, dtype=np.uint64)) & np.uint64(1)).astype(bool)
+    bits = models.mask_bits()
     occupied = bits.sum(axis=1)
     cell_order = np.argsort(~bits, axis=1, kind="stable")  # the occupied cells first, in index order
-    edge = models.root_edge / 2.0 ** models.level.astype(np.float64)
+    edge = models.edge
     lo = models.root_corner + models.ijk * edge[:, None]
     pts = np.empty((k.size, 3))
     todo = np.arange(k.size)
@@ -356,7 +365,7 @@ class QuantisedModels:
 
 def _steps(root_edge: float, level: np.ndarray, max_error: float) -> dict[str, np.ndarray]:
     """Quantisation steps per patch (see :class:`QuantisedModels`)."""
-    E = root_edge / 2.0 ** level.astype(np.float64)
+    E = _cell_edge(root_edge, level)
     share = QUANT_SHARE * max_error
     quad = share / (9.0 * E * E)
     lin = share / (2.0 * np.sqrt(3.0) * E)

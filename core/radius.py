@@ -33,7 +33,7 @@ from . import _radius_kernels as _rk
 from .errors import PatchcloudValueError
 from .grid import CellGrid
 
-__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "MODES", "check_points", "check_radius", "check_mode"]
+__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "MODES", "check_points", "check_radius", "check_mode", "check_viewpoint"]
 
 #: Valid values of ``mode``.
 MODES = ("exact", "fast")
@@ -61,6 +61,14 @@ def check_radius(name: str, value) -> float:
     if not np.isfinite(v) or v <= 0:
         raise PatchcloudValueError(f"{name} must be a positive number of metres, got {value!r}")
     return v
+
+
+def check_viewpoint(viewpoint) -> np.ndarray:
+    """``viewpoint`` as a (3,) float64 array of finite coordinates, or a PatchcloudValueError."""
+    vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
+    if vp.shape != (3,) or not np.isfinite(vp).all():
+        raise PatchcloudValueError(f"viewpoint must be three finite coordinates (x, y, z), got {viewpoint!r}")
+    return vp
 
 
 def check_mode(mode: str, resolution: int = 4, min_points: int = 3) -> None:
@@ -267,9 +275,7 @@ def radius_normals(
     pts = check_points(points)
     r = check_radius("radius", radius)
     check_mode(mode, resolution, min_points)
-    vp = default_viewpoint(pts) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(-1)
-    if vp.shape != (3,) or not np.isfinite(vp).all():
-        raise PatchcloudValueError(f"viewpoint must be three finite coordinates (x, y, z), got {viewpoint!r}")
+    vp = default_viewpoint(pts) if viewpoint is None else check_viewpoint(viewpoint)
     q = pts if at is None else pts[np.asarray(at, dtype=np.int64)]
     mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at, density=density)
     normals = np.empty((q.shape[0], 3))

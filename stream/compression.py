@@ -95,9 +95,8 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     corner = grid.corner(ijk)
     xyz = store.read(ijk, "xyz")
     local = grid.local(xyz)
-    rank = store.read(ijk, "rank").astype(np.int64)
+    rank = store.read(ijk, "rank").astype(np.int64)  # xyz row r is the tile's point rank[r] in input order
     in_order = store.read(ijk, "record")  # the tile's records in input order
-    records = in_order[rank]  # in the order of xyz
     budget = params["max_error"]
     if xyz.shape[0] >= N_MIN:
         fit = fit_models(local, budget, d_min=params["d_min"], max_edge=params["max_edge"], n_min=N_MIN, root=(corner, T))
@@ -109,12 +108,12 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     pf = laspy.PointFormat(params["point_format"])
     for name in params["extra_dims"]:
         pf.add_extra_dimension(laspy.ExtraBytesParams(name=name["name"], type=np.dtype(name["type"])))
-    rec = laspy.PackedPointRecord(np.frombuffer(records.tobytes(), dtype=pf.dtype()), pf)
+    rec = laspy.PackedPointRecord(np.ascontiguousarray(in_order).view(pf.dtype()).reshape(-1), pf)
     on = patch >= 0
     P = len(models)
-    cls = np.asarray(rec["classification"]).astype(np.int64)
+    cls = np.asarray(rec["classification"]).astype(np.int64)[rank]
     votes = np.bincount(patch[on] * 256 + cls[on], minlength=P * 256).reshape(P, 256)
-    inten = np.bincount(patch[on], weights=np.asarray(rec["intensity"], dtype=np.float64)[on], minlength=P)
+    inten = np.bincount(patch[on], weights=np.asarray(rec["intensity"], dtype=np.float64)[rank][on], minlength=P)
     values = dict(
         level=q.level, ijk=q.ijk, count=q.count, centroid=q.centroid, rotation=q.rotation, coeffs=q.coeffs,
         extent=q.extent, mask=q.mask, rmse=q.rmse, classification=votes.argmax(axis=1).astype(np.uint8),

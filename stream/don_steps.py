@@ -71,6 +71,14 @@ def _halo_points(store: Store, ijk, neighbours, width: float, need_keep: bool = 
     return np.concatenate(pts), np.concatenate(tiles), np.concatenate(rows)
 
 
+def _write_in_input_order(store: Store, ijk, name: str, values: np.ndarray) -> None:
+    """Store rows given in the tile's sorted order as array ``name`` in the tile's input order (what export reads)."""
+    rank = store.read(ijk, "rank").astype(np.int64)
+    out = np.empty_like(values)
+    out[rank] = values
+    store.write(ijk, name, out)
+
+
 def skin_tile(url: str, ijk: tuple, width: float, key: str) -> int:
     """Store the tile's points within ``width`` (metres) of its faces: ``don_skin`` and their rows ``don_skin_rows``."""
     store = Store.open(url)
@@ -110,10 +118,7 @@ def don_tile(url: str, ijk: tuple, params: dict, neighbours: list) -> dict:
         keep = don_mask(don, params["threshold"], axis=params.get("axis"), axis_threshold=params.get("axis_threshold"))
     else:
         keep = np.zeros(own.shape[0], dtype=bool)
-    rank = store.read(ijk, "rank").astype(np.int64)
-    out = np.empty_like(don)
-    out[rank] = don
-    store.write(ijk, "don", out)
+    _write_in_input_order(store, ijk, "don", don)
     store.write(ijk, "keep", keep)
     info = dict(
         points=int(own.shape[0]), halo=int(halo.shape[0]), defined=int(defined.sum()), kept=int(keep.sum()),
@@ -152,10 +157,7 @@ def cluster_tile(url: str, ijk: tuple, params: dict, neighbours: list) -> dict:
     links = np.column_stack([hc[linked], h_tile[linked], h_row[linked]]).astype(np.int64) if linked.any() else np.zeros((0, 5), np.int64)
     comp_sorted = np.full(own.shape[0], -1, dtype=np.int32)
     comp_sorted[kept] = own_comp
-    rank = store.read(ijk, "rank").astype(np.int64)
-    comp_input = np.empty_like(comp_sorted)
-    comp_input[rank] = comp_sorted
-    store.write(ijk, "comp", comp_input)
+    _write_in_input_order(store, ijk, "comp", comp_sorted)
     store.write(ijk, "comp_size", np.bincount(own_comp, minlength=n_comp).astype(np.int64))
     store.write(ijk, "skin_comp", comp_sorted[store.read(ijk, "don_skin_rows").astype(np.int64)])
     store.write(ijk, "seg_links", links)

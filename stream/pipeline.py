@@ -63,7 +63,6 @@ class NormalsSummary:
         n = max(self.points, 1)
         m = self.normals_by_method
         k = self.patches_by_kind
-        total = sum(self.seconds.values())
         lines = [
             f"{self.input} -> {self.output}",
             f"  points          {self.points:,}",
@@ -72,10 +71,19 @@ class NormalsSummary:
             f"  normals by      quadric {m['quadric'] / n:.1%}, blended {m['blended'] / n:.1%}, k-NN fallback {m['knn'] / n:.1%}",
             f"  parameters      {self.parameters['criterion']} threshold {self.parameters['threshold']:.4g}, "
             f"d_min {self.parameters['d_min']:.3g} m, spacing {self.parameters['spacing']:.3g} m, orient {self.parameters['orient']}",
-            "  time            " + ", ".join(f"{s} {t:.1f} s" for s, t in self.seconds.items()) + f"; total {total:.1f} s ({self.points / max(total, 1e-9):,.0f} points/s)",
-            f"  peak memory     {self.peak_memory / 2**20:,.0f} MiB (all processes, scheduler {self.scheduler})",
+            *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler),
         ]
         return "\n".join(lines)
+
+
+def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: int, scheduler: str) -> list[str]:
+    """The last two lines of a job's summary: time per step and in all, and the peak memory."""
+    total = sum(seconds.values())
+    return [
+        "  time            " + ", ".join(f"{s} {t:.1f} s" for s, t in seconds.items())
+        + f"; total {total:.1f} s ({points / max(total, 1e-9):,.0f} points/s)",
+        f"  peak memory     {peak_memory / 2**20:,.0f} MiB (all processes, scheduler {scheduler})",
+    ]
 
 
 def default_store_path(output: str | os.PathLike) -> str:

@@ -30,13 +30,12 @@ import numpy as np
 
 from patchcloud.core.cluster import check_cluster_sizes
 from patchcloud.core.don import check_scales, check_threshold
-from patchcloud.core.errors import PatchcloudValueError
-from patchcloud.core.radius import check_mode, check_radius, halo_width
+from patchcloud.core.radius import check_mode, check_radius, check_viewpoint, halo_width
 
 from . import don_steps
 from .export import Column, FirstSeenIds, export_columns
 from .lasio import DON_DIMS, SEGMENT_DIMS, LasSource
-from .pipeline import _ensure_tiled, _params_key, _validate, open_job
+from .pipeline import _ensure_tiled, _params_key, _validate, open_job, time_and_memory_lines
 from .scheduling import Runner, map_tiles
 from .store import Store
 
@@ -73,7 +72,6 @@ class DonSummary:
     def format(self) -> str:
         n = max(self.points, 1)
         p = self.parameters
-        total = sum(self.seconds.values())
         lines = [
             f"{self.input} -> {self.output}",
             f"  points          {self.points:,}",
@@ -90,10 +88,7 @@ class DonSummary:
                 f"  segments        {self.segments:,} (tolerance {p['tolerance']:g} m, {p['min_cluster']}"
                 f"{'' if mx is None else f'-{mx}'}{'+' if mx is None else ''} points)"
             )
-        lines += [
-            "  time            " + ", ".join(f"{s} {t:.1f} s" for s, t in self.seconds.items()) + f"; total {total:.1f} s ({self.points / max(total, 1e-9):,.0f} points/s)",
-            f"  peak memory     {self.peak_memory / 2**20:,.0f} MiB (all processes, scheduler {self.scheduler})",
-        ]
+        lines += time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler)
         return "\n".join(lines)
 
 
@@ -108,9 +103,7 @@ def _check(r_small, r_large, mode, resolution, min_points, viewpoint) -> None:
     check_scales(r_small, r_large)
     check_mode(mode, resolution, min_points)
     if viewpoint is not None:
-        vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
-        if vp.shape != (3,) or not np.isfinite(vp).all():
-            raise PatchcloudValueError(f"viewpoint must be three finite coordinates (x, y, z), got {viewpoint!r}")
+        check_viewpoint(viewpoint)
 
 
 def _run(
