@@ -65,6 +65,16 @@ def test_plot_draws_a_png(tmp_path):
     info = dict(name="x", points=1000, sizes=dict(las=30_000, laz=4_000, laz_xyz=2_000), rows=rows, draco_curve=curve)
     png = bench_compress.plot([info, dict(info, name="y", draco_curve=[])], tmp_path / "rd.png")
     assert png.read_bytes()[:4] == b"\x89PNG"
+    from matplotlib.image import imread
+
+    img = imread(png)
+    assert img.shape[0] > 200 and img.shape[1] > 400 and img[..., :3].var() > 0  # drawn, not blank
+    no_draco = imread(bench_compress.plot([dict(info, draco_curve=[]), dict(info, name="y", draco_curve=[])], tmp_path / "n.png"))
+
+    def red(a):  # Draco's curve is red (its legend entry too, in both figures)
+        return int(((a[..., 0] > 0.7) & (a[..., 1] < 0.3) & (a[..., 2] < 0.3)).sum())
+
+    assert red(img) > red(no_draco) + 200  # the curve given is drawn
 
 
 def test_draco_bits_and_interpolation():
