@@ -2,16 +2,21 @@
 
 The anisotropic octree (criterion ``rmse`` with the error budget as its
 threshold) splits the cloud into leaves whose quadric fits within the
-budget.  A *surface* leaf becomes a patch model: its octree cell, point
-count, PCA frame, quadric, and where its points lie in the frame (the
-``(u, v)`` box and an 8 x 8 occupancy mask of that box).  Every other point
-is *residual*: the points of edge and sparse leaves (vegetation, wires,
-isolated returns), and the points of a surface leaf farther than
-``outlier_factor`` x the budget from its quadric.  So every input point is
-represented either by a surface or by itself.
+budget; touching surface leaves that one quadric still fits within the
+budget are then merged (:mod:`patchcloud.core.merge`), so a plane is one
+patch and a box one patch per face.  A *patch* is a PCA frame and a
+quadric; the octree *cells* it covers say where its points were: per
+cell, the point count, the ``(u, v)`` box of the points in the patch's
+frame and an 8 x 8 occupancy mask of that box.
 
-Sampling a patch draws its point count (or any other) uniformly over the
-occupied cells of its mask and lifts each ``(u, v)`` onto the quadric.
+Every other point is *residual*: the points of edge and sparse leaves
+(vegetation, wires, isolated returns), and the points farther than
+``outlier_factor`` x the budget from their patch's quadric.  So every
+input point is represented either by a surface or by itself.
+
+Sampling draws each cell's point count (or any other) uniformly over the
+occupied cells of its mask and lifts each ``(u, v)`` onto its patch's
+quadric.
 """
 
 from __future__ import annotations
@@ -20,28 +25,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._kernels import cell_moments
 from .errors import PatchcloudValueError
+from .merge import leaf_neighbours, merge_leaves, shift_moments
 from .normals import _root_cube, _validate_points
 from .octree import estimate_spacing, sort_points
 from .patches import PatchKind
+from .quadric import fit_nodes
 from .tiles import fit_tile
 
 __all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "check_budget", "MASK_SIDE"]
 
-#: The occupancy mask of a patch is MASK_SIDE x MASK_SIDE cells over its (u, v) box (one uint64).
+#: The occupancy mask of a cell is MASK_SIDE x MASK_SIDE cells over its (u, v) box (one uint64).
 MASK_SIDE = 8
-#: Draws per sampled point at most: a draw outside the patch's octree cell is drawn again.
+#: Draws per sampled point at most: a draw outside its octree cell is drawn again.
 MAX_DRAWS = 8
 
 
 @dataclass(frozen=True)
 class PatchModels:
-    """Quadric patch models (P rows) that stand for a cloud's smooth surfaces.
+    """Quadric patches (P rows) and the octree cells they cover (C rows) that stand for a cloud's smooth surfaces.
 
     The surface of patch ``k``, in its frame, is ``w = a u^2 + b uv + c v^2
     + d u + e v + f`` (``coeffs[k]``), with ``(u, v, w) = frame[k].T @ (p -
-    centroid[k])``; it is kept where ``extent[k]`` and ``mask[k]`` say the
-    patch's points were.
+    centroid[k])``.  Its cells are rows ``start[k]:start[k] + cells[k]`` of
+    the cell arrays; the surface is kept inside each cell, where the cell's
+    ``extent`` and ``mask`` say the points were.
 
     Attributes
     ----------
@@ -49,63 +58,81 @@ class PatchModels:
         Minimum corner of the octree's root cube (metres, caller's frame).
     root_edge : float
         Edge of the root cube (metres).
-    level : (P,) uint8
-        Octree level of the patch's cell.
-    ijk : (P, 3) int64
-        Integer coordinates of the cell at its level.
-    count : (P,) int64
-        Points the patch stands for.
     centroid : (P, 3) float64
         Origin of the patch frame (metres, caller's frame).
     frame : (P, 3, 3) float64
         Axes ``e1, e2, e3`` as columns (e3: the normal of the PCA plane).
     coeffs : (P, 6) float64
         Quadric coefficients ``a, b, c, d, e, f``.
-    extent : (P, 4) float64
-        ``u_min, u_max, v_min, v_max`` of the patch's points in its frame (metres).
-    mask : (P,) uint64
-        Bit ``i * MASK_SIDE + j`` set where cell (i, j) of the extent's
-        MASK_SIDE x MASK_SIDE grid (i along u) holds a point.
     rmse : (P,) float64
         RMS distance (along e3) of the patch's points to its quadric (metres).
+    cells : (P,) int64
+        Number of octree cells of each patch (at least one).
+    level : (C,) uint8
+        Octree level of each cell.
+    ijk : (C, 3) int64
+        Integer coordinates of each cell at its level.
+    count : (C,) int64
+        Points each cell stands for.
+    extent : (C, 4) float64
+        ``u_min, u_max, v_min, v_max`` of the cell's points in its patch's frame (metres).
+    mask : (C,) uint64
+        Bit ``i * MASK_SIDE + j`` set where cell (i, j) of the extent's
+        MASK_SIDE x MASK_SIDE grid (i along u) holds a point.
     """
 
     root_corner: np.ndarray
     root_edge: float
-    level: np.ndarray
-    ijk: np.ndarray
-    count: np.ndarray
     centroid: np.ndarray
     frame: np.ndarray
     coeffs: np.ndarray
+    rmse: np.ndarray
+    cells: np.ndarray
+    level: np.ndarray
+    ijk: np.ndarray
+    count: np.ndarray
     extent: np.ndarray
     mask: np.ndarray
-    rmse: np.ndarray
 
     def __len__(self) -> int:
-        return int(self.level.shape[0])
+        """The number of patches."""
+        return int(self.centroid.shape[0])
 
     @classmethod
     def empty(cls, root_corner, root_edge: float) -> "PatchModels":
         """No patches (a cube whose points are all residual)."""
         z = np.zeros
         return cls(
-            root_corner=np.asarray(root_corner, dtype=np.float64).copy(), root_edge=float(root_edge), level=z(0, np.uint8),
-            ijk=z((0, 3), np.int64), count=z(0, np.int64), centroid=z((0, 3)), frame=z((0, 3, 3)), coeffs=z((0, 6)),
-            extent=z((0, 4)), mask=z(0, np.uint64), rmse=z(0),
+            root_corner=np.asarray(root_corner, dtype=np.float64).copy(), root_edge=float(root_edge), centroid=z((0, 3)),
+            frame=z((0, 3, 3)), coeffs=z((0, 6)), rmse=z(0), cells=z(0, np.int64), level=z(0, np.uint8),
+            ijk=z((0, 3), np.int64), count=z(0, np.int64), extent=z((0, 4)), mask=z(0, np.uint64),
         )
 
     @property
+    def cell_patch(self) -> np.ndarray:
+        """(C,) patch of every cell."""
+        return np.repeat(np.arange(len(self)), self.cells)
+
+    @property
+    def patch_count(self) -> np.ndarray:
+        """(P,) points each patch stands for."""
+        return np.bincount(self.cell_patch, weights=self.count, minlength=len(self)).astype(np.int64)
+
+    @property
     def edge(self) -> np.ndarray:
-        """(P,) edge of every patch's octree cell (metres)."""
+        """(C,) edge of every cell (metres)."""
         return _cell_edge(self.root_edge, self.level)
 
+    def cell_corner(self) -> np.ndarray:
+        """(C, 3) minimum corner of every cell (metres, caller's frame)."""
+        return self.root_corner + self.ijk * self.edge[:, None]
+
     def mask_bits(self) -> np.ndarray:
-        """(P, MASK_SIDE**2) bool: the occupied cells of each patch's mask, bit by bit."""
+        """(C, MASK_SIDE**2) bool: the occupied cells of each cell's mask, bit by bit."""
         return ((self.mask[:, None] >> np.arange(MASK_SIDE * MASK_SIDE, dtype=np.uint64)) & np.uint64(1)).astype(bool)
 
     def occupied(self) -> np.ndarray:
-        """(P,) number of occupied cells of each patch's mask."""
+        """(C,) number of occupied cells of each cell's mask."""
         return self.mask_bits().sum(axis=1).astype(np.int64)
 
 
@@ -117,7 +144,9 @@ class ModelFit:
     ----------
     models : PatchModels
     patch : (N,) int64
-        Row of ``models`` each input point is represented by; -1 for a residual point.
+        Patch (row of ``models``) each input point is represented by; -1 for a residual point.
+    cell : (N,) int64
+        Cell (row of ``models``' cell arrays) of each input point; -1 for a residual point.
     residual : (R,) int64
         Input rows of the residual points, ascending.
     error : (N,) float64
@@ -126,6 +155,7 @@ class ModelFit:
 
     models: PatchModels
     patch: np.ndarray
+    cell: np.ndarray
     residual: np.ndarray
     error: np.ndarray
 
@@ -155,6 +185,67 @@ def _cells(u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.clip(np.floor((u - lo) / span * MASK_SIDE), 0, MASK_SIDE - 1).astype(np.int64)
 
 
+def _starts(counts: np.ndarray) -> np.ndarray:
+    return np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64) if counts.size else np.zeros(0, np.int64)
+
+
+def _group_fits(moments: np.ndarray, centres: np.ndarray, group: np.ndarray, G: int):
+    """Centroid, frame, quadric and RMSE of each group of cells, from the cells' moments about their centres."""
+    n = np.bincount(group, weights=moments[:, 0], minlength=G)
+    first = np.column_stack([np.bincount(group, weights=moments[:, i] + moments[:, 0] * centres[:, i - 1], minlength=G)
+                             for i in (1, 2, 3)])
+    c = first / n[:, None]
+    shifted = shift_moments(moments, centres - c[group])
+    gm = np.stack([np.bincount(group, weights=shifted[:, i], minlength=G) for i in range(shifted.shape[1])], axis=1)
+    spread = np.sqrt(np.maximum((gm[:, 4] + gm[:, 7] + gm[:, 9]) / n, 0.0)) + 1e-12
+    f = fit_nodes(gm, spread)
+    return c + f.centroid, f.frame, f.coeffs
+
+
+def _assign(world, leaf, level, ijk, surf_group, g_size, g_centroid, g_frame, g_coeffs, budget, limit, chunk=1 << 18):
+    """Patch of every point (sorted by leaf): see step 3 of :func:`fit_models`.
+
+    Returns the rows of the modelled points (ascending), their patch and their signed error (metres).
+    """
+    L = level.shape[0]
+    # candidate patches per leaf: its own and those of the leaves touching it (CSR over leaves)
+    nb = leaf_neighbours(level, ijk)
+    both = np.concatenate([nb, nb[:, ::-1], np.column_stack([np.arange(L), np.arange(L)])])
+    both = both[surf_group[both[:, 1]] >= 0]
+    cand = np.unique(np.column_stack([both[:, 0], surf_group[both[:, 1]]]), axis=0)
+    c_start = np.searchsorted(cand[:, 0], np.arange(L + 1))
+    out_pt, out_g, out_e = [], [], []
+    for lo in range(0, leaf.size, chunk):
+        hi = min(lo + chunk, leaf.size)
+        lf = leaf[lo:hi]
+        k = c_start[lf + 1] - c_start[lf]
+        pt = np.repeat(np.arange(lo, hi), k)
+        g = cand[np.repeat(c_start[lf], k) + np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k), 1]
+        uvw = np.einsum("nij,ni->nj", g_frame[g], world[pt] - g_centroid[g])
+        e = uvw[:, 2] - _quadric(g_coeffs[g], uvw[:, 0], uvw[:, 1])
+        own = g == surf_group[leaf[pt]]
+        # rank: within the budget first, then by error in steps of a quarter budget, then the
+        # largest patch, then the smallest error, then the patch index
+        good = np.abs(e) <= budget
+        o = np.lexsort((g, np.abs(e), -g_size[g], np.floor(np.abs(e) * (4.0 / budget)), ~good, pt))
+        first = np.r_[True, pt[o][1:] != pt[o][:-1]] if o.size else np.zeros(0, bool)
+        best = o[first]
+        take = good[best]
+        # no patch within the budget: the own leaf's patch within the outlier limit
+        own_ok = own & (np.abs(e) <= limit)
+        fallback = np.zeros(hi - lo, dtype=np.int64) - 1
+        fallback[pt[own_ok] - lo] = np.flatnonzero(own_ok)
+        chosen = np.full(hi - lo, -1, dtype=np.int64)
+        chosen[pt[best[take]] - lo] = best[take]
+        chosen = np.where(chosen >= 0, chosen, fallback)
+        sel = chosen[chosen >= 0]
+        out_pt.append(pt[sel])
+        out_g.append(g[sel])
+        out_e.append(e[sel])
+    cat = lambda parts, dt: np.concatenate(parts) if parts else np.zeros(0, dt)  # noqa: E731
+    return cat(out_pt, np.int64), cat(out_g, np.int64), cat(out_e, np.float64)
+
+
 def fit_models(
     points: np.ndarray,
     max_error: float,
@@ -164,6 +255,7 @@ def fit_models(
     n_min: int = 12,
     min_sigma2: float = 0.01,
     outlier_factor: float = 3.0,
+    merge: bool = True,
     root: tuple[np.ndarray, float] | None = None,
 ) -> ModelFit:
     """Patch models of a cloud within an error budget, and its residual points.
@@ -174,12 +266,16 @@ def fit_models(
         Coordinates (metres); any order.
     max_error : float
         The error budget (metres): the octree splits a leaf until its
-        quadric's fit RMSE is below it (criterion ``rmse``), down to ``d_min``.
+        quadric's fit RMSE is below it (criterion ``rmse``), down to
+        ``d_min``; touching leaves merge while one quadric fits their
+        points with an RMSE below it.
     d_min, max_edge, n_min, min_sigma2 :
         As :func:`patchcloud.core.estimate_normals` (defaults from the point spacing).
     outlier_factor : float
-        A point of a surface leaf farther than ``outlier_factor * max_error``
-        from the quadric is kept as a residual point.
+        A point farther than ``outlier_factor * max_error`` from its
+        quadric is kept as a residual point.
+    merge : bool
+        Merge touching leaves (default); False keeps one patch per leaf.
     root : (corner, edge), optional
         The octree's root cube (a tile of the stream); default: the points' bounding cube.
 
@@ -192,8 +288,8 @@ def fit_models(
     >>> import numpy as np
     >>> xy = np.random.default_rng(0).uniform(0, 8, (20000, 2))
     >>> fit = fit_models(np.column_stack([xy, 0.05 * xy[:, 0] ** 2]), 0.01)
-    >>> len(fit.models) < 40, fit.residual.size, int(fit.models.count.sum())
-    (True, 0, 20000)
+    >>> len(fit.models), fit.residual.size, int(fit.models.count.sum())
+    (2, 0, 20000)
     """
     pts, lo, hi = _validate_points(points)
     budget = check_budget(max_error)
@@ -214,64 +310,112 @@ def fit_models(
         min_sigma2=min_sigma2, orient="none", spacing=spacing, sorted_input=sorted_input,
     )
     t = fit.patches
-    leaf = np.repeat(np.arange(len(t)), t.count)  # patch of each sorted point
+    leaf = np.repeat(np.arange(len(t)), t.count)  # leaf of each sorted point
     world = fit.local + corner
-    surface = t.kind[leaf] == PatchKind.SURFACE
-    d = world - t.centroid[leaf]
-    uvw = np.einsum("nij,ni->nj", t.frame[leaf], d)
-    err = np.zeros(n)
-    err[surface] = uvw[surface, 2] - _quadric(t.coeffs[leaf[surface]], uvw[surface, 0], uvw[surface, 1])
-    kept = surface & (np.abs(err) <= outlier_factor * budget)
-    count = np.bincount(leaf[kept], minlength=len(t))
-    keep_patch = count >= 3
-    kept &= keep_patch[leaf]
-    count = np.where(keep_patch, count, 0)
-    rows = np.flatnonzero(keep_patch)
-    new_row = np.full(len(t), -1, dtype=np.int64)
-    new_row[rows] = np.arange(rows.size)
+    limit = outlier_factor * budget
 
-    # extents and occupancy masks of the kept points, per patch (kept points of a patch are contiguous)
-    kp = leaf[kept]
-    u, v = uvw[kept, 0], uvw[kept, 1]
-    starts = np.r_[0, np.cumsum(count[rows])[:-1]] if rows.size else np.zeros(0, np.int64)
-    extent = np.zeros((rows.size, 4))
-    mask = np.zeros(rows.size, dtype=np.uint64)
-    rms = np.zeros(rows.size)
-    if rows.size:
-        extent[:, 0] = np.minimum.reduceat(u, starts)
-        extent[:, 1] = np.maximum.reduceat(u, starts)
-        extent[:, 2] = np.minimum.reduceat(v, starts)
-        extent[:, 3] = np.maximum.reduceat(v, starts)
-        r = new_row[kp]
-        bit = _cells(u, extent[r, 0], extent[r, 1]) * MASK_SIDE + _cells(v, extent[r, 2], extent[r, 3])
-        mask = np.bitwise_or.reduceat(np.left_shift(np.uint64(1), bit.astype(np.uint64)), starts)
-        rms = np.sqrt(np.bincount(r, weights=err[kept] ** 2, minlength=rows.size) / count[rows])
+    # 1. the points of surface leaves within the limit of their leaf's quadric
+    surface = t.kind[leaf] == PatchKind.SURFACE
+    uvw = np.einsum("nij,ni->nj", t.frame[leaf[surface]], world[surface] - t.centroid[leaf[surface]])
+    kept = surface.copy()
+    kept[surface] = np.abs(uvw[:, 2] - _quadric(t.coeffs[leaf[surface]], uvw[:, 0], uvw[:, 1])) <= limit
+    kept &= (np.bincount(leaf[kept], minlength=len(t)) >= 3)[leaf]
+
+    # 2. cells: the leaves that keep points; their moments about their centres; groups of them
+    cell_leaf, cell_n = np.unique(leaf[kept], return_counts=True)
+    level, ijk = t.level[cell_leaf], t.ijk[cell_leaf]
+    cell_edge = _cell_edge(edge, level)
+    centres = corner + (ijk + 0.5) * cell_edge[:, None]
+    cell_of = np.full(len(t), -1, dtype=np.int64)
+    cell_of[cell_leaf] = np.arange(cell_leaf.size)
+    cp = cell_of[leaf[kept]]  # cell of each kept point (ascending: points are sorted by leaf)
+    kw = world[kept]
+    moments = np.zeros((cell_leaf.size, 35))
+    if cell_leaf.size:
+        cell_moments(kw, _starts(cell_n), centres, moments)
+    if merge and cell_leaf.size > 1:
+        group = merge_leaves(moments, centres, level, ijk, budget)
+    else:
+        group = np.arange(cell_leaf.size)
+    G = int(group.max()) + 1 if group.size else 0
+    g_centroid, g_frame, g_coeffs = _group_fits(moments, centres, group, G) if G else (np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 6)))
+
+    # 3. every point to a patch: of the patches of its leaf and of the leaves touching it, those
+    #    within the budget, the closest (to a quarter budget), then the largest (so a leaf bent round
+    #    an edge gives its points to the faces); else its own leaf's patch within the outlier limit;
+    #    else residual
+    surf_group = np.full(len(t), -1, dtype=np.int64)
+    surf_group[cell_leaf] = group
+    g_size = np.bincount(group, weights=moments[:, 0], minlength=G)
+    pt, pg, perr = _assign(world, leaf, t.level, t.ijk, surf_group, g_size, g_centroid, g_frame, g_coeffs, budget, limit)
+    # cells: (leaf, patch) pairs holding 3 points or more, of patches holding n_min points or more
+    pair = leaf[pt] * max(G, 1) + pg
+    key, inv, n_in = np.unique(pair, return_inverse=True, return_counts=True)
+    ok = n_in[inv] >= 3
+    ok &= (np.bincount(pg[ok], minlength=G) >= n_min)[pg]
+    pt, pg, perr, pair = pt[ok], pg[ok], perr[ok], pair[ok]
+    key = np.unique(pair)
+    c_leaf, c_group = key // max(G, 1), key % max(G, 1)
+    live_group = np.bincount(c_group, minlength=G) > 0
+    new_group = np.cumsum(live_group) - 1
+    # cells ordered by patch, then by leaf
+    o = np.lexsort((c_leaf, c_group))
+    c_leaf, c_group = c_leaf[o], c_group[o]
+    r = np.empty(key.size, dtype=np.int64)
+    r[o] = np.arange(key.size)
+    r = r[np.searchsorted(key, pair)]  # cell row of each modelled point
+    C = key.size
+    level, ijk = t.level[c_leaf], t.ijk[c_leaf]
+    uvw = np.einsum("nij,ni->nj", g_frame[pg], world[pt] - g_centroid[pg])
+    err = perr
+
+    # 4. per cell: count, extent and occupancy mask of its points in its patch's frame
+    u, v = uvw[:, 0], uvw[:, 1]
+    count = np.bincount(r, minlength=C).astype(np.int64)
+    extent = np.zeros((C, 4))
+    mask = np.zeros(C, dtype=np.uint64)
+    if C:
+        order = np.argsort(r, kind="stable")
+        st = _starts(count)
+        uo, vo = u[order], v[order]
+        extent = np.column_stack([np.minimum.reduceat(uo, st), np.maximum.reduceat(uo, st),
+                                  np.minimum.reduceat(vo, st), np.maximum.reduceat(vo, st)])
+        ro = r[order]
+        bit = _cells(uo, extent[ro, 0], extent[ro, 1]) * MASK_SIDE + _cells(vo, extent[ro, 2], extent[ro, 3])
+        mask = np.bitwise_or.reduceat(np.left_shift(np.uint64(1), bit.astype(np.uint64)), st)
+    cg = new_group[c_group]  # patch of each cell row
+    P = int(live_group.sum())
+    rmse = np.sqrt(np.bincount(cg[r], weights=err**2, minlength=P) / np.maximum(np.bincount(cg[r], minlength=P), 1))
     models = PatchModels(
-        root_corner=corner.copy(), root_edge=float(edge), level=t.level[rows], ijk=t.ijk[rows], count=count[rows],
-        centroid=t.centroid[rows], frame=t.frame[rows], coeffs=t.coeffs[rows], extent=extent, mask=mask, rmse=rms,
+        root_corner=corner.copy(), root_edge=float(edge), centroid=g_centroid[live_group], frame=g_frame[live_group],
+        coeffs=g_coeffs[live_group], rmse=rmse, cells=np.bincount(cg, minlength=P).astype(np.int64),
+        level=level.astype(np.uint8), ijk=ijk, count=count, extent=extent, mask=mask,
     )
+    rows = fit.order[pt]  # input rows of the modelled points
     patch = np.full(n, -1, dtype=np.int64)
-    patch[fit.order[kept]] = new_row[kp]
+    cell = np.full(n, -1, dtype=np.int64)
     error = np.zeros(n)
-    error[fit.order[kept]] = err[kept]
-    return ModelFit(models=models, patch=patch, residual=np.sort(fit.order[~kept]), error=error)
+    patch[rows] = cg[r]
+    cell[rows] = r
+    error[rows] = err
+    return ModelFit(models=models, patch=patch, cell=cell, residual=np.flatnonzero(patch < 0), error=error)
 
 
 def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Points on the patch surfaces: ``counts[k]`` (default: the patches' own counts) per patch.
+    """Points on the patch surfaces: ``counts[c]`` (default: the cells' own counts) per cell.
 
-    Each point is drawn uniformly over the occupied cells of the patch's
-    mask, then lifted onto its quadric; a point that falls outside the
-    patch's octree cell (where the box of its points overhangs the cell)
-    is drawn again, up to :data:`MAX_DRAWS` times.  The same models,
+    Each point is drawn uniformly over the occupied cells of its cell's
+    mask, then lifted onto its patch's quadric; a point that falls outside
+    its octree cell (where the box of the cell's points overhangs the
+    cell) is drawn again, up to :data:`MAX_DRAWS` times.  The same models,
     counts and seed give the same points.
 
     Returns
     -------
     points : (M, 3) float64
         Caller's frame (metres).
-    patch : (M,) int64
-        Row of ``models`` of each point; points come patch after patch.
+    cell : (M,) int64
+        Cell of each point (``models.cell_patch[cell]`` is its patch); points come cell after cell.
 
     Examples
     --------
@@ -282,29 +426,31 @@ def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed
     >>> p.shape, float(np.abs(p[:, 2]).max()) < 1e-9
     ((20000, 3), True)
     """
-    P = len(models)
+    C = models.count.shape[0]
     counts = models.count if counts is None else np.asarray(counts, dtype=np.int64)
-    if counts.shape != (P,) or (counts < 0).any():
-        raise PatchcloudValueError(f"counts must be {P} non-negative whole numbers, one per patch")
-    k = np.repeat(np.arange(P), counts)
+    if counts.shape != (C,) or (counts < 0).any():
+        raise PatchcloudValueError(f"counts must be {C} non-negative whole numbers, one per cell")
+    k = np.repeat(np.arange(C), counts)
     rng = np.random.default_rng(seed)
     bits = models.mask_bits()
     occupied = bits.sum(axis=1)
     cell_order = np.argsort(~bits, axis=1, kind="stable")  # the occupied cells first, in index order
     edge = models.edge
-    lo = models.root_corner + models.ijk * edge[:, None]
+    lo = models.cell_corner()
+    patch = models.cell_patch
     pts = np.empty((k.size, 3))
     todo = np.arange(k.size)
-    for attempt in range(MAX_DRAWS):  # a draw outside the patch's octree cell is drawn again
+    for attempt in range(MAX_DRAWS):  # a draw outside its octree cell is drawn again
         kk = k[todo]
+        pk = patch[kk]
         r = rng.random((todo.size, 3))
         pick = np.minimum((r[:, 0] * occupied[kk]).astype(np.int64), np.maximum(occupied[kk] - 1, 0))
         cell = cell_order[kk, pick]
         e = models.extent[kk]
         u = e[:, 0] + (cell // MASK_SIDE + r[:, 1]) * (e[:, 1] - e[:, 0]) / MASK_SIDE
         v = e[:, 2] + (cell % MASK_SIDE + r[:, 2]) * (e[:, 3] - e[:, 2]) / MASK_SIDE
-        w = _quadric(models.coeffs[kk], u, v)
-        pts[todo] = models.centroid[kk] + np.einsum("nij,nj->ni", models.frame[kk], np.column_stack([u, v, w]))
+        w = _quadric(models.coeffs[pk], u, v)
+        pts[todo] = models.centroid[pk] + np.einsum("nij,nj->ni", models.frame[pk], np.column_stack([u, v, w]))
         outside = np.any((pts[todo] < lo[kk]) | (pts[todo] > lo[kk] + edge[kk, None]), axis=1)
         todo = todo[outside]
         if todo.size == 0:
@@ -314,68 +460,91 @@ def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed
 
 #: Share of the error budget each quantised quantity may use at most (four of them: < half the budget in all).
 QUANT_SHARE = 1.0 / 8.0
-#: Steps of the (u, v) extent: the cell edge over this (an extent only says where samples go along the surface).
+#: Steps of a cell's (u, v) extent: the cell edge over this (an extent only says where samples go along the surface).
 EXTENT_STEPS = 1024
 
 
 @dataclass(frozen=True)
 class QuantisedModels:
-    """Patch models as integers, each quantity with a step derived from the error budget and the patch's cell.
+    """Patch models as integers, each quantity with a step derived from the error budget and the patch's size.
 
-    With ``E`` the edge of a patch's octree cell and ``eps`` the budget,
-    every point of the cell lies within ``sqrt(3) E`` of the centroid, so
-    the steps below keep the surface of the dequantised model within
-    ``4 * QUANT_SHARE * eps`` (half the budget) of the fitted one over the
-    cell: centroid ``eps/8 / (sqrt(3)/2)`` per axis (offsets from the cell
-    corner), rotation vector ``eps/8 / (3 E)`` radians per component,
-    ``f`` ``eps/8``, ``d, e`` ``eps/8 / (2 sqrt(3) E)``, ``a, b, c``
-    ``eps/8 / (9 E^2)``; extents in steps of ``E / EXTENT_STEPS`` from the
-    centroid.
+    A patch's *scale* ``E = root_edge / 2**scale`` is chosen so that every
+    point of its cells lies within ``sqrt(3) E`` of its centroid.  With
+    ``eps`` the budget, the steps below then keep the surface of the
+    dequantised model within ``4 * QUANT_SHARE * eps`` (half the budget)
+    of the fitted one over its cells: centroid ``eps/8 / (sqrt(3)/2)`` per
+    axis (from the root corner), rotation vector ``eps/8 / (3 E)`` radians
+    per component, ``f`` ``eps/8``, ``d, e`` ``eps/8 / (2 sqrt(3) E)``,
+    ``a, b, c`` ``eps/8 / (9 E^2)``.  A cell's extent is kept in steps of
+    its own edge ``/ EXTENT_STEPS``, from the projection of the cell's
+    centre on the (dequantised) patch frame.
 
     Attributes
     ----------
     max_error : float
         The budget the steps derive from (metres).
-    root_corner, root_edge, level, ijk, count, mask :
+    root_corner, root_edge, cells, level, ijk, count, mask :
         As :class:`PatchModels` (exact).
+    scale : (P,) int8
+        The patch's scale (see above).
     centroid : (P, 3) int64
     rotation : (P, 3) int64
         Rotation vector of the frame.
     coeffs : (P, 6) int64
-    extent : (P, 4) int64
     rmse : (P,) float32
+    extent : (C, 4) int64
     """
 
     max_error: float
     root_corner: np.ndarray
     root_edge: float
-    level: np.ndarray
-    ijk: np.ndarray
-    count: np.ndarray
+    scale: np.ndarray
     centroid: np.ndarray
     rotation: np.ndarray
     coeffs: np.ndarray
+    rmse: np.ndarray
+    cells: np.ndarray
+    level: np.ndarray
+    ijk: np.ndarray
+    count: np.ndarray
     extent: np.ndarray
     mask: np.ndarray
-    rmse: np.ndarray
 
     def __len__(self) -> int:
-        return int(self.level.shape[0])
+        return int(self.scale.shape[0])
 
 
-def _steps(root_edge: float, level: np.ndarray, max_error: float) -> dict[str, np.ndarray]:
+def _steps(root_edge: float, scale: np.ndarray, max_error: float) -> dict[str, np.ndarray]:
     """Quantisation steps per patch (see :class:`QuantisedModels`)."""
-    E = _cell_edge(root_edge, level)
+    E = _cell_edge(root_edge, scale)
     share = QUANT_SHARE * max_error
     quad = share / (9.0 * E * E)
     lin = share / (2.0 * np.sqrt(3.0) * E)
     return {
-        "centroid": np.full_like(E, share / (np.sqrt(3.0) / 2.0)),
+        "centroid": share / (np.sqrt(3.0) / 2.0),
         "rotation": share / (3.0 * E),
         "coeffs": np.column_stack([quad, quad, quad, lin, lin, np.full_like(E, share)]),
-        "extent": E / EXTENT_STEPS,
-        "edge": E,
     }
+
+
+def _patch_scale(models: PatchModels, margin: float) -> np.ndarray:
+    """(P,) int8: the largest level whose ``sqrt(3) * edge`` reaches from each centroid (moved by up to ``margin``) to all its cells."""
+    if len(models) == 0:
+        return np.zeros(0, np.int8)
+    lo = models.cell_corner()
+    c = models.centroid[models.cell_patch]
+    far = np.maximum(np.abs(lo - c), np.abs(lo + models.edge[:, None] - c))
+    reach = np.zeros(len(models))
+    np.maximum.at(reach, models.cell_patch, np.linalg.norm(far, axis=1))
+    scale = np.floor(np.log2(np.sqrt(3.0) * models.root_edge / (reach + margin)))
+    return np.clip(scale, -64, 64).astype(np.int8)
+
+
+def _cell_origin(models: PatchModels) -> np.ndarray:
+    """(C, 2) the (u, v) of each cell's centre in its patch's frame: the origin of its quantised extent."""
+    centre = models.cell_corner() + 0.5 * models.edge[:, None]
+    p = models.cell_patch
+    return np.einsum("nij,ni->nj", models.frame[p][:, :, :2], centre - models.centroid[p])
 
 
 def quantise_models(models: PatchModels, max_error: float) -> QuantisedModels:
@@ -393,31 +562,38 @@ def quantise_models(models: PatchModels, max_error: float) -> QuantisedModels:
     from scipy.spatial.transform import Rotation
 
     budget = check_budget(max_error)
-    st = _steps(models.root_edge, models.level, budget)
-    corner = models.root_corner + models.ijk * st["edge"][:, None]
+    scale = _patch_scale(models, budget)
+    st = _steps(models.root_edge, scale, budget)
     rot = Rotation.from_matrix(models.frame).as_rotvec() if len(models) else np.zeros((0, 3))
-    return QuantisedModels(
-        max_error=budget, root_corner=models.root_corner.copy(), root_edge=models.root_edge, level=models.level.copy(),
-        ijk=models.ijk.copy(), count=models.count.copy(), mask=models.mask.copy(),
-        centroid=np.rint((models.centroid - corner) / st["centroid"][:, None]).astype(np.int64),
+    q = QuantisedModels(
+        max_error=budget, root_corner=models.root_corner.copy(), root_edge=models.root_edge, scale=scale,
+        centroid=np.rint((models.centroid - models.root_corner) / st["centroid"]).astype(np.int64),
         rotation=np.rint(rot / st["rotation"][:, None]).astype(np.int64),
-        coeffs=np.rint(models.coeffs / st["coeffs"]).astype(np.int64),
-        extent=np.stack([np.floor(models.extent[:, [0, 2]] / st["extent"][:, None]),
-                         np.ceil(models.extent[:, [1, 3]] / st["extent"][:, None])], axis=2).reshape(-1, 4).astype(np.int64),
-        rmse=models.rmse.astype(np.float32),
+        coeffs=np.rint(models.coeffs / st["coeffs"]).astype(np.int64), rmse=models.rmse.astype(np.float32),
+        cells=models.cells.copy(), level=models.level.copy(), ijk=models.ijk.copy(), count=models.count.copy(),
+        extent=np.zeros((models.count.shape[0], 4), np.int64), mask=models.mask.copy(),
     )
+    # extents from the cells' centres as the decoder will see them (dequantised frames and centroids)
+    origin = _cell_origin(dequantise_models(q))
+    step = models.edge[:, None] / EXTENT_STEPS
+    ext = models.extent - origin[:, [0, 0, 1, 1]]
+    q.extent[:] = np.column_stack([np.floor(ext[:, 0:1] / step), np.ceil(ext[:, 1:2] / step),
+                                   np.floor(ext[:, 2:3] / step), np.ceil(ext[:, 3:4] / step)]).astype(np.int64)
+    return q
 
 
 def dequantise_models(q: QuantisedModels) -> PatchModels:
     """The patch models a :class:`QuantisedModels` stands for."""
     from scipy.spatial.transform import Rotation
 
-    st = _steps(q.root_edge, q.level, q.max_error)
-    corner = q.root_corner + q.ijk * st["edge"][:, None]
+    st = _steps(q.root_edge, q.scale, q.max_error)
     frame = Rotation.from_rotvec(q.rotation * st["rotation"][:, None]).as_matrix() if len(q) else np.zeros((0, 3, 3))
-    return PatchModels(
-        root_corner=q.root_corner.copy(), root_edge=q.root_edge, level=q.level.copy(), ijk=q.ijk.copy(),
-        count=q.count.copy(), centroid=corner + q.centroid * st["centroid"][:, None], frame=frame.reshape(-1, 3, 3),
-        coeffs=q.coeffs * st["coeffs"], extent=q.extent * st["extent"][:, None], mask=q.mask.copy(),
-        rmse=q.rmse.astype(np.float64),
+    m = PatchModels(
+        root_corner=q.root_corner.copy(), root_edge=q.root_edge, centroid=q.root_corner + q.centroid * st["centroid"],
+        frame=frame.reshape(-1, 3, 3), coeffs=q.coeffs * st["coeffs"], rmse=q.rmse.astype(np.float64),
+        cells=q.cells.copy(), level=q.level.copy(), ijk=q.ijk.copy(), count=q.count.copy(),
+        extent=np.zeros((q.count.shape[0], 4)), mask=q.mask.copy(),
     )
+    step = m.edge[:, None] / EXTENT_STEPS
+    m.extent[:] = q.extent * step + _cell_origin(m)[:, [0, 0, 1, 1]]
+    return m

@@ -6,14 +6,15 @@
 1. tile (shared), and every point's record bytes bucketed by tile;
 2. per tile (one dask task each): :func:`patchcloud.core.fit_models` with
    the budget as the RMSE threshold, the tile as the octree's root and the
-   whole file's spacing; the models quantised within half the budget; the
-   majority class and mean intensity of each patch's points; the residual
+   whole file's spacing (touching leaves merged into larger patches); the
+   models quantised within half the budget; the majority class and mean
+   intensity of the points of each patch's octree cell; the residual
    points' coordinates and records;
 3. pack: the tiles' parts into one ``.pcz`` (:mod:`.pcz`), tile after tile.
 
 ``decompress`` reads a ``.pcz`` tile by tile (or only the tiles that meet
-a box), samples every patch (its own count, a density, or a level of
-detail) and writes the samples and the residual points to LAS/LAZ with
+a box), samples every patch cell by cell (its own count, a density, or a
+level of detail) and writes the samples and the residual points to LAS/LAZ with
 the original header and a ``Reconstructed`` dimension (1 sampled from a
 patch, 0 a residual point, byte for byte as it was).
 """
@@ -49,7 +50,8 @@ N_MIN = 12
 #: 4 spacings, so decompression does not fill gaps in the data wider than that (with the normals'
 #: 256 spacings, samples landed up to 5.7 m from any original point on a flat IGN tile).
 MAX_EDGE_SPACINGS = 32.0
-_PART = ("level", "ijk", "count", "centroid", "rotation", "coeffs", "extent", "mask", "rmse", "classification", "intensity")
+_PART = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask",
+         "classification", "intensity")
 
 
 @dataclass
@@ -60,6 +62,7 @@ class CompressSummary:
     output: str
     points: int
     patches: int
+    cells: int
     residual: int
     max_error: float
     input_bytes: int
@@ -73,7 +76,7 @@ class CompressSummary:
         total = sum(self.seconds.values())
         return "\n".join([
             f"{self.input} -> {self.output}",
-            f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches "
+            f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches ({self.cells:,} octree cells) "
             f"({(self.points - self.residual) / n:.1%}), {self.residual:,} residual ({self.residual / n:.1%})",
             f"  error           budget {self.max_error:g} m; mean distance of the modelled points to their surface "
             f"{self.mean_error:.4f} m (before quantisation, which adds at most half the budget)",
@@ -100,31 +103,31 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     budget = params["max_error"]
     if xyz.shape[0] >= N_MIN:
         fit = fit_models(local, budget, d_min=params["d_min"], max_edge=params["max_edge"], n_min=N_MIN, root=(corner, T))
-        models, patch, residual, err = fit.models, fit.patch, fit.residual, fit.error
+        models, cell, residual, err = fit.models, fit.cell, fit.residual, fit.error
     else:  # too few points for a surface: all residual
         n = xyz.shape[0]
-        models, patch, residual, err = PatchModels.empty(corner, T), np.full(n, -1), np.arange(n), np.zeros(n)
+        models, cell, residual, err = PatchModels.empty(corner, T), np.full(n, -1), np.arange(n), np.zeros(n)
     q = quantise_models(models, budget)
     pf = laspy.PointFormat(params["point_format"])
     for name in params["extra_dims"]:
         pf.add_extra_dimension(laspy.ExtraBytesParams(name=name["name"], type=np.dtype(name["type"])))
     rec = laspy.PackedPointRecord(np.ascontiguousarray(in_order).view(pf.dtype()).reshape(-1), pf)
-    on = patch >= 0
-    P = len(models)
+    on = cell >= 0
+    C = q.count.shape[0]
     cls = np.asarray(rec["classification"]).astype(np.int64)[rank]
-    votes = np.bincount(patch[on] * 256 + cls[on], minlength=P * 256).reshape(P, 256)
-    inten = np.bincount(patch[on], weights=np.asarray(rec["intensity"], dtype=np.float64)[rank][on], minlength=P)
+    votes = np.bincount(cell[on] * 256 + cls[on], minlength=C * 256).reshape(C, 256)
+    inten = np.bincount(cell[on], weights=np.asarray(rec["intensity"], dtype=np.float64)[rank][on], minlength=C)
     values = dict(
-        level=q.level, ijk=q.ijk, count=q.count, centroid=q.centroid, rotation=q.rotation, coeffs=q.coeffs,
-        extent=q.extent, mask=q.mask, rmse=q.rmse, classification=votes.argmax(axis=1).astype(np.uint8),
-        intensity=np.rint(inten / np.maximum(q.count, 1)).astype(np.uint16),
+        scale=q.scale, centroid=q.centroid, rotation=q.rotation, coeffs=q.coeffs, rmse=q.rmse, cells=q.cells,
+        level=q.level, ijk=q.ijk, count=q.count, extent=q.extent, mask=q.mask,
+        classification=votes.argmax(axis=1).astype(np.uint8), intensity=np.rint(inten / np.maximum(q.count, 1)).astype(np.uint16),
     )
     for name in _PART:
         store.write(ijk, "pcz_" + name, values[name])
     # in input order: LAZ predicts each record from the previous one (scan order: GPS time, returns, intensity)
     laz = pcz.residual_laz(in_order[np.sort(rank[residual])], pf, params["version"], grid.scale, grid.offset)
     store.write(ijk, "pcz_residual_laz", np.frombuffer(laz, dtype=np.uint8))
-    info = dict(patches=P, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()))
+    info = dict(patches=len(models), cells=C, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()))
     store.mark_tile(ijk, "compress", key, compress=info)
     return info
 
@@ -134,9 +137,8 @@ def _parts(st: Store, max_error: float):
     for ijk in st.tiles:
         v = {name: st.read(ijk, "pcz_" + name) for name in _PART}
         q = pcz.QuantisedModels(
-            max_error=max_error, root_corner=st.grid.corner(ijk), root_edge=T, level=v["level"], ijk=v["ijk"],
-            count=v["count"], centroid=v["centroid"], rotation=v["rotation"], coeffs=v["coeffs"], extent=v["extent"],
-            mask=v["mask"], rmse=v["rmse"],
+            max_error=max_error, root_corner=st.grid.corner(ijk), root_edge=T,
+            **{name: v[name] for name in _PART if name not in ("classification", "intensity")},
         )
         yield pcz.TilePart(ijk, q, v["classification"], v["intensity"], int(st.tile_attrs(ijk)["compress"]["residual"]),
                            st.read(ijk, "pcz_residual_laz").tobytes())
@@ -215,7 +217,8 @@ def compress(
     v = list(infos.values())
     modelled = counts["points"] - counts["residual"]
     return CompressSummary(
-        input=src.path, output=str(out), points=counts["points"], patches=counts["patches"], residual=counts["residual"],
+        input=src.path, output=str(out), points=counts["points"], patches=counts["patches"], cells=counts["cells"],
+        residual=counts["residual"],
         max_error=budget, input_bytes=src.size, output_bytes=out.stat().st_size,
         mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=seconds, peak_memory=peak,
     )
@@ -237,7 +240,7 @@ class DecompressSummary:
 
 
 def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
-    """Points to sample per patch: its own count, ``density`` per square metre of its occupied extent, or count / 4**lod."""
+    """Points to sample per cell: its own count, ``density`` per square metre of its occupied extent, or count / 4**lod."""
     if density is not None:
         e = models.extent
         area = (e[:, 1] - e[:, 0]) * (e[:, 3] - e[:, 2]) * models.occupied() / MASK_SIDE**2
@@ -260,12 +263,12 @@ def decompress(
     output : path
         LAS or LAZ (by its name), with the input file's header and VLRs and
         a ``Reconstructed`` dimension (uint8: 1 sampled from a patch, 0 a
-        residual point).  Sampled points carry their patch's majority class
-        and mean intensity; their other dimensions are 0.
+        residual point).  Sampled points carry the majority class and
+        mean intensity of their patch's points in their octree cell; their other dimensions are 0.
     density : float, optional
-        Points per square metre of each patch's occupied extent.
+        Points per square metre of each cell's occupied extent.
     lod : int, optional
-        Level of detail: each patch's own count divided by ``4**lod`` (at
+        Level of detail: each cell's own count divided by ``4**lod`` (at
         least one point); 0 (the default, with no density) is the count.
     bbox : (xmin, ymin, zmin, xmax, ymax, zmax), optional
         Only this box (the file's coordinates): only the tiles that meet it

@@ -63,7 +63,7 @@ def format_info(d: dict) -> str:
         return "\n".join([
             f"{d['path']}: patchcloud .pcz version {d['version']}, {d['bytes']:,} bytes ({8 * d['bytes'] / n:.2f} bits/point)",
             f"  source       {d['source'].get('path')} ({d['source'].get('point_count', 0):,} points)",
-            f"  points       {c['points']:,}: {c['points'] - c['residual']:,} on {c['patches']:,} patches, {c['residual']:,} residual",
+            f"  points       {c['points']:,}: {c['points'] - c['residual']:,} on {c['patches']:,} patches ({c.get('cells', 0):,} octree cells), {c['residual']:,} residual",
             f"  max error    {d['max_error']:g} m",
             f"  tiles        {c['tiles']:,} of {d['grid']['tile_size']:g} m",
         ])

@@ -2,7 +2,7 @@
 
 A ``.pcz`` is a zarr (format 3) store in a single zip file (entries
 stored, not deflated: every chunk is already Zstd-compressed).  No pickle
-anywhere: integers, floats, JSON attributes.  Layout, version 1::
+anywhere: integers, floats, JSON attributes.  Layout, version 2::
 
     zarr.json                     attrs: format "patchcloud-pcz", version, max_error (metres),
                                   grid (origin, tile_size, scale, offset), counts, source
@@ -11,19 +11,22 @@ anywhere: integers, floats, JSON attributes.  Layout, version 1::
     header                        (H,) uint8    the input's LAS header and VLRs, as they were
     tiles/ijk                     (T, 3) int64  tile indices (tile = cube of edge tile_size from origin)
     tiles/patch_start             (T + 1,) int64 rows of each tile's patches
+    tiles/cell_start              (T + 1,) int64 rows of each tile's cells
     tiles/residual_start          (T + 1,) int64 rows of each tile's residual points
     tiles/residual_byte_start     (T + 1,) int64 bytes of each tile's residual LAZ
-    patches/level                 (P,) uint8    octree level in the tile (root = the tile)
-    patches/ijk                   (P, 3) int32  cell at that level
-    patches/count                 (P,) uint32   points the patch stands for
-    patches/centroid              (P, 3) int32  } quantised as
-    patches/rotation              (P, 3) int32  } patchcloud.core.patchmodel.QuantisedModels
-    patches/coeffs                (P, 6) int64  } (steps from max_error and the cell edge)
-    patches/extent                (P, 4) int32  }
-    patches/mask                  (P,) uint64   8 x 8 occupancy of the (u, v) extent
+    patches/scale                 (P,) int8     } quantised as
+    patches/centroid              (P, 3) int32  } patchcloud.core.patchmodel.QuantisedModels
+    patches/rotation              (P, 3) int32  } (steps from max_error and the patch's scale)
+    patches/coeffs                (P, 6) int64  }
     patches/rmse                  (P,) float32  fit RMS error (metres)
-    patches/classification        (P,) uint8    majority class of the patch's points
-    patches/intensity             (P,) uint16   mean intensity of the patch's points
+    patches/cells                 (P,) uint32   cells of each patch (a tile's cells come patch after patch)
+    cells/level                   (C,) uint8    octree level in the tile (root = the tile)
+    cells/ijk                     (C, 3) int32  cell at that level
+    cells/count                   (C,) uint32   points the cell stands for
+    cells/extent                  (C, 4) int32  (u, v) box of its points, steps of the cell edge / 1024
+    cells/mask                    (C,) uint64   8 x 8 occupancy of the (u, v) extent
+    cells/classification          (C,) uint8    majority class of the cell's points
+    cells/intensity               (C,) uint16   mean intensity of the cell's points
     residual/laz                  (S,) uint8    per tile, the residual points' records, byte for
                                   byte, as a LAZ file (lazrs: LAS records compress best
                                   with LAZ's field-wise predictive coding)
@@ -55,23 +58,26 @@ from patchcloud.core.patchmodel import QuantisedModels
 __all__ = ["FORMAT", "VERSION", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
 
 FORMAT = "patchcloud-pcz"
-VERSION = 1
-#: Rows per chunk of every per-patch and per-residual-point array.
+VERSION = 2
+#: Rows per chunk of every per-patch, per-cell and per-residual-point array.
 CHUNK = 1 << 16
 #: Byte shuffle + Zstd at its strongest level through Blosc (measured on an IGN tile's patches:
 #: 22 % smaller than zarr's default Zstd level 3; the arrays are small next to the points they replace).
 CODEC = BloscCodec(cname="zstd", clevel=9, shuffle="shuffle")
 
 _PATCH_ARRAYS = (
-    ("level", np.uint8, ()), ("ijk", np.int32, (3,)), ("count", np.uint32, ()), ("centroid", np.int32, (3,)),
-    ("rotation", np.int32, (3,)), ("coeffs", np.int64, (6,)), ("extent", np.int32, (4,)), ("mask", np.uint64, ()),
-    ("rmse", np.float32, ()), ("classification", np.uint8, ()), ("intensity", np.uint16, ()),
+    ("scale", np.int8, ()), ("centroid", np.int32, (3,)), ("rotation", np.int32, (3,)), ("coeffs", np.int64, (6,)),
+    ("rmse", np.float32, ()), ("cells", np.uint32, ()),
+)
+_CELL_ARRAYS = (
+    ("level", np.uint8, ()), ("ijk", np.int32, (3,)), ("count", np.uint32, ()), ("extent", np.int32, (4,)),
+    ("mask", np.uint64, ()), ("classification", np.uint8, ()), ("intensity", np.uint16, ()),
 )
 
 
 @dataclass(frozen=True)
 class TilePart:
-    """One tile's share of a ``.pcz``: its quantised patches (root = the tile), their attributes, its residual points.
+    """One tile's share of a ``.pcz``: its quantised patches (root = the tile), their cells' attributes, its residual points.
 
     ``models.root_corner``/``root_edge`` must be the tile's cube;
     ``residual_laz`` is a LAZ file of the residual points' records (see
@@ -144,25 +150,31 @@ def write_pcz(
     tmp = out.with_name(out.name + ".partial")
     try:
         root = zarr.open_group(str(work / "store"), mode="w")
-        patches = root.require_group("patches")
         residual = root.require_group("residual")
-        cols = {name: _Column(patches, name, dt, tail) for name, dt, tail in _PATCH_ARRAYS}
+        cols = {name: _Column(root.require_group(group), name, dt, tail)
+                for group, arrays in (("patches", _PATCH_ARRAYS), ("cells", _CELL_ARRAYS)) for name, dt, tail in arrays}
         laz = _Column(residual, "laz", np.uint8, ())
-        tiles, pstart, rstart, bstart = [], [0], [0], [0]
+        tiles, pstart, cstart, rstart, bstart = [], [0], [0], [0], [0]
         points = 0
         for part in parts:
             m = part.models
             if m.max_error != max_error:
                 raise PatchcloudValueError(f"tile {part.ijk}: quantised for max_error {m.max_error}, the file says {max_error}")
+            C = m.count.shape[0]
+            if int(m.cells.sum()) != C or part.classification.shape != (C,) or part.intensity.shape != (C,):
+                raise PatchcloudValueError(f"tile {part.ijk}: {C} cells, {int(m.cells.sum())} named by the patches, "
+                                           f"{part.classification.shape[0]} classes and {part.intensity.shape[0]} intensities")
             values = dict(
-                level=m.level, ijk=m.ijk, count=m.count, centroid=m.centroid, rotation=m.rotation, coeffs=m.coeffs,
-                extent=m.extent, mask=m.mask, rmse=m.rmse, classification=part.classification, intensity=part.intensity,
+                scale=m.scale, centroid=m.centroid, rotation=m.rotation, coeffs=m.coeffs, rmse=m.rmse, cells=m.cells,
+                level=m.level, ijk=m.ijk, count=m.count, extent=m.extent, mask=m.mask,
+                classification=part.classification, intensity=part.intensity,
             )
             for name, col in cols.items():
                 col.add(values[name])
             laz.add(np.frombuffer(part.residual_laz, dtype=np.uint8))
             tiles.append(part.ijk)
             pstart.append(pstart[-1] + len(m))
+            cstart.append(cstart[-1] + m.count.shape[0])
             rstart.append(rstart[-1] + int(part.residual_count))
             bstart.append(bstart[-1] + len(part.residual_laz))
             points += int(m.count.sum()) + int(part.residual_count)
@@ -171,10 +183,11 @@ def write_pcz(
         t = root.require_group("tiles")
         t.create_array("ijk", data=np.asarray(tiles, dtype=np.int64).reshape(-1, 3))
         t.create_array("patch_start", data=np.asarray(pstart, dtype=np.int64))
+        t.create_array("cell_start", data=np.asarray(cstart, dtype=np.int64))
         t.create_array("residual_start", data=np.asarray(rstart, dtype=np.int64))
         t.create_array("residual_byte_start", data=np.asarray(bstart, dtype=np.int64))
         root.create_array("header", data=np.frombuffer(header, dtype=np.uint8))
-        counts = dict(tiles=len(tiles), patches=pstart[-1], residual=rstart[-1], points=points)
+        counts = dict(tiles=len(tiles), patches=pstart[-1], cells=cstart[-1], residual=rstart[-1], points=points)
         root.attrs.update(
             format=FORMAT, version=VERSION, max_error=float(max_error), grid=grid, source=source, counts=counts,
             record_bytes=int(record_bytes),
@@ -202,6 +215,7 @@ class PczFile:
         self.attrs = dict(root.attrs)
         self.tiles = root["tiles/ijk"][...]
         self.patch_start = root["tiles/patch_start"][...]
+        self.cell_start = root["tiles/cell_start"][...]
         self.residual_start = root["tiles/residual_start"][...]
         self.residual_byte_start = root["tiles/residual_byte_start"][...]
 
@@ -227,17 +241,22 @@ class PczFile:
 
     # -- contents -------------------------------------------------------------
     def patches(self, t: int) -> tuple[QuantisedModels, np.ndarray, np.ndarray]:
-        """Tile ``t``'s quantised models (root = the tile), classification and intensity."""
+        """Tile ``t``'s quantised models (root = the tile), and its cells' classification and intensity."""
         s = slice(int(self.patch_start[t]), int(self.patch_start[t + 1]))
-        g = self.root["patches"]
-        v = {name: g[name][s] for name, _, _ in _PATCH_ARRAYS}
+        c = slice(int(self.cell_start[t]), int(self.cell_start[t + 1]))
+        v = {name: self.root["patches"][name][s] for name, _, _ in _PATCH_ARRAYS}
+        v.update({name: self.root["cells"][name][c] for name, _, _ in _CELL_ARRAYS})
         T = self.tile_size
         m = QuantisedModels(
-            max_error=self.max_error, root_corner=self.tiles[t] * T, root_edge=T, level=v["level"],
-            ijk=v["ijk"].astype(np.int64), count=v["count"].astype(np.int64), centroid=v["centroid"].astype(np.int64),
-            rotation=v["rotation"].astype(np.int64), coeffs=v["coeffs"].astype(np.int64), extent=v["extent"].astype(np.int64),
-            mask=v["mask"], rmse=v["rmse"],
+            max_error=self.max_error, root_corner=self.tiles[t] * T, root_edge=T, scale=v["scale"],
+            centroid=v["centroid"].astype(np.int64), rotation=v["rotation"].astype(np.int64),
+            coeffs=v["coeffs"].astype(np.int64), rmse=v["rmse"], cells=v["cells"].astype(np.int64), level=v["level"],
+            ijk=v["ijk"].astype(np.int64), count=v["count"].astype(np.int64), extent=v["extent"].astype(np.int64),
+            mask=v["mask"],
         )
+        if int(m.cells.sum()) != m.count.shape[0]:
+            raise PatchcloudIOError(f"{self.path}: tile {tuple(self.tiles[t])}: its patches name {int(m.cells.sum())} cells, "
+                                    f"the index says {m.count.shape[0]}")
         return m, v["classification"], v["intensity"]
 
     def residual(self, t: int) -> tuple[np.ndarray, np.ndarray]:

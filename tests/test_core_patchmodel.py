@@ -54,21 +54,36 @@ def test_noisy_sphere_within_the_budget(rng):
     assert off.mean() <= budget and np.percentile(off, 99) <= 3 * budget
 
 
-def test_box_faces_come_back_on_the_box_and_edges_stay_points(rng):
+@pytest.mark.parametrize("budget", [0.002, 0.01])
+def test_box_is_six_patches_that_come_back_on_the_box(rng, budget):
     p = box(rng)
-    budget = 0.01
     fit = fit_models(p, budget)
-    q, _ = sample_models(fit.models)
-    off = box_distance(q)
-    # faces come back exact; a leaf holding a sliver of the next face bends its quadric a little
-    assert np.median(off) < 1e-9 and off.mean() < budget / 10 and np.percentile(off, 99.9) < 3 * budget
-    # the points along the edges, where no quadric fits, are residual: kept exactly as they were
-    # (in the leaves along the edges: the smallest are 0.25 m here, a few 0.5 m)
-    from_edge = np.sort(np.abs(p - np.round(p / 4.0) * 4.0), axis=1)[:, 1]
-    assert fit.residual.size > 0 and np.percentile(from_edge[fit.residual], 99) < 0.25
-    assert from_edge[fit.residual].max() <= 0.5
-    assert np.all(fit.patch[fit.residual] == -1)
-    assert int(fit.models.count.sum()) + fit.residual.size == len(p)
+    m = fit.models
+    # one patch per face: the leaves of a face merge, and the leaves along the edges give
+    # each point to the face it lies on
+    assert len(m) == 6 and fit.residual.size == 0
+    normals = np.abs(m.frame[:, :, 2])
+    assert np.all(normals.max(axis=1) > 1 - 1e-9)
+    assert sorted(np.argmax(normals, axis=1).tolist()) == [0, 0, 1, 1, 2, 2]
+    np.testing.assert_array_equal(np.sort(m.patch_count), np.sort(np.bincount(fit.patch, minlength=6)))
+    assert int(m.count.sum()) == len(p) and np.all(fit.patch >= 0)
+    q, _ = sample_models(m)
+    assert box_distance(q).max() < 1e-9  # faces come back exact
+    # and where the points were: every sample within a cell of a face point
+    assert np.all((q >= -1e-9) & (q <= 4.0 + 1e-9))
+
+
+def test_wider_budget_merges_more_and_keeps_its_promise(rng):
+    p = sphere(rng, n=30000)
+    fits = {b: fit_models(p, b) for b in (0.002, 0.01, 0.05)}
+    sizes = [len(fits[b].models) for b in (0.002, 0.01, 0.05)]
+    assert sizes[0] > sizes[1] > sizes[2] and sizes[2] <= 10  # a handful
+    for b, fit in fits.items():
+        assert np.sqrt(np.mean(fit.error[fit.patch >= 0] ** 2)) <= b
+        assert np.all(fit.models.rmse <= b)
+        assert fit.residual.size / len(p) < 0.01
+    unmerged = fit_models(p, 0.01, merge=False)
+    assert len(unmerged.models) > 2 * len(fits[0.01].models)
 
 
 def test_outliers_of_a_surface_become_residual(rng):
@@ -88,8 +103,10 @@ def test_sampling_any_density_and_determinism(rng):
     q2, k2 = sample_models(fit.models, seed=3)
     assert np.array_equal(q1, q2) and np.array_equal(k1, k2)
     double, k = sample_models(fit.models, fit.models.count * 2)
-    assert double.shape[0] == 2 * len(p) and np.array_equal(np.bincount(k), 2 * fit.models.count)
-    none, _ = sample_models(fit.models, np.zeros(len(fit.models), dtype=np.int64))
+    kept = int(fit.models.count.sum())
+    assert kept + fit.residual.size == len(p) and kept > 0.99 * len(p)
+    assert double.shape[0] == 2 * kept and np.array_equal(np.bincount(k), 2 * fit.models.count)
+    none, _ = sample_models(fit.models, np.zeros(fit.models.count.size, dtype=np.int64))
     assert none.shape == (0, 3)
 
 
@@ -97,9 +114,9 @@ def test_models_do_not_depend_on_input_order(rng):
     p = sphere(rng, n=20000, noise=0.001)
     perm = rng.permutation(len(p))
     a, b = fit_models(p, 0.01), fit_models(p[perm], 0.01)
-    for name in ("level", "ijk", "count", "centroid", "frame", "coeffs", "extent", "mask", "rmse"):
+    for name in ("centroid", "frame", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask"):
         assert np.array_equal(getattr(a.models, name), getattr(b.models, name)), name
-    assert np.array_equal(a.patch[perm], b.patch)
+    assert np.array_equal(a.patch[perm], b.patch) and np.array_equal(a.cell[perm], b.cell)
 
 
 @pytest.mark.parametrize("bad", [0.0, -0.01, float("nan"), "x"])
@@ -114,8 +131,9 @@ def test_bad_counts(rng):
         sample_models(fit.models, -fit.models.count)
 
 
-def _off_surface(models, points, patch):
-    """Distance along each patch's normal from points to the patch's quadric (metres)."""
+def _off_surface(models, points, cell):
+    """Distance along each patch's normal from points (sampled from ``cell``) to the patch's quadric (metres)."""
+    patch = models.cell_patch[cell]
     d = points - models.centroid[patch]
     u, v, w = np.einsum("nij,ni->nj", models.frame[patch], d).T
     c = models.coeffs[patch]
@@ -128,7 +146,7 @@ def test_quantised_models_stay_within_half_the_budget(rng, budget):
     fit = fit_models(p, budget)
     q = quantise_models(fit.models, budget)
     back = dequantise_models(q)
-    for name in ("level", "ijk", "count", "mask"):
+    for name in ("cells", "level", "ijk", "count", "mask"):
         assert np.array_equal(getattr(back, name), getattr(fit.models, name))
     for name in ("centroid", "rotation", "coeffs", "extent"):
         assert getattr(q, name).dtype == np.int64

@@ -25,11 +25,11 @@ def parts(rng, record_bytes=18):
         p[:25, 2] += 0.5  # spikes: residual
         fit = fit_models(p, BUDGET, root=(corner, T))
         q = quantise_models(fit.models, BUDGET)
-        P, R = len(q), fit.residual.size
+        C, R = q.count.shape[0], fit.residual.size
         xyz = np.rint(p[fit.residual] / 0.001).astype("<i4")
         records = np.hstack([xyz.view(np.uint8).reshape(R, 12), rng.integers(0, 256, (R, record_bytes)).astype(np.uint8)])
         laz = pcz.residual_laz(records, laspy.PointFormat(6), "1.4", [0.001] * 3, [0.0] * 3)
-        out.append(pcz.TilePart(ijk, q, rng.integers(1, 7, P).astype(np.uint8), rng.integers(0, 60000, P).astype(np.uint16),
+        out.append(pcz.TilePart(ijk, q, rng.integers(1, 7, C).astype(np.uint8), rng.integers(0, 60000, C).astype(np.uint16),
                                 R, laz))
         out[-1].__dict__["records"] = records  # what the file must give back (a test-only note on the frozen part)
     return out
@@ -52,7 +52,8 @@ def test_written_file_reads_back_field_by_field(tmp_path, rng, monkeypatch):
         assert [tuple(t) for t in f.tiles] == [(0, 0, 0), (1, 0, 0)]
         for t, part in enumerate(ps):
             m, cls, inten = f.patches(t)
-            for name in ("level", "ijk", "count", "centroid", "rotation", "coeffs", "extent", "mask", "rmse"):
+            assert len(m) >= 1 and m.count.shape[0] >= len(m)
+            for name in ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask"):
                 assert np.array_equal(getattr(m, name), getattr(part.models, name)), name
             assert np.array_equal(m.root_corner, part.models.root_corner) and m.root_edge == part.models.root_edge
             assert np.array_equal(cls, part.classification) and np.array_equal(inten, part.intensity)
@@ -85,11 +86,12 @@ def test_refuses_what_it_cannot_read(tmp_path, rng, monkeypatch):
         z.writestr("zarr.json", '{"zarr_format": 3, "node_type": "group", "attributes": {"format": "something"}}')
     with pytest.raises(PatchcloudIOError, match="no 'patchcloud-pcz' format mark"):
         pcz.open_pcz(tmp_path / "other.pcz")
-    monkeypatch.setattr(pcz, "VERSION", 2)
-    write(tmp_path, rng, name="v2.pcz")
-    monkeypatch.setattr(pcz, "VERSION", 1)
-    with pytest.raises(PatchcloudIOError, match="version 2 is not supported"):
-        pcz.open_pcz(tmp_path / "v2.pcz")
+    now = pcz.VERSION
+    monkeypatch.setattr(pcz, "VERSION", now + 1)
+    write(tmp_path, rng, name="next.pcz")
+    monkeypatch.setattr(pcz, "VERSION", now)
+    with pytest.raises(PatchcloudIOError, match=f"version {now + 1} is not supported"):
+        pcz.open_pcz(tmp_path / "next.pcz")
 
 
 def test_never_overwrites_unasked(tmp_path, rng):

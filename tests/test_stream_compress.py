@@ -128,4 +128,4 @@ def test_cli_and_bad_input(las_file, tmp_path):
 def test_info_describes_a_pcz(las_file, tmp_path):
     compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True)
     r = CliRunner().invoke(main, ["info", str(tmp_path / "s.pcz")])
-    assert r.exit_code == 0 and "patchcloud .pcz version 1" in r.output and "residual" in r.output
+    assert r.exit_code == 0 and "patchcloud .pcz version 2" in r.output and "residual" in r.output
