@@ -99,3 +99,26 @@ def test_never_overwrites_unasked(tmp_path, rng):
     with pytest.raises(PatchcloudIOError, match="exists"):
         write(tmp_path, rng)
     write(tmp_path, rng, overwrite=True)
+
+
+def test_a_committed_file_of_this_version_reads_back_field_by_field():
+    """tests/data/pcz-v{VERSION}.pcz was written by tools/make_pcz_fixture.py; the .npz holds what it was given."""
+    from pathlib import Path
+
+    data = Path(__file__).parent / "data"
+    expected = np.load(data / f"pcz-v{pcz.VERSION}.npz", allow_pickle=False)
+    fields = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask")
+    with pcz.open_pcz(data / f"pcz-v{pcz.VERSION}.pcz") as f:
+        assert f.attrs["version"] == pcz.VERSION and f.max_error == 0.01 and f.tile_size == 4.0
+        assert [tuple(t) for t in f.tiles] == [(0, 0, 0), (1, 0, 0)]
+        for t in range(2):
+            m, cls, inten = f.patches(t)
+            for name in fields:
+                assert np.array_equal(getattr(m, name), expected[f"{t}/{name}"]), (t, name)
+            assert np.array_equal(cls, expected[f"{t}/classification"]) and np.array_equal(inten, expected[f"{t}/intensity"])
+            xyz, rec = f.residual(t)
+            records = expected[f"{t}/records"]
+            assert np.array_equal(xyz.view(np.uint8).reshape(-1, 12), records[:, :12]) and np.array_equal(rec, records[:, 12:])
+        # the plane tile samples back on its plane
+        q, _ = sample_models(dequantise_models(f.patches(0)[0]))
+        assert len(q) > 1000 and np.abs(q[:, 2] - (0.1 * q[:, 0] + 1.0)).max() <= 0.005

@@ -1,0 +1,71 @@
+"""Write the committed ``.pcz`` fixture of tests/test_pcz.py: a small file of this version and what it holds.
+
+    python tools/make_pcz_fixture.py        # writes tests/data/pcz-v{VERSION}.pcz and .npz
+
+The ``.npz`` holds every field of every tile as the writer was given it
+(numpy arrays, no pickle); the test reads the ``.pcz`` back with the
+current reader and compares field by field, so a change that makes files
+of this version read differently fails, whatever the fitting does later.
+Run it once per format version, and commit both files.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from patchcloud.core.patchmodel import fit_models, quantise_models
+from patchcloud.stream import pcz
+
+BUDGET = 0.01
+T = 4.0
+FIELDS = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask")
+
+
+def parts(rng: np.random.Generator) -> list[pcz.TilePart]:
+    """Two 4 m tiles: a tilted plane with spikes, and a box corner; residual records of random bytes."""
+    out = []
+    for t, ijk in enumerate([(0, 0, 0), (1, 0, 0)]):
+        corner = np.asarray(ijk, float) * T
+        if t == 0:
+            xy = rng.uniform(0.01, T - 0.01, (1500, 2))
+            p = np.column_stack([xy, 0.1 * xy[:, 0] + 1.0])
+        else:
+            p = rng.uniform(0.5, 3.5, (1500, 3))
+            p[np.arange(1500), rng.integers(0, 3, 1500)] = 0.5
+        p = corner + p
+        p[:10, 2] += 0.3  # spikes: residual
+        fit = fit_models(p, BUDGET, root=(corner, T))
+        q = quantise_models(fit.models, BUDGET)
+        C, R = q.count.shape[0], fit.residual.size
+        xyz = np.rint(p[fit.residual] / 0.001).astype("<i4")
+        records = np.hstack([xyz.view(np.uint8).reshape(R, 12), rng.integers(0, 256, (R, 18)).astype(np.uint8)])
+        laz = pcz.residual_laz(records, laspy.PointFormat(6), "1.4", [0.001] * 3, [0.0] * 3)
+        out.append(pcz.TilePart(ijk, q, rng.integers(1, 7, C).astype(np.uint8),
+                                rng.integers(0, 60000, C).astype(np.uint16), R, laz))
+        out[-1].__dict__["records"] = records
+    return out
+
+
+def main(folder: Path) -> None:
+    ps = parts(np.random.default_rng(2026))
+    grid = dict(origin=[0.0, 0.0, 0.0], tile_size=T, scale=[0.001] * 3, offset=[0.0] * 3)
+    name = folder / f"pcz-v{pcz.VERSION}"
+    pcz.write_pcz(name.with_suffix(".pcz"), ps, max_error=BUDGET, grid=grid, header=b"LASF" + bytes(371),
+                  source={"path": "fixture.las"}, record_bytes=18, overwrite=True)
+    arrays = {}
+    for t, part in enumerate(ps):
+        for f in FIELDS:
+            arrays[f"{t}/{f}"] = np.asarray(getattr(part.models, f))
+        arrays[f"{t}/classification"] = part.classification
+        arrays[f"{t}/intensity"] = part.intensity
+        arrays[f"{t}/records"] = part.records
+    np.savez_compressed(name.with_suffix(".npz"), **arrays)
+    print(f"wrote {name}.pcz and {name}.npz")
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "tests" / "data")
