@@ -144,11 +144,17 @@ def _parts(st: Store, max_error: float):
                            st.read(ijk, "pcz_residual_laz").tobytes())
 
 
-def _header_bytes(src: LasSource) -> bytes:
+def _header_bytes(src: LasSource) -> tuple[bytes, bytes]:
+    """The input's header and VLRs, and its extended VLRs (LAS 1.4; after the points), as raw bytes."""
     with open(src.path, "rb") as f:
         h = laspy.LasHeader.read_from(f)
         f.seek(0)
-        return f.read(h.offset_to_point_data)
+        head = f.read(h.offset_to_point_data)
+        evlrs = b""
+        if h.version.minor >= 4 and h.number_of_evlrs > 0:
+            f.seek(h.start_of_first_evlr)
+            evlrs = f.read()
+        return head, evlrs
 
 
 def compress(
@@ -205,9 +211,10 @@ def compress(
         seconds["fit"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         grid = st.grid.to_json()
+        head, evlrs = _header_bytes(src)
         source = dict(src.to_json(), point_format=pf.id)
         counts = pcz.write_pcz(
-            out, _parts(st, budget), max_error=budget, grid=grid, header=_header_bytes(src), source=source,
+            out, _parts(st, budget), max_error=budget, grid=grid, header=head, evlrs=evlrs, source=source,
             record_bytes=pf.size - 12, overwrite=overwrite,
         )
         seconds["pack"] = time.perf_counter() - t0
@@ -294,7 +301,8 @@ def decompress(
     check_output(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
-        header = laspy.LasHeader.read_from(io.BytesIO(f.header_bytes))
+        header = laspy.LasHeader.read_from(io.BytesIO(f.header_bytes), read_evlrs=False)
+        evlrs = f.evlrs(header.number_of_evlrs if header.version.minor >= 4 else 0)
         header.vlrs = [v for v in header.vlrs if v.user_id != "laszip encoded"]
         header.add_extra_dims([laspy.ExtraBytesParams(name="Reconstructed", type=np.uint8, description="1 from a patch, 0 residual")])
         g = f.attrs["grid"]
@@ -331,5 +339,7 @@ def decompress(
                             n_res += len(rec)
                         else:
                             n_rec += len(rec)
+                if evlrs:
+                    writer.write_evlrs(evlrs)
     return DecompressSummary(input=str(input), output=str(output), reconstructed=n_rec, residual=n_res,
                              seconds=time.perf_counter() - t0)

@@ -9,6 +9,7 @@ anywhere: integers, floats, JSON attributes.  Layout, version 2::
                                   (the input's name, point format, LAS version, bounds, CRS WKT),
                                   record_bytes
     header                        (H,) uint8    the input's LAS header and VLRs, as they were
+    evlrs                         (E,) uint8    its extended VLRs (LAS 1.4), as they were; empty if none
     tiles/ijk                     (T, 3) int64  tile indices (tile = cube of edge tile_size from origin)
     tiles/patch_start             (T + 1,) int64 rows of each tile's patches
     tiles/cell_start              (T + 1,) int64 rows of each tile's cells
@@ -48,6 +49,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import laspy
+from laspy.vlrs.vlrlist import VLRList
 import numpy as np
 import zarr
 from zarr.codecs import BloscCodec
@@ -132,7 +134,7 @@ class _Column:
 
 def write_pcz(
     path: str | os.PathLike, parts: Iterable[TilePart], *, max_error: float, grid: dict, header: bytes, source: dict,
-    record_bytes: int, overwrite: bool = False,
+    record_bytes: int, evlrs: bytes = b"", overwrite: bool = False,
 ) -> dict:
     """Write a ``.pcz`` from tile parts, in the order given; memory: a chunk per array, not the file.
 
@@ -187,6 +189,7 @@ def write_pcz(
         t.create_array("residual_start", data=np.asarray(rstart, dtype=np.int64))
         t.create_array("residual_byte_start", data=np.asarray(bstart, dtype=np.int64))
         root.create_array("header", data=np.frombuffer(header, dtype=np.uint8))
+        root.create_array("evlrs", data=np.frombuffer(evlrs, dtype=np.uint8))
         counts = dict(tiles=len(tiles), patches=pstart[-1], cells=cstart[-1], residual=rstart[-1], points=points)
         root.attrs.update(
             format=FORMAT, version=VERSION, max_error=float(max_error), grid=grid, source=source, counts=counts,
@@ -238,6 +241,16 @@ class PczFile:
         a = self.tiles * T
         lo, hi = np.asarray(lo, float), np.asarray(hi, float)
         return np.flatnonzero(np.all((a <= hi) & (a + T >= lo), axis=1))
+
+    def evlrs(self, count: int) -> "VLRList":
+        """The input's ``count`` extended VLRs (LAS 1.4), parsed; an empty list when it had none."""
+        raw = bytes(self.root["evlrs"][...]) if count else b""
+        if not raw:
+            return VLRList()
+        try:
+            return VLRList(VLRList.read_from(io.BytesIO(raw), count, extended=True))
+        except Exception as exc:
+            raise PatchcloudIOError(f"{self.path}: the extended VLRs cannot be read ({exc})") from exc
 
     # -- contents -------------------------------------------------------------
     def patches(self, t: int) -> tuple[QuantisedModels, np.ndarray, np.ndarray]:

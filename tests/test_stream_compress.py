@@ -4,6 +4,7 @@ import laspy
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from laspy.vlrs.vlrlist import VLRList
 
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import compress, decompress
@@ -131,3 +132,23 @@ def test_info_describes_a_pcz(las_file, tmp_path):
     compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True)
     r = CliRunner().invoke(main, ["info", str(tmp_path / "s.pcz")])
     assert r.exit_code == 0 and "patchcloud .pcz version 2" in r.output and "residual" in r.output
+
+
+def test_header_vlrs_and_extended_vlrs_survive(tmp_path):
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(0, 10, (5000, 2))
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = [0.001] * 3, OFFSET
+    h.vlrs.append(laspy.VLR(user_id="patchcloud-test", record_id=7, description="a VLR", record_data=b"vlr bytes"))
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = xy[:, 0] + OFFSET[0], xy[:, 1] + OFFSET[1], 0.05 * xy[:, 0]
+    las.evlrs = VLRList([laspy.VLR(user_id="patchcloud-test", record_id=8, description="an EVLR", record_data=b"e" * 70000)])
+    las.write(tmp_path / "e.las")
+    compress(tmp_path / "e.las", tmp_path / "e.pcz", max_error=0.01, scheduler="synchronous", quiet=True)
+    decompress(tmp_path / "e.pcz", tmp_path / "back.las")
+    with laspy.open(tmp_path / "back.las") as r:
+        back = r.read()
+    assert [(v.user_id, v.record_id, bytes(v.record_data)) for v in back.header.vlrs if v.user_id == "patchcloud-test"] == [
+        ("patchcloud-test", 7, b"vlr bytes")]
+    assert [(v.user_id, v.record_id, bytes(v.record_data)) for v in back.evlrs] == [("patchcloud-test", 8, b"e" * 70000)]
+    assert len(back.points) == 5000
