@@ -100,7 +100,7 @@ def save_png(fig: Figure, path: str | os.PathLike) -> Path:
         FigureCanvasAgg(fig)
     try:
         with atomic_output(p, overwrite=True) as f:
-            fig.savefig(f, format="png", dpi=STYLE["dpi"])
+            fig.savefig(f, format="png", dpi=STYLE["dpi"], bbox_inches="tight", pad_inches=0.05)  # nothing clipped
     except PatchcloudIOError:
         raise
     except OSError as exc:

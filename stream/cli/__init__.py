@@ -9,6 +9,7 @@ from .don import don_command
 from .don_scales import don_scales_command
 from .info import info_command
 from .normals import normals_command
+from .render import render_command, render_tiles_command
 from .segment import segment_command
 from .tile import tile_command
 
@@ -29,6 +30,7 @@ def main() -> None:
       patchcloud compress in.laz out.pcz      quadric patch models + residual points
       patchcloud decompress in.pcz out.laz    points back, at any density
       patchcloud info in.laz                  what a file (or a store) holds
+      patchcloud render in.laz out.png        a picture (render-tiles: a store's tiles)
     """
 
 
@@ -40,3 +42,5 @@ main.add_command(compress_command)
 main.add_command(decompress_command)
 main.add_command(tile_command)
 main.add_command(info_command)
+main.add_command(render_command)
+main.add_command(render_tiles_command)

@@ -13,8 +13,9 @@ from . import options
 @click.option("--max-error", type=float, default=0.02, show_default=True, metavar="METRES",
               help="Error budget: patches fit their points within it (RMS); points no patch models within it are kept exactly.")
 @options.job_options
+@options.report_option
 @options.reports_errors
-def compress_command(input, output, max_error, tile_size, scheduler, workers, store, keep_store, overwrite, quiet):
+def compress_command(input, output, max_error, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, report):
     """Compress INPUT (LAS/LAZ, any size) to OUTPUT, a .pcz of quadric patch models and residual points.
 
     Smooth surfaces become quantised quadric patches (octree cell, point
@@ -25,14 +26,21 @@ def compress_command(input, output, max_error, tile_size, scheduler, workers, st
     \b
     Example:
       patchcloud compress city.laz city.pcz --max-error 0.02
+      patchcloud compress city.laz city.pcz --report city_pcz.html
       patchcloud decompress city.pcz preview.laz --lod 2
     """
-    from patchcloud.stream import compress
+    from patchcloud.stream import compress, report_compress
+
+    options.check_report(report, overwrite, input, output)
 
     summary = compress(input, output, max_error=max_error, tile_size=tile_size, scheduler=scheduler, workers=workers,
                        store=store, keep_store=keep_store or None, overwrite=overwrite, quiet=quiet)
     if not quiet:
         click.echo(summary.format())
+    if report is not None:
+        report_compress(summary, report)
+        if not quiet:
+            click.echo(f"  report          {report}")
 
 
 @click.command("decompress")

@@ -12,8 +12,9 @@ from . import options
 @click.argument("output", type=click.Path(dir_okay=False))
 @options.don_options
 @options.job_options
+@options.report_option
 @options.reports_errors
-def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet):
+def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, report):
     """Difference of Normals of INPUT (LAS/LAZ, any size), written to OUTPUT.
 
     DoN = (n(p, rs) - n(p, rl)) / 2, with n(p, r) the PCA normal of the
@@ -25,9 +26,11 @@ def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, sch
 
     \b
     Example:
-      patchcloud don street.laz street_don.laz --rs 0.2 --rl 2.0
+      patchcloud don street.laz street_don.laz --rs 0.2 --rl 2.0 --report street_don.html
     """
-    from patchcloud.stream import don
+    from patchcloud.stream import don, report_don
+
+    options.check_report(report, overwrite, input, output)
 
     summary = don(
         input, output, r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, tile_size=tile_size,
@@ -35,3 +38,7 @@ def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, sch
     )
     if not quiet:
         click.echo(summary.format())
+    if report is not None:
+        report_don(summary, report)
+        if not quiet:
+            click.echo(f"  report          {report}")

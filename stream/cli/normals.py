@@ -18,8 +18,12 @@ from . import options
 @click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z", help="With --orient viewpoint, in the file's coordinates.")
 @click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
 @options.job_options
+@options.report_option
 @options.reports_errors
-def normals_command(input, output, tile_size, criterion, threshold, orient, viewpoint, no_blend, scheduler, workers, store, keep_store, overwrite, quiet):
+def normals_command(
+    input, output, tile_size, criterion, threshold, orient, viewpoint, no_blend, scheduler, workers, store, keep_store, overwrite,
+    quiet, report,
+):
     """Normals and curvature of INPUT (LAS/LAZ, any size), written to OUTPUT.
 
     OUTPUT (LAZ when its name ends in .laz) holds every input point once, in
@@ -33,8 +37,11 @@ def normals_command(input, output, tile_size, criterion, threshold, orient, view
     Example:
       patchcloud normals city.laz city_normals.laz
       patchcloud normals city.laz out.laz --store /data/city.zarr --scheduler tcp://head:8786
+      patchcloud normals city.laz city_normals.laz --report city_normals.html
     """
-    from patchcloud.stream import normals
+    from patchcloud.stream import normals, report_normals
+
+    options.check_report(report, overwrite, input, output)
 
     summary = normals(
         input, output, tile_size=tile_size, criterion=criterion, threshold=threshold, orient=orient,
@@ -43,3 +50,7 @@ def normals_command(input, output, tile_size, criterion, threshold, orient, view
     )
     if not quiet:
         click.echo(summary.format())
+    if report is not None:
+        report_normals(summary, report)
+        if not quiet:
+            click.echo(f"  report          {report}")

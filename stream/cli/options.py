@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core.errors import PatchcloudError
 
-__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options", "job_options"]
+__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options", "job_options", "report_option", "check_report"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -29,6 +29,19 @@ store = click.option(
 keep_store = click.option("--keep-store", is_flag=True, help="Keep the default store after success.")
 overwrite = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 quiet = click.option("--quiet", "-q", is_flag=True, help="No progress bars or summary.")
+report_option = click.option(
+    "--report", type=click.Path(dir_okay=False), default=None, metavar="PATH",
+    help="Also write an HTML report of the run (summary, views, histograms): one self-contained file, images "
+    "embedded, that opens in a browser without a server. Checked before the job runs; replaced only with --overwrite.",
+)
+
+
+def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:
+    """Before a job runs: the ``--report`` path can be written (a PatchcloudIOError, hence one error line, if not)."""
+    if report is not None:
+        from patchcloud.stream.report import check_report_path
+
+        check_report_path(report, overwrite=overwrite, others=job_files)
 
 
 def job_options(func):

@@ -19,10 +19,11 @@ from . import options
 @click.option("--min-points", type=int, default=50, show_default=True, help="Smaller segments are dropped (ClusterID 0).")
 @click.option("--max-points", type=int, default=None, help="Larger segments are dropped (ClusterID 0). Default: no limit.")
 @options.job_options
+@options.report_option
 @options.reports_errors
 def segment_command(
     input, output, r_small, r_large, mode, viewpoint, threshold, axis, axis_threshold, tolerance, min_points, max_points,
-    tile_size, scheduler, workers, store, keep_store, overwrite, quiet,
+    tile_size, scheduler, workers, store, keep_store, overwrite, quiet, report,
 ):
     """DoN segments of INPUT (LAS/LAZ, any size), written to OUTPUT.
 
@@ -37,7 +38,9 @@ def segment_command(
     Example:
       patchcloud segment street.laz segments.laz --rs 0.2 --rl 2.0 --threshold 0.25 --tolerance 0.2 --min-points 50
     """
-    from patchcloud.stream import segment
+    from patchcloud.stream import report_don, segment
+
+    options.check_report(report, overwrite, input, output)
 
     summary = segment(
         input, output, r_small=r_small, r_large=r_large, threshold=threshold, tolerance=tolerance, min_cluster=min_points,
@@ -47,3 +50,7 @@ def segment_command(
     )
     if not quiet:
         click.echo(summary.format())
+    if report is not None:
+        report_don(summary, report)
+        if not quiet:
+            click.echo(f"  report          {report}")

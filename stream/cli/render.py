@@ -1,0 +1,79 @@
+"""``patchcloud render`` and ``patchcloud render-tiles``."""
+
+from __future__ import annotations
+
+import click
+
+from patchcloud.core.errors import PatchcloudValueError
+
+from . import options
+
+__all__ = ["render_command", "render_tiles_command"]
+
+_MODES = ["normals", "curvature", "don", "segments", "patches", "classification", "intensity", "elevation"]
+
+
+@click.command("render")
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.argument("output", type=click.Path(dir_okay=False))
+@click.option("--color", "--colour", "color", type=click.Choice(_MODES), required=True,
+              help="What the colours show: normals (RGB = (n+1)/2), curvature, don (|DoN|), segments (ClusterID), "
+              "patches (PatchId, boundaries darkened), classification (ASPRS colours), intensity, elevation.")
+@click.option("--view", type=click.Choice(["top", "oblique", "side"]), default=None,
+              help="Orthographic view. Default: top when the height range is under 0.2 x the larger horizontal "
+              "extent (aerial, street scans), else oblique (from the south-west, 35 degrees up).")
+@click.option("--bbox", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
+              help="Draw only this box (file coordinates, metres); it is the frame.")
+@click.option("--width", type=int, default=1600, show_default=True, metavar="PIXELS", help="Image width; the height follows the framing.")
+@click.option("--shade/--no-shade", default=None,
+              help="Lambert shading from the normals. Default: shade when the file has NormalX/Y/Z.")
+@click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LOW HIGH",
+              help="Colour range of curvature, don, intensity, elevation. Default: 2nd-98th percentile of the drawn points.")
+@click.option("--fill", type=int, default=None, metavar="PASSES",
+              help="Close holes: passes in which an empty pixel takes its neighbour nearest the viewer (0: none). "
+              "Default: 3/4 of the mean point spacing in pixels, 1 to 8.")
+@options.quiet
+@options.reports_errors
+def render_command(input, output, color, view, bbox, width, shade, value_range, fill, quiet):
+    """A PNG picture of INPUT (LAS/LAZ, any size) in OUTPUT.
+
+    The file is read in chunks and decimated to the point nearest the viewer
+    in every pixel, so memory depends on the image, not the file.  An
+    existing OUTPUT is replaced.
+
+    \b
+    Example:
+      patchcloud render city_normals.laz city.png --color normals
+      patchcloud render city_segments.laz seg.png --color segments --view oblique --width 2400
+      patchcloud render city.laz z.png --color elevation --bbox 650000 6860000 650100 6860100
+    """
+    from patchcloud.stream.render import render
+
+    if width is not None and width < 1:
+        raise PatchcloudValueError(f"--width must be a positive number of pixels; got {width}")
+    s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill)
+    if not quiet:
+        click.echo(s.format())
+
+
+@click.command("render-tiles")
+@click.argument("store")
+@click.argument("output", type=click.Path(dir_okay=False))
+@click.option("--by", type=click.Choice(["points", "patches"]), default="points", show_default=True,
+              help="What the second panel shows per column of tiles.")
+@click.option("--step", default=None, metavar="NAME",
+              help="The step whose state is shown: sort, fit, finish (normals), don_skin, don, cluster (don, segment), "
+              "compress. Default: the last of them any tile reached.")
+@options.quiet
+@options.reports_errors
+def render_tiles_command(store, output, by, step, quiet):
+    """A PNG of the tile grid of STORE from above: which tiles are done, partly done or pending, and points per tile.
+
+    Tiles stacked in z are one column: done only if all its tiles are.  The
+    store does not record failures: a tile whose task failed stays pending.
+    """
+    from patchcloud.stream.render_tiles import render_tiles
+
+    s = render_tiles(store, output, by=by, step=step)
+    if not quiet:
+        click.echo(s.format())
