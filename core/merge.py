@@ -151,7 +151,7 @@ def _rmse(moments: np.ndarray) -> np.ndarray:
 
 def merge_leaves(
     moments: np.ndarray, centres: np.ndarray, level: np.ndarray, ijk: np.ndarray, max_rmse: float, *,
-    harm: float = 1.0, max_rounds: int = 256,
+    harm: float = 1.0, max_rounds: int = 256, pairs: np.ndarray | None = None,
 ) -> np.ndarray:
     """Groups of touching leaves that one quadric fits with an RMS error at most ``max_rmse``.
 
@@ -173,6 +173,8 @@ def merge_leaves(
         plane of the face it touches.
     max_rounds : int
         Merging stops after this many rounds even if unions still fit.
+    pairs : (K, 2) int64, optional
+        The touching pairs, if the caller has them (:func:`leaf_neighbours` of ``level, ijk``).
 
     Returns
     -------
@@ -198,7 +200,7 @@ def merge_leaves(
     group = np.arange(P)
     if P < 2:
         return group
-    pairs = leaf_neighbours(level, ijk)
+    pairs = leaf_neighbours(level, ijk) if pairs is None else np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     # per group: moments about the group's centroid
     gc = _centroid(moments, centres)
     gm = shift_moments(moments, centres - gc)

@@ -34,7 +34,7 @@ from .patches import PatchKind
 from .quadric import fit_nodes
 from .tiles import fit_tile
 
-__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "check_budget", "MASK_SIDE"]
+__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "check_budget", "close_masks", "MASK_SIDE"]
 
 #: The occupancy mask of a cell is MASK_SIDE x MASK_SIDE cells over its (u, v) box (one uint64).
 MASK_SIDE = 8
@@ -78,7 +78,8 @@ class PatchModels:
         ``u_min, u_max, v_min, v_max`` of the cell's points in its patch's frame (metres).
     mask : (C,) uint64
         Bit ``i * MASK_SIDE + j`` set where cell (i, j) of the extent's
-        MASK_SIDE x MASK_SIDE grid (i along u) holds a point.
+        MASK_SIDE x MASK_SIDE grid (i along u) holds a point, after a
+        filling of one-cell gaps (:func:`close_masks`).
     """
 
     root_corner: np.ndarray
@@ -185,6 +186,37 @@ def _cells(u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.clip(np.floor((u - lo) / span * MASK_SIDE), 0, MASK_SIDE - 1).astype(np.int64)
 
 
+_NOT_FIRST = np.uint64(sum(1 << (i * MASK_SIDE) for i in range(MASK_SIDE)) ^ (2**64 - 1))  # bits with j > 0
+_NOT_LAST = np.uint64(sum(1 << (i * MASK_SIDE + MASK_SIDE - 1) for i in range(MASK_SIDE)) ^ (2**64 - 1))  # j < 7
+
+
+def close_masks(mask: np.ndarray) -> np.ndarray:
+    """Fill the one-cell gaps of 8 x 8 occupancy masks: an empty cell whose two opposite neighbours are set.
+
+    A sparse cell sets its mask bits where its few points happen to fall;
+    a lone empty mask cell between two set ones (along u or along v) is
+    sampling noise, not a hole in the surface.  Wider holes, the outline
+    and the empty corners of a slanted region are kept.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> full = np.uint64(2**64 - 1)
+    >>> one_hole = full ^ np.uint64(1 << (3 * 8 + 4))               # cell (3, 4) empty
+    >>> big_hole = full ^ np.uint64(sum(1 << (i * 8 + j) for i in range(2, 5) for j in range(2, 5)))
+    >>> corner = full ^ np.uint64(1)                                 # cell (0, 0) empty: an outline
+    >>> close_masks(np.array([one_hole, big_hole, corner])).tolist() == [int(full), int(big_hole), int(corner)]
+    True
+    """
+    m = np.asarray(mask, dtype=np.uint64)
+    one, row = np.uint64(1), np.uint64(MASK_SIDE)
+    left = (m << one) & _NOT_FIRST  # bit (i, j) set where (i, j - 1) is
+    right = (m >> one) & _NOT_LAST  # where (i, j + 1) is
+    below = m << row  # where (i - 1, j) is
+    above = m >> row  # where (i + 1, j) is
+    return m | (left & right) | (below & above)
+
+
 def _starts(counts: np.ndarray) -> np.ndarray:
     return np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64) if counts.size else np.zeros(0, np.int64)
 
@@ -202,14 +234,13 @@ def _group_fits(moments: np.ndarray, centres: np.ndarray, group: np.ndarray, G: 
     return c + f.centroid, f.frame, f.coeffs
 
 
-def _assign(world, leaf, level, ijk, surf_group, g_size, g_centroid, g_frame, g_coeffs, budget, limit, chunk=1 << 18):
+def _assign(world, leaf, nb, surf_group, g_size, g_centroid, g_frame, g_coeffs, budget, limit, chunk=1 << 18):
     """Patch of every point (sorted by leaf): see step 3 of :func:`fit_models`.
 
     Returns the rows of the modelled points (ascending), their patch and their signed error (metres).
     """
-    L = level.shape[0]
-    # candidate patches per leaf: its own and those of the leaves touching it (CSR over leaves)
-    nb = leaf_neighbours(level, ijk)
+    L = surf_group.shape[0]
+    # candidate patches per leaf: its own and those of the leaves touching it (``nb``; CSR over leaves)
     both = np.concatenate([nb, nb[:, ::-1], np.column_stack([np.arange(L), np.arange(L)])])
     both = both[surf_group[both[:, 1]] >= 0]
     cand = np.unique(np.column_stack([both[:, 0], surf_group[both[:, 1]]]), axis=0)
@@ -244,6 +275,39 @@ def _assign(world, leaf, level, ijk, surf_group, g_size, g_centroid, g_frame, g_
         out_e.append(e[sel])
     cat = lambda parts, dt: np.concatenate(parts) if parts else np.zeros(0, dt)  # noqa: E731
     return cat(out_pt, np.int64), cat(out_g, np.int64), cat(out_e, np.float64)
+
+
+def _pull_to_majority(world, leaf, pt, pg, perr, g_centroid, g_frame, g_coeffs, budget):
+    """Points of a leaf split between patches go to the leaf's majority patch when it fits them within the budget.
+
+    Where two patches overlap, each point of a leaf would otherwise pick
+    whichever is closer, splitting the leaf into several cells (each a row
+    of the file) for nothing; along a real edge the other face's points do
+    not fit the majority patch and stay where they are.
+    """
+    if pt.size == 0:
+        return pg, perr
+    G = int(pg.max()) + 1
+    pair = leaf[pt] * G + pg
+    key, n_in = np.unique(pair, return_counts=True)
+    k_leaf = key // G
+    # the majority patch of each leaf (most points, then lowest patch index: keys are sorted)
+    o = np.lexsort((key % G, -n_in, k_leaf))
+    first = np.r_[True, k_leaf[o][1:] != k_leaf[o][:-1]]
+    major = np.full(int(leaf.max()) + 1, -1, dtype=np.int64)
+    major[k_leaf[o][first]] = (key % G)[o][first]
+    m = major[leaf[pt]]
+    other = np.flatnonzero(m != pg)
+    if other.size == 0:
+        return pg, perr
+    g = m[other]
+    uvw = np.einsum("nij,ni->nj", g_frame[g], world[pt[other]] - g_centroid[g])
+    e = uvw[:, 2] - _quadric(g_coeffs[g], uvw[:, 0], uvw[:, 1])
+    move = np.abs(e) <= budget
+    pg, perr = pg.copy(), perr.copy()
+    pg[other[move]] = g[move]
+    perr[other[move]] = e[move]
+    return pg, perr
 
 
 def fit_models(
@@ -333,8 +397,10 @@ def fit_models(
     moments = np.zeros((cell_leaf.size, 35))
     if cell_leaf.size:
         cell_moments(kw, _starts(cell_n), centres, moments)
+    nb = leaf_neighbours(t.level, t.ijk)  # all leaves' touching pairs; the cells' among them
     if merge and cell_leaf.size > 1:
-        group = merge_leaves(moments, centres, level, ijk, budget)
+        both = cell_of[nb]
+        group = merge_leaves(moments, centres, level, ijk, budget, pairs=both[(both >= 0).all(axis=1)])
     else:
         group = np.arange(cell_leaf.size)
     G = int(group.max()) + 1 if group.size else 0
@@ -347,7 +413,8 @@ def fit_models(
     surf_group = np.full(len(t), -1, dtype=np.int64)
     surf_group[cell_leaf] = group
     g_size = np.bincount(group, weights=moments[:, 0], minlength=G)
-    pt, pg, perr = _assign(world, leaf, t.level, t.ijk, surf_group, g_size, g_centroid, g_frame, g_coeffs, budget, limit)
+    pt, pg, perr = _assign(world, leaf, nb, surf_group, g_size, g_centroid, g_frame, g_coeffs, budget, limit)
+    pg, perr = _pull_to_majority(world, leaf, pt, pg, perr, g_centroid, g_frame, g_coeffs, budget)
     # cells: (leaf, patch) pairs holding 3 points or more, of patches holding n_min points or more
     pair = leaf[pt] * max(G, 1) + pg
     key, inv, n_in = np.unique(pair, return_inverse=True, return_counts=True)
@@ -382,7 +449,7 @@ def fit_models(
                                   np.minimum.reduceat(vo, st), np.maximum.reduceat(vo, st)])
         ro = r[order]
         bit = _cells(uo, extent[ro, 0], extent[ro, 1]) * MASK_SIDE + _cells(vo, extent[ro, 2], extent[ro, 3])
-        mask = np.bitwise_or.reduceat(np.left_shift(np.uint64(1), bit.astype(np.uint64)), st)
+        mask = close_masks(np.bitwise_or.reduceat(np.left_shift(np.uint64(1), bit.astype(np.uint64)), st))
     cg = new_group[c_group]  # patch of each cell row
     P = int(live_group.sum())
     rmse = np.sqrt(np.bincount(cg[r], weights=err**2, minlength=P) / np.maximum(np.bincount(cg[r], minlength=P), 1))
@@ -461,7 +528,7 @@ def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed
 #: Share of the error budget each quantised quantity may use at most (four of them: < half the budget in all).
 QUANT_SHARE = 1.0 / 8.0
 #: Steps of a cell's (u, v) extent: the cell edge over this (an extent only says where samples go along the surface).
-EXTENT_STEPS = 1024
+EXTENT_STEPS = 64
 
 
 @dataclass(frozen=True)
