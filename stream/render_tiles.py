@@ -2,21 +2,19 @@
 
 Left panel: every column of tiles (the tiles stacked in z at one (i, j))
 as a square in file coordinates, coloured by its state at one step:
+*failed* (a tile of the column has not done the step and records a task
+that raised: :func:`patchcloud.stream.map_tiles` writes the error into the
+tile's ``failed`` attribute, and clears it when the task later succeeds),
 *done* (every tile of the column has the step done), *partly done* (some
 of them) or *pending* (none).  Right panel: the points (or the patches)
 per column, on a perceptual colour map.
-
-The store does not record failures: a task that raised leaves its tile
-not done, so a failed tile shows as pending (or its column as partly done)
-after the job stopped; tiles still pending while the job's later steps are
-done elsewhere are the ones to look at.
 """
 
 from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +28,8 @@ __all__ = ["TILE_STEPS", "STATE_COLOURS", "TileState", "TilesSummary", "tile_sta
 #: Per-tile steps in the order the jobs run them (normals: sort, fit, finish; don/segment: don_skin, don, cluster; compress).
 TILE_STEPS = ("sort", "fit", "finish", "don_skin", "don", "cluster", "compress")
 #: Colours of the column states.
-STATE_COLOURS = {"done": (0.20, 0.63, 0.17), "partly done": (1.00, 0.60, 0.00), "pending": (0.80, 0.80, 0.80)}
+STATE_COLOURS = {"failed": (0.84, 0.15, 0.16), "done": (0.20, 0.63, 0.17), "partly done": (1.00, 0.60, 0.00),
+                 "pending": (0.80, 0.80, 0.80)}
 
 
 @dataclass
@@ -41,7 +40,9 @@ class TileState:
     coordinates (metres) of each column's south-west corner; ``tiles``,
     ``done`` tiles per column and how many have the step done; ``points``
     and ``patches`` (-1 where a tile of the column has no fitted patch
-    table) per column.
+    table) per column; ``failed`` the tiles per column that have not done
+    the step and record a failed task; ``errors`` (tile, task, message)
+    of those tiles.
     """
 
     url: str
@@ -54,11 +55,14 @@ class TileState:
     done: np.ndarray
     points: np.ndarray
     patches: np.ndarray
+    failed: np.ndarray
+    errors: list
 
     @property
     def state(self) -> np.ndarray:
-        """(C,) "done", "partly done" or "pending"."""
-        return np.where(self.done == self.tiles, "done", np.where(self.done > 0, "partly done", "pending"))
+        """(C,) "failed", "done", "partly done" or "pending"."""
+        s = np.where(self.done == self.tiles, "done", np.where(self.done > 0, "partly done", "pending"))
+        return np.where(self.failed > 0, "failed", s)
 
     def counts(self) -> dict[str, int]:
         """Columns per state."""
@@ -104,6 +108,8 @@ def tile_state(store: Store | str, step: str | None = None) -> TileState:
         )
     ijk = np.asarray(tiles, dtype=np.int64).reshape(-1, 3)
     done = np.array([bool(a.get("done", {}).get(step)) for a in attrs])
+    failed = np.array([bool(a.get("failed")) for a in attrs]) & ~done
+    errors = [(t, task, msg) for t, a, f in zip(tiles, attrs, failed) if f for task, msg in a["failed"].items()]
     patches = np.array([_patches_of(a) for a in attrs], dtype=np.int64)
     cols, inv = np.unique(ijk[:, :2], axis=0, return_inverse=True)
     inv = inv.ravel()
@@ -116,7 +122,8 @@ def tile_state(store: Store | str, step: str | None = None) -> TileState:
     pat[missing] = -1
     g = st.grid
     corner = cols * g.tile_size + np.asarray(g.origin[:2])
-    return TileState(st.url, step, steps, g.tile_size, cols, corner, n_tiles, n_done, pts, pat)
+    n_failed = np.bincount(inv, weights=failed, minlength=C).astype(np.int64)
+    return TileState(st.url, step, steps, g.tile_size, cols, corner, n_tiles, n_done, pts, pat, n_failed, errors)
 
 
 @dataclass
@@ -136,13 +143,20 @@ class TilesSummary:
     points: int
     patches: int | None
     seconds: float
+    failed: int = 0
+    errors: list = field(default_factory=list)
 
     def format(self) -> str:
         pat = "" if self.patches is None else f", {self.patches:,} patches"
-        return (
-            f"{self.output}: step {self.step}: {self.tiles_done:,} of {self.tiles:,} tiles done; columns: {self.done:,} done, "
-            f"{self.partly_done:,} partly done, {self.pending:,} pending; {self.points:,} points{pat}, {self.seconds:.1f} s"
-        )
+        lines = [
+            f"{self.output}: step {self.step}: {self.tiles_done:,} of {self.tiles:,} tiles done; columns: {self.failed:,} failed, "
+            f"{self.done:,} done, {self.partly_done:,} partly done, {self.pending:,} pending; {self.points:,} points{pat}, "
+            f"{self.seconds:.1f} s"
+        ]
+        lines += [f"  failed: tile {tuple(int(v) for v in t)} in {task}: {msg}" for t, task, msg in self.errors[:20]]
+        if len(self.errors) > 20:
+            lines.append(f"  ... and {len(self.errors) - 20:,} more failed tiles")
+        return "\n".join(lines)
 
 
 def tiles_figure(ts: TileState, by: str = "points"):
@@ -176,7 +190,6 @@ def tiles_figure(ts: TileState, by: str = "points"):
     squares([STATE_COLOURS[s] for s in state], ax)
     counts = ts.counts()
     handles = [Patch(facecolor=c, label=f"{k}: {counts[k]:,}") for k, c in STATE_COLOURS.items()]
-    handles.append(Patch(facecolor="none", edgecolor="none", label="failed: not recorded\n(a failed tile stays pending)"))
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=STYLE["annotation"], frameon=False,
               title="columns", title_fontsize=STYLE["annotation"])
     style_axes(ax, f"state at step '{ts.step}' ({int(ts.done.sum()):,} of {int(ts.tiles.sum()):,} tiles done)", "x (m)", "y (m)")
@@ -256,7 +269,8 @@ def render_tiles(store: str | os.PathLike, output: str | os.PathLike, *, by: str
     c = ts.counts()
     return TilesSummary(
         store=str(store), output=str(out), step=ts.step, by=by, columns=len(ts.tiles), tiles=int(ts.tiles.sum()),
-        tiles_done=int(ts.done.sum()), done=c["done"], partly_done=c["partly done"], pending=c["pending"],
+        tiles_done=int(ts.done.sum()), done=c["done"], partly_done=c["partly done"], pending=c["pending"], failed=c["failed"],
+        errors=ts.errors,
         points=int(ts.points.sum()), patches=None if (ts.patches < 0).all() else int(ts.patches[ts.patches >= 0].sum()),
         seconds=time.perf_counter() - t0,
     )

@@ -34,6 +34,25 @@ def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> Any:
     return func(*args, **kwargs)
 
 
+def _tile_task(func: Callable, url: str, ijk: tuple, **kwargs) -> Any:
+    """``func(url, ijk, **kwargs)``; when it raises, the tile records the failure (``render-tiles`` shows it), then it raises."""
+    from .store import Store
+
+    name = getattr(func, "__name__", "task")
+    try:
+        out = func(url, ijk, **kwargs)
+    except Exception as exc:
+        try:
+            Store.open(url).mark_failed(ijk, name, f"{type(exc).__name__}: {exc}")
+        except Exception:  # the store itself is the problem: the original error says more
+            pass
+        raise
+    st = Store.open(url)
+    if name in st.tile_attrs(ijk).get("failed", {}):
+        st.mark_failed(ijk, name, None)
+    return out
+
+
 def _peak_rss_bytes() -> int:
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
 
@@ -183,6 +202,6 @@ def map_tiles(
                 (ijk[0] + a, ijk[1] + b, ijk[2] + c) for a, b, c in product(r, r, r)
                 if (a, b, c) != (0, 0, 0) and (ijk[0] + a, ijk[1] + b, ijk[2] + c) in present
             ]
-        calls.append(((store.url, ijk), kw))
-    results = runner.map(func, calls, label or getattr(func, "__name__", "tiles"))
+        calls.append(((func, store.url, ijk), kw))
+    results = runner.map(_tile_task, calls, label or getattr(func, "__name__", "tiles"))
     return dict(zip(todo, results))

@@ -231,6 +231,17 @@ class Store:
         done[step] = value
         self.tile(ijk).attrs.update(done=done, **json.loads(json.dumps(attrs)))
 
+    def mark_failed(self, ijk, task: str, message: str | None) -> None:
+        """Record that ``task`` raised on tile ``ijk`` (``message``), or clear that record (None)."""
+        failed = dict(self.tile_attrs(ijk).get("failed", {}))
+        if message is None:
+            if task not in failed:
+                return
+            failed.pop(task)
+        else:
+            failed[task] = str(message)[:2000]
+        self.tile(ijk).attrs.update(failed=failed)
+
     def clear_tile_steps(self, steps: list[str]) -> None:
         for ijk in self.tiles:
             done = self.tile_attrs(ijk).get("done", {})

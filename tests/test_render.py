@@ -254,7 +254,7 @@ def test_render_tiles_shows_pending_and_done_columns(tmp_path):
     assert ts.step == "sort" and ts.counts()["done"] == len(ts.columns) and ts.points.sum() == len(xy)
     ts = tile_state(url, "fit")
     ncol = len(ts.columns)
-    assert ncol >= 4 and ts.counts() == {"done": 0, "partly done": 0, "pending": ncol}
+    assert ncol >= 4 and ts.counts() == {"failed": 0, "done": 0, "partly done": 0, "pending": ncol}
     first = st.tiles[0]
     st.mark_tile(first, "fit", fit={"patches": 7})
     out = tmp_path / "tiles.png"
@@ -272,3 +272,34 @@ def test_render_tiles_shows_pending_and_done_columns(tmp_path):
     assert r.exit_code == 2 and "nonsense" in r.stderr and not (tmp_path / "x.png").exists()
     r = CliRunner().invoke(main, ["render-tiles", str(path), str(tmp_path / "x.png")])
     assert r.exit_code == 2 and "not a patchcloud store" in r.stderr
+
+
+def _fails_on_the_first_tile(url, ijk, first):
+    if tuple(ijk) == tuple(first):
+        raise RuntimeError("disk full (a test)")
+    Store.open(url).mark_tile(ijk, "fit", fit={"patches": 1})
+
+
+def _succeeds(url, ijk, first):
+    Store.open(url).mark_tile(ijk, "fit", fit={"patches": 1})
+
+
+def test_render_tiles_shows_a_failed_tile_until_it_succeeds(tmp_path):
+    from patchcloud.stream import map_tiles
+
+    xy = grid_xy(100, 16.0)
+    path = write_las(tmp_path / "t.las", np.column_stack([xy, np.zeros(len(xy))]))
+    url = str(tmp_path / "t.zarr")
+    assert CliRunner().invoke(main, ["tile", str(path), url, "--tile-size", "4", "-q"]).exit_code == 0
+    st = Store.open(url)
+    first = st.tiles[0]
+    with pytest.raises(RuntimeError, match="disk full"):
+        map_tiles(_fails_on_the_first_tile, st, first=first)
+    ts = tile_state(url, "fit")
+    assert ts.counts()["failed"] == 1 and ts.errors == [(first, "_fails_on_the_first_tile", "RuntimeError: disk full (a test)")]
+    s = render_tiles(url, tmp_path / "tiles.png", step="fit")
+    assert s.failed == 1 and "disk full" in s.format()
+    png = imread(str(tmp_path / "tiles.png"))[..., :3]
+    assert int((np.abs(png - np.asarray(STATE_COLOURS["failed"])).max(axis=2) < 0.02).sum()) > 0
+    map_tiles(_succeeds, st, first=first)  # a rerun that works
+    assert tile_state(url, "fit").counts()["failed"] == 0
