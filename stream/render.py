@@ -210,8 +210,8 @@ def make_frame(R: np.ndarray, lo, hi, width: int) -> Frame:
     (200, 100, 0.5)
     """
     width = int(width)
-    if width < 1:
-        raise PatchcloudValueError(f"width must be a positive number of pixels; got {width!r}")
+    if not 1 <= width <= MAX_WIDTH:
+        raise PatchcloudValueError(f"width must be 1 to {MAX_WIDTH} pixels; got {width!r}")
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     u, v = corners @ R[0], corners @ R[1]
@@ -640,6 +640,8 @@ def _check_bbox(bbox):
     return b
 
 
+#: Widest image (pixels): the per-pixel buffers take about 100 bytes a pixel (3.6 GB for a square image this wide).
+MAX_WIDTH = 6000
 #: Most gap-filling passes the default chooses.
 MAX_FILL = 8
 
