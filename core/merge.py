@@ -205,19 +205,22 @@ def merge_leaves(
     gc = _centroid(moments, centres)
     gm = shift_moments(moments, centres - gc)
     g_rmse = _rmse(gm)
+
+    def pair_costs(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """RMSE of each union, and its harm: what it adds to the squared error per point of the smaller group."""
+        um, _ = _union(gm[a], gc[a], gm[b], gc[b])
+        u_rmse = _rmse(um)
+        n = gm[:, 0]
+        return u_rmse, (um[:, 0] * u_rmse**2 - n[a] * g_rmse[a] ** 2 - n[b] * g_rmse[b] ** 2) / np.minimum(n[a], n[b])
+
+    pair_rmse, pair_harm = pair_costs(pairs[:, 0], pairs[:, 1])
     for _ in range(max_rounds):
         if pairs.shape[0] == 0:
             break
-        a, b = pairs[:, 0], pairs[:, 1]
-        um, uc = _union(gm[a], gc[a], gm[b], gc[b])
-        u_rmse = _rmse(um)
-        # harm: what the union adds to the squared error, per point of the smaller group
-        n = gm[:, 0]
-        cost = (um[:, 0] * u_rmse**2 - n[a] * g_rmse[a] ** 2 - n[b] * g_rmse[b] ** 2) / np.minimum(n[a], n[b])
-        ok = (u_rmse <= max_rmse) & (cost <= (harm * max_rmse) ** 2)
+        ok = (pair_rmse <= max_rmse) & (pair_harm <= (harm * max_rmse) ** 2)
         if not ok.any():
             break
-        a, b, cost, um, uc = a[ok], b[ok], cost[ok], um[ok], uc[ok]
+        a, b, cost = pairs[ok, 0], pairs[ok, 1], pair_harm[ok]
         # each group's best partner (lowest cost, then lowest index)
         ends = np.concatenate([a, b])
         other = np.concatenate([b, a])
@@ -239,7 +242,6 @@ def merge_leaves(
         fits = np.zeros(P, dtype=bool)
         fits[hub] = _rmse(star_m[hub]) <= max_rmse  # (each member's harm was checked against the hub alone)
         # a star that does not fit as a whole takes only its best member (which fits: it was tested)
-        pair_cost = {}
         keep = fits[sink]
         if not keep.all():
             lone = ~keep
@@ -258,10 +260,17 @@ def merge_leaves(
         relabel = np.arange(P)
         relabel[joins] = sink
         group = relabel[group]
-        pairs = relabel[pairs]
-        pairs = np.sort(pairs, axis=1)
-        pairs = pairs[pairs[:, 0] != pairs[:, 1]]
-        pairs = np.unique(pairs, axis=0)
+        # the pairs between the new groups; only those of a group that changed need new costs
+        pairs = np.sort(relabel[pairs], axis=1)
+        live = pairs[:, 0] != pairs[:, 1]
+        pairs, pair_rmse, pair_harm = pairs[live], pair_rmse[live], pair_harm[live]
+        pairs, idx = np.unique(pairs, axis=0, return_index=True)
+        pair_rmse, pair_harm = pair_rmse[idx], pair_harm[idx]
+        changed = np.zeros(P, dtype=bool)
+        changed[hub] = True
+        stale = changed[pairs[:, 0]] | changed[pairs[:, 1]]
+        if stale.any():
+            pair_rmse[stale], pair_harm[stale] = pair_costs(pairs[stale, 0], pairs[stale, 1])
     _, first_leaf, label = np.unique(group, return_index=True, return_inverse=True)
     rank = np.empty(first_leaf.size, dtype=np.int64)
     rank[np.argsort(first_leaf, kind="stable")] = np.arange(first_leaf.size)

@@ -234,12 +234,18 @@ def _group_fits(moments: np.ndarray, centres: np.ndarray, group: np.ndarray, G: 
     return c + f.centroid, f.frame, f.coeffs
 
 
+#: Patch sizes (points) above this rank as equal in :func:`_assign` (32 bits of its key; patch indices take 24).
+_SIZE_MAX = (1 << 32) - 1
+
+
 def _assign(world, leaf, nb, surf_group, g_size, g_centroid, g_frame, g_coeffs, budget, limit, chunk=1 << 18):
     """Patch of every point (sorted by leaf): see step 3 of :func:`fit_models`.
 
     Returns the rows of the modelled points (ascending), their patch and their signed error (metres).
     """
     L = surf_group.shape[0]
+    if g_size.size >= 1 << 24:
+        raise PatchcloudValueError(f"{g_size.size} patches in one tile: at most {1 << 24} (use smaller tiles)")
     # candidate patches per leaf: its own and those of the leaves touching it (``nb``; CSR over leaves)
     both = np.concatenate([nb, nb[:, ::-1], np.column_stack([np.arange(L), np.arange(L)])])
     both = both[surf_group[both[:, 1]] >= 0]
@@ -255,19 +261,22 @@ def _assign(world, leaf, nb, surf_group, g_size, g_centroid, g_frame, g_coeffs, 
         uvw = np.einsum("nij,ni->nj", g_frame[g], world[pt] - g_centroid[g])
         e = uvw[:, 2] - _quadric(g_coeffs[g], uvw[:, 0], uvw[:, 1])
         own = g == surf_group[leaf[pt]]
-        # rank: within the budget first, then by error in steps of a quarter budget, then the
-        # largest patch, then the smallest error, then the patch index
+        # rank (lowest wins): within the budget first, then by error in steps of a quarter budget,
+        # then the largest patch, then the lowest patch index; one int64 key per candidate
         good = np.abs(e) <= budget
-        o = np.lexsort((g, np.abs(e), -g_size[g], np.floor(np.abs(e) * (4.0 / budget)), ~good, pt))
-        first = np.r_[True, pt[o][1:] != pt[o][:-1]] if o.size else np.zeros(0, bool)
-        best = o[first]
-        take = good[best]
+        step = np.where(good, np.minimum(np.floor(np.abs(e) * (4.0 / budget)), 4), 7).astype(np.int64)
+        key = (step << 56) | ((_SIZE_MAX - np.minimum(g_size[g].astype(np.int64), _SIZE_MAX)) << 24) | g
+        has = k > 0
+        seg = (np.cumsum(k) - k)[has]  # first candidate of each point that has one
+        best_key = np.minimum.reduceat(key, seg) if seg.size else np.zeros(0, np.int64)
+        winner = np.flatnonzero(key == np.repeat(best_key, k[has]))  # one per point: keys differ by patch
+        take = good[winner]
         # no patch within the budget: the own leaf's patch within the outlier limit
         own_ok = own & (np.abs(e) <= limit)
         fallback = np.zeros(hi - lo, dtype=np.int64) - 1
         fallback[pt[own_ok] - lo] = np.flatnonzero(own_ok)
         chosen = np.full(hi - lo, -1, dtype=np.int64)
-        chosen[pt[best[take]] - lo] = best[take]
+        chosen[pt[winner[take]] - lo] = winner[take]
         chosen = np.where(chosen >= 0, chosen, fallback)
         sel = chosen[chosen >= 0]
         out_pt.append(pt[sel])
