@@ -38,7 +38,7 @@ from patchcloud.core.patchmodel import (
 from . import pcz, steps
 from .ingest import bucket_records
 from .lasio import LasSource, _laz_backend, atomic_output, is_laz_name
-from .pipeline import _ensure_tiled, _params_key, _validate, check_output, open_job
+from .pipeline import _ensure_tiled, _params_key, _validate, check_output, open_job, time_and_memory_lines
 from .scheduling import Runner, map_tiles
 from .store import Store
 
@@ -70,10 +70,10 @@ class CompressSummary:
     mean_error: float
     seconds: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
+    scheduler: str = "threads"
 
     def format(self) -> str:
         n = max(self.points, 1)
-        total = sum(self.seconds.values())
         return "\n".join([
             f"{self.input} -> {self.output}",
             f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches ({self.cells:,} octree cells) "
@@ -82,8 +82,7 @@ class CompressSummary:
             f"{self.mean_error:.4f} m (before quantisation, which adds at most half the budget)",
             f"  size            {self.output_bytes:,} bytes, {8 * self.output_bytes / n:.2f} bits/point; input "
             f"{self.input_bytes:,} bytes ({self.input_bytes / max(self.output_bytes, 1):.1f}x larger)",
-            "  time            " + ", ".join(f"{s} {t:.1f} s" for s, t in self.seconds.items()) + f"; total {total:.1f} s",
-            f"  peak memory     {self.peak_memory / 2**20:,.0f} MiB",
+            *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler),
         ])
 
 
@@ -227,7 +226,7 @@ def compress(
         input=src.path, output=str(out), points=counts["points"], patches=counts["patches"], cells=counts["cells"],
         residual=counts["residual"],
         max_error=budget, input_bytes=src.size, output_bytes=out.stat().st_size,
-        mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=seconds, peak_memory=peak,
+        mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=seconds, peak_memory=peak, scheduler=scheduler,
     )
 
 

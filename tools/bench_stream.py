@@ -1,7 +1,7 @@
-"""Benchmark of ``patchcloud normals`` (or ``don``, ``segment``) on synthetic city scans of growing size, against the I/O floor.
+"""Benchmark of ``patchcloud normals`` (or ``don``, ``segment``, ``compress``) on synthetic city scans of growing size, against the I/O floor.
 
     python tools/bench_stream.py [--sizes 5e6 20e6 100e6] [--workdir /tmp/bench_stream] [--ext laz]
-                                 [--scheduler threads] [--job normals|don|segment] [--options "--rs 0.2 --rl 2"]
+                                 [--scheduler threads] [--job normals|don|segment|compress] [--options "--rs 0.2 --rl 2"]
 
 For every size: a synthetic city (tools/city_las.py, streamed to disk) is
 made once; then, each in its own process,
@@ -9,7 +9,8 @@ made once; then, each in its own process,
 * the I/O floor: laspy reads the file in chunks of 2**20 points and writes
   it back with four float32 extra dimensions (what any tool writing
   normals must at least do);
-* ``patchcloud JOB IN OUT`` with default settings (plus ``--options``).
+* ``patchcloud JOB IN OUT`` with default settings (plus ``--options``);
+  OUT is a ``.pcz`` for ``compress``.
 
 Printed: wall seconds, points/s, the ratio to the floor, peak RSS (of the
 whole process tree: the child's own high-water mark, and patchcloud's sum
@@ -75,7 +76,7 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/bench_stream"))
     ap.add_argument("--ext", choices=["las", "laz"], default="laz")
     ap.add_argument("--scheduler", default="threads")
-    ap.add_argument("--job", choices=["normals", "don", "segment"], default="normals")
+    ap.add_argument("--job", choices=["normals", "don", "segment", "compress"], default="normals")
     ap.add_argument("--options", default="", help="more options of the job, as one string")
     a = ap.parse_args()
     sys.path.insert(0, str(HERE))
@@ -91,7 +92,8 @@ def main() -> None:
             city_las.write_city(src, n)
             print(f"generated {src} in {time.perf_counter() - t:.0f} s", flush=True)
         t_floor, rss_floor = run_floor(src, a.workdir / f"floor.{a.ext}")
-        wall, rss_child, rss_sum, text = run_job(a.job, src, a.workdir / f"out.{a.ext}", a.scheduler, a.options.split())
+        wall, rss_child, rss_sum, text = run_job(a.job, src, a.workdir / f"out.{'pcz' if a.job == 'compress' else a.ext}", a.scheduler,
+                                                a.options.split())
         print(text, flush=True)
         rows.append((n, t_floor, rss_floor, wall, rss_child, rss_sum))
         print(f"{n:>12,}  floor {t_floor:7.1f} s  {a.job} {wall:7.1f} s  ratio {wall / t_floor:4.2f}  peak {max(rss_child, rss_sum) / 2**20:6.0f} MiB", flush=True)
