@@ -424,7 +424,9 @@ def _continuous(values, cmap_name, rng):
     return rgb
 
 
-def colorize(color: str, values: np.ndarray, filled: np.ndarray, value_range=None) -> tuple[np.ndarray, tuple | None, list]:
+def colorize(
+    color: str, values: np.ndarray, filled: np.ndarray, value_range=None, drawn: np.ndarray | None = None,
+) -> tuple[np.ndarray, tuple | None, list]:
     """Colours of the visible pixels.
 
     Parameters
@@ -436,7 +438,11 @@ def colorize(color: str, values: np.ndarray, filled: np.ndarray, value_range=Non
         Pixels that show a point; the others are BACKGROUND.
     value_range : (low, high), optional
         For the continuous modes (curvature, don, intensity, elevation):
-        default the 2nd-98th percentiles of the visible finite values.
+        default the 2nd-98th percentiles of the finite values of the
+        ``drawn`` pixels.
+    drawn : (H, W) bool, optional
+        The pixels a point was drawn in before gap filling (default:
+        ``filled``), so that filled pixels do not weigh in the range twice.
 
     Returns
     -------
@@ -469,7 +475,8 @@ def colorize(color: str, values: np.ndarray, filled: np.ndarray, value_range=Non
         c = (v + 1.0) / 2.0
         c[~np.isfinite(c).all(axis=1)] = UNDEFINED
     elif color in CMAPS:
-        rng = tuple(float(x) for x in value_range) if value_range is not None else robust_range(v)
+        own = v if drawn is None else values[np.asarray(drawn, dtype=bool) & filled]
+        rng = tuple(float(x) for x in value_range) if value_range is not None else robust_range(own)
         c = _continuous(v, CMAPS[color], rng)
     else:
         ok = np.isfinite(v)
@@ -789,7 +796,7 @@ def render_array(
     del zb
     normals = vals[..., :3] if want_normals else None
     value = normals if color == "normals" else vals[..., nval]
-    rgb, rng, legend = colorize(color, value, filled, value_range)
+    rgb, rng, legend = colorize(color, value, filled, value_range, drawn=source == np.arange(source.size).reshape(source.shape))
     if color == "patches":
         rgb[patch_boundaries(np.nan_to_num(value, nan=-1.0), filled)] *= BOUNDARY_DARKEN
     if shade:

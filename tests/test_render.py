@@ -303,3 +303,14 @@ def test_render_tiles_shows_a_failed_tile_until_it_succeeds(tmp_path):
     assert int((np.abs(png - np.asarray(STATE_COLOURS["failed"])).max(axis=2) < 0.02).sum()) > 0
     map_tiles(_succeeds, st, first=first)  # a rerun that works
     assert tile_state(url, "fit").counts()["failed"] == 0
+
+
+def test_colour_range_counts_drawn_pixels_only():
+    # one bright point drawn among dark ones; gap filling copies the dark ones far more often:
+    # the range comes from the drawn pixels, each once
+    values = np.array([[0.0, 0.0, 0.0, 0.0, 1.0]])
+    filled = np.ones((1, 5), dtype=bool)
+    drawn = np.array([[True, False, False, False, True]])
+    _, rng_drawn, _ = colorize("elevation", values, filled, drawn=drawn)
+    _, rng_all, _ = colorize("elevation", values, filled)
+    assert rng_drawn[1] > 0.9 and rng_all[1] < rng_drawn[1]
