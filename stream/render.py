@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -54,7 +55,7 @@ from .lasio import LasSource, open_source, read_chunks
 
 __all__ = [
     "COLOR_MODES", "VIEWS", "AMBIENT", "FLAT_RATIO", "LIGHT", "BACKGROUND", "UNDEFINED", "NO_SEGMENT",
-    "RenderImage", "RenderSummary", "ZBuffer", "Frame", "render", "render_array", "render_figure",
+    "RenderImage", "RenderSummary", "ZBuffer", "Frame", "render", "render_array", "render_arrays", "render_figure",
     "view_axes", "choose_view", "auto_fill", "MAX_FILL", "make_frame", "fill_gaps", "colorize", "lambert", "patch_boundaries", "segment_colours",
     "patch_colours", "class_colours", "robust_range", "supported_modes", "file_dimensions",
 ]
@@ -720,9 +721,36 @@ def render_array(
     >>> img.rgb.shape, img.view                                               # doctest: +SKIP
     ((712, 800, 3), 'top')
     """
+    return render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range,
+                         fill=fill, chunk=chunk)[0]
+
+
+def render_arrays(
+    input: str | os.PathLike, *, colors: Sequence[str], view: str | None = None, bbox=None, width: int = 1600,
+    shade: bool | None = None, value_range=None, fill: int | None = None, chunk: int = 1 << 20,
+) -> list[RenderImage]:
+    """Pictures of one file in several colour modes, from one read of the file (see :func:`render_array`).
+
+    The pixels, the points drawn in them and the shading are the same in
+    every picture (they depend on the view, not on the colour); each pixel
+    keeps the values of every mode, so N pictures cost one pass over the
+    file, not N.
+
+    Returns
+    -------
+    list of RenderImage, in the order of ``colors``
+
+    Examples
+    --------
+    >>> normals, curvature = render_arrays("out.laz", colors=["normals", "curvature"])   # doctest: +SKIP
+    """
     t0 = time.perf_counter()
-    if color not in COLOR_MODES:
-        raise PatchcloudValueError(f"color must be one of {', '.join(COLOR_MODES)}; got {color!r}")
+    colors = list(colors)
+    if not colors:
+        raise PatchcloudValueError(f"give at least one colour mode: {', '.join(COLOR_MODES)}")
+    for color in colors:
+        if color not in COLOR_MODES:
+            raise PatchcloudValueError(f"color must be one of {', '.join(COLOR_MODES)}; got {color!r}")
     if view is not None and view not in VIEWS:
         raise PatchcloudValueError(f"view must be one of {', '.join(VIEWS)}; got {view!r}")
     if int(chunk) < 1:
@@ -730,12 +758,13 @@ def render_array(
     bbox = _check_bbox(bbox)
     src: LasSource = open_source(input)
     dims = file_dimensions(input)
-    missing = [d for d in COLOR_MODES[color] if d not in dims]
-    if missing:
-        raise PatchcloudValueError(
-            f"{input}: colour mode '{color}' needs the dimension{'s' if len(missing) > 1 else ''} {', '.join(missing)}, which the file does not have; "
-            f"this file supports: {', '.join(supported_modes(dims))}"
-        )
+    for color in colors:
+        missing = [d for d in COLOR_MODES[color] if d not in dims]
+        if missing:
+            raise PatchcloudValueError(
+                f"{input}: colour mode '{color}' needs the dimension{'s' if len(missing) > 1 else ''} {', '.join(missing)}, "
+                f"which the file does not have; this file supports: {', '.join(supported_modes(dims))}"
+            )
     has_normals = all(d in dims for d in NORMAL_DIMS)
     if shade is None:
         shade = has_normals
@@ -756,10 +785,15 @@ def render_array(
     R = view_axes(view, lo, hi)
     frame = make_frame(R, lo, hi, width)
 
-    want_normals = shade or color == "normals"
+    # channels kept per pixel: the normals (for the normals mode or the shading), then one per value dimension
+    want_normals = shade or "normals" in colors
     nval = 3 if want_normals else 0
-    value_dim = None if color == "normals" else (COLOR_MODES[color][0] if COLOR_MODES[color] else "z")
-    zb = ZBuffer(frame.height, frame.width, nval + (value_dim is not None))
+    value_dims: list[str] = []
+    for color in colors:
+        d = None if color == "normals" else (COLOR_MODES[color][0] if COLOR_MODES[color] else "z")
+        if d is not None and d not in value_dims:
+            value_dims.append(d)
+    zb = ZBuffer(frame.height, frame.width, nval + len(value_dims))
     in_box = 0
     for start, pts in read_chunks(src, int(chunk)):
         x = np.asarray(pts.x, dtype=np.float64) - origin[0]
@@ -778,11 +812,9 @@ def render_array(
         cols = []
         if want_normals:
             cols += [np.asarray(pts[d], dtype=np.float64) for d in NORMAL_DIMS]
-        if value_dim == "z":
-            cols.append(np.asarray(pts.z, dtype=np.float64))
-        elif value_dim is not None:
-            cols.append(np.asarray(pts[value_dim]).astype(np.float64))
-        vals = np.column_stack(cols)
+        for d in value_dims:
+            cols.append(np.asarray(pts.z, dtype=np.float64) if d == "z" else np.asarray(pts[d]).astype(np.float64))
+        vals = np.column_stack(cols) if cols else np.zeros((len(pts), 0))
         if sel is not None:
             vals = vals[sel]
         zb.add(pixel[inside], w[inside], index[inside], vals[inside])
@@ -792,16 +824,11 @@ def render_array(
     if fill is None:
         fill = auto_fill(zb.shape, in_box)
     source, filled = fill_gaps(zb.depth.reshape(zb.shape), max(0, int(fill)))
+    drawn = source == np.arange(source.size).reshape(source.shape)
     vals = zb.values[source.ravel()].reshape(zb.shape + (zb.values.shape[1],))
     del zb
     normals = vals[..., :3] if want_normals else None
-    value = normals if color == "normals" else vals[..., nval]
-    rgb, rng, legend = colorize(color, value, filled, value_range, drawn=source == np.arange(source.size).reshape(source.shape))
-    if color == "patches":
-        rgb[patch_boundaries(np.nan_to_num(value, nan=-1.0), filled)] *= BOUNDARY_DARKEN
-    if shade:
-        b = lambert(normals, R)
-        rgb[filled] *= b[filled][:, None]
+    brightness = lambert(normals, R) if shade else None
     if view == "oblique":
         extent = frame.extent
     else:  # file coordinates: add the origin back on the two screen axes
@@ -809,11 +836,25 @@ def render_array(
         ou = float(R[0] @ origin)
         ov = float(R[1] @ origin)
         extent = (e[0] + ou, e[1] + ou, e[2] + ov, e[3] + ov)
-    return RenderImage(
-        source=str(input), color=color, view=view, shaded=bool(shade), rgb=rgb, filled=filled, value=value, extent=extent,
-        pixel=frame.pixel, axes=R, point_count=src.point_count, points_in_box=in_box, points_drawn=points_drawn,
-        value_range=rng, legend=legend, bbox=bbox, fill=int(fill), seconds=time.perf_counter() - t0,
-    )
+    images = []
+    for color in colors:
+        if color == "normals":
+            value = normals
+        else:
+            d = COLOR_MODES[color][0] if COLOR_MODES[color] else "z"
+            value = vals[..., nval + value_dims.index(d)]
+        rgb, rng, legend = colorize(color, value, filled, value_range, drawn=drawn)
+        if color == "patches":
+            rgb[patch_boundaries(np.nan_to_num(value, nan=-1.0), filled)] *= BOUNDARY_DARKEN
+        if brightness is not None:
+            rgb[filled] *= brightness[filled][:, None]
+        images.append(RenderImage(
+            source=str(input), color=color, view=view, shaded=bool(shade), rgb=rgb, filled=filled, value=value,
+            extent=extent, pixel=frame.pixel, axes=R, point_count=src.point_count, points_in_box=in_box,
+            points_drawn=points_drawn, value_range=rng, legend=legend, bbox=bbox, fill=int(fill),
+            seconds=time.perf_counter() - t0,
+        ))
+    return images
 
 
 def render_figure(img: RenderImage):

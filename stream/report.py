@@ -677,22 +677,27 @@ def segment_size_histogram(sizes: np.ndarray) -> Histogram:
 # Views (patchcloud.stream.render)
 # --------------------------------------------------------------------------------------------------------------------
 def _views(path: str, colours: Sequence[tuple[str, str]], width: int) -> tuple[list[ReportFigure], list[str]]:
-    """PNG views of ``path`` (LAS/LAZ) rendered by :func:`patchcloud.stream.render.render`, one per colour.
+    """PNG views of ``path`` (LAS/LAZ), one per colour, from one read of the file (:func:`patchcloud.stream.render.render_arrays`).
 
-    A view that cannot be drawn (a PatchcloudError) becomes a note instead.
+    A colour the file has no dimension for, or views that cannot be drawn
+    (a PatchcloudError), become notes instead.
     """
-    from .render import render
+    from .render import file_dimensions, render_arrays, render_figure, supported_modes
 
-    figures, notes = [], []
-    with tempfile.TemporaryDirectory(prefix="patchcloud-report-") as d:
-        for colour, caption in colours:
-            png = os.path.join(d, f"{colour}.png")
-            try:
-                render(path, png, color=colour, width=width)
-            except PatchcloudError as exc:
-                notes.append(f"The view coloured by {colour} could not be drawn: {exc}")
-                continue
-            figures.append(ReportFigure(Path(png).read_bytes(), caption, "Views"))
+    notes = []
+    try:
+        can = set(supported_modes(file_dimensions(path)))
+    except PatchcloudError as exc:
+        return [], [f"No views: {exc}"]
+    wanted = [(c, cap) for c, cap in colours if c in can]
+    notes += [f"No view coloured by {c}: {path} has no dimension for it." for c, _ in colours if c not in can]
+    if not wanted:
+        return [], notes
+    try:
+        images = render_arrays(path, colors=[c for c, _ in wanted], width=width)
+    except PatchcloudError as exc:
+        return [], notes + [f"The views could not be drawn: {exc}"]
+    figures = [ReportFigure(figure_png(render_figure(img)), caption, "Views") for img, (_, caption) in zip(images, wanted)]
     return figures, notes
 
 

@@ -9,6 +9,7 @@ from matplotlib.image import imread
 from patchcloud.stream.cli import main
 from patchcloud.core.errors import PatchcloudValueError
 from patchcloud.stream import render, render_array, render_tiles
+from patchcloud.stream.render import render_arrays
 from patchcloud.stream.render import (
     AMBIENT, BOUNDARY_DARKEN, LIGHT, NO_SEGMENT, ZBuffer, choose_view, class_colours, colorize, fill_gaps, lambert,
     make_frame, patch_boundaries, patch_colours, segment_colours, view_axes,
@@ -314,3 +315,18 @@ def test_colour_range_counts_drawn_pixels_only():
     _, rng_drawn, _ = colorize("elevation", values, filled, drawn=drawn)
     _, rng_all, _ = colorize("elevation", values, filled)
     assert rng_drawn[1] > 0.9 and rng_all[1] < rng_drawn[1]
+
+
+def test_several_colours_from_one_read_equal_one_colour_at_a_time(tmp_path):
+    xy = grid_xy(60, 6.0)
+    n = len(xy)
+    rng = np.random.default_rng(3)
+    n3 = np.tile(np.array([-0.196, 0.0, 0.981], dtype=np.float32), (n, 1))
+    path = write_las(tmp_path / "m.las", np.column_stack([xy, 0.2 * xy[:, 0]]), NormalX=n3[:, 0].copy(),
+                     NormalY=n3[:, 1].copy(), NormalZ=n3[:, 2].copy(), Curvature=rng.uniform(0, 0.1, n).astype(np.float32),
+                     classification=rng.integers(1, 7, n).astype(np.uint8))
+    colours = ["normals", "curvature", "elevation", "classification"]
+    together = render_arrays(path, colors=colours, width=120, chunk=1000)
+    for img, colour in zip(together, colours):
+        alone = render_array(path, color=colour, width=120)
+        assert img.color == colour and np.array_equal(img.rgb, alone.rgb) and img.value_range == alone.value_range
