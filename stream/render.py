@@ -51,12 +51,12 @@ import numpy as np
 
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 
-from .lasio import LasSource, open_source, read_chunks
+from .lasio import LasSource, _laz_backend, open_source, read_chunks
 
 __all__ = [
     "COLOR_MODES", "VIEWS", "AMBIENT", "FLAT_RATIO", "LIGHT", "BACKGROUND", "UNDEFINED", "NO_SEGMENT",
     "RenderImage", "RenderSummary", "ZBuffer", "Frame", "render", "render_array", "render_arrays", "render_figure",
-    "view_axes", "choose_view", "auto_fill", "MAX_FILL", "make_frame", "fill_gaps", "colorize", "lambert", "patch_boundaries", "segment_colours",
+    "view_axes", "choose_view", "auto_fill", "MAX_FILL", "robust_heights", "HEIGHTS", "make_frame", "fill_gaps", "colorize", "lambert", "patch_boundaries", "segment_colours",
     "patch_colours", "class_colours", "robust_range", "supported_modes", "file_dimensions",
 ]
 
@@ -648,6 +648,57 @@ def _check_bbox(bbox):
     return b
 
 
+#: Framing sample: windows spread over the file, points per window (all points of smaller files).
+FRAME_WINDOWS, FRAME_WINDOW = 32, 1 << 15
+#: An empty band of heights wider than this share of the header's height range (or than the sample's
+#: 1st-99th percentile range, if larger) separates outliers from the cloud.
+OUTLIER_GAP = 0.1
+#: What ``heights`` may be: a frame for the heights of a sample (outliers left out), or for the header's bounds.
+HEIGHTS = ("robust", "all")
+
+
+def robust_heights(src: LasSource) -> tuple[float, float]:
+    """Heights (file z, metres) to frame: those of a sample of the file, without the outliers an empty band cuts off.
+
+    The sample is FRAME_WINDOWS runs of FRAME_WINDOW points spread over
+    the file (the whole file when it is no larger), read by seeking, so it
+    costs a fraction of a pass.  From the sample's 1st-99th percentiles
+    the range grows up (and down) through the sorted sampled heights until
+    an empty band wider than ``OUTLIER_GAP`` x the header's height range
+    (or the percentile range, if larger): a pylon or a tree, sampled all
+    the way up, stays in; a bird 500 m above a city tile, or a return 80 m
+    under the ground, is cut off.  The result never exceeds the header's
+    bounds.
+    """
+    n = src.point_count
+    zs = []
+    if n <= FRAME_WINDOWS * FRAME_WINDOW:
+        zs = [np.asarray(pts.z, dtype=np.float64) for _, pts in read_chunks(src, 1 << 20)]
+    else:
+        try:
+            with laspy.open(src.path, laz_backend=_laz_backend()) as r:
+                for start in np.linspace(0, n - FRAME_WINDOW, FRAME_WINDOWS).astype(np.int64).tolist():
+                    r.seek(start)
+                    zs.append(np.asarray(r.read_points(FRAME_WINDOW).z, dtype=np.float64))
+        except Exception as exc:
+            raise PatchcloudIOError(f"{src.path}: cannot read point data ({exc})") from exc
+    z = np.sort(np.concatenate(zs)) if zs else np.zeros(0)
+    zmin, zmax = float(src.mins[2]), float(src.maxs[2])
+    if z.size == 0:
+        return zmin, zmax
+    q0, q1 = np.percentile(z, [1.0, 99.0])
+    gap = max(q1 - q0, OUTLIER_GAP * (zmax - zmin), 1e-9)
+    up = np.concatenate([[q1], z[z > q1]])
+    cut = np.flatnonzero(np.diff(up) > gap)
+    top = up[cut[0]] if cut.size else up[-1]
+    down = np.concatenate([[q0], z[z < q0][::-1]])
+    cut = np.flatnonzero(-np.diff(down) > gap)
+    bottom = down[cut[0]] if cut.size else down[-1]
+    # the sample may miss the highest and lowest points of the cloud itself: a little room
+    pad = 0.05 * float(top - bottom)
+    return max(zmin, float(bottom) - pad), min(zmax, float(top) + pad)
+
+
 #: Widest image (pixels): the per-pixel buffers take about 100 bytes a pixel (3.6 GB for a square image this wide).
 MAX_WIDTH = 6000
 #: Most gap-filling passes the default chooses.
@@ -670,7 +721,7 @@ def auto_fill(shape: tuple[int, int], points: int) -> int:
 
 def render_array(
     input: str | os.PathLike, *, color: str, view: str | None = None, bbox=None, width: int = 1600,
-    shade: bool | None = None, value_range=None, fill: int | None = None, chunk: int = 1 << 20,
+    shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust", chunk: int = 1 << 20,
 ) -> RenderImage:
     """The picture of a LAS/LAZ file of any size as an RGB array, read out of core.
 
@@ -700,6 +751,13 @@ def render_array(
         pixels over the points inside it), rounded up, from 1 to :data:`MAX_FILL`,
         so an aerial tile at 25 points/m² and a dense mobile scan both look
         like surfaces at any width.
+    heights : {"robust", "all"}
+        The heights the frame (and the default view) is chosen for.
+        "robust" (default): from a sample of the file
+        (:func:`robust_heights`), so noise far above or below (birds, low
+        returns) neither squashes the picture nor turns an aerial tile into
+        an oblique view; in the oblique and side views such points fall
+        outside the picture.  "all": the header's bounds.
     chunk : int
         Points read at a time (the result does not depend on it).
 
@@ -722,12 +780,12 @@ def render_array(
     ((712, 800, 3), 'top')
     """
     return render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range,
-                         fill=fill, chunk=chunk)[0]
+                         fill=fill, heights=heights, chunk=chunk)[0]
 
 
 def render_arrays(
     input: str | os.PathLike, *, colors: Sequence[str], view: str | None = None, bbox=None, width: int = 1600,
-    shade: bool | None = None, value_range=None, fill: int | None = None, chunk: int = 1 << 20,
+    shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust", chunk: int = 1 << 20,
 ) -> list[RenderImage]:
     """Pictures of one file in several colour modes, from one read of the file (see :func:`render_array`).
 
@@ -755,6 +813,8 @@ def render_arrays(
         raise PatchcloudValueError(f"view must be one of {', '.join(VIEWS)}; got {view!r}")
     if int(chunk) < 1:
         raise PatchcloudValueError(f"chunk must be a positive number of points; got {chunk!r}")
+    if heights not in HEIGHTS:
+        raise PatchcloudValueError(f"heights must be one of {', '.join(HEIGHTS)}; got {heights!r}")
     bbox = _check_bbox(bbox)
     src: LasSource = open_source(input)
     dims = file_dimensions(input)
@@ -780,6 +840,8 @@ def render_arrays(
     if bbox is not None:
         lo[:2] = np.asarray(bbox[:2]) - origin[:2]
         hi[:2] = np.asarray(bbox[2:]) - origin[:2]
+    if heights == "robust":
+        lo[2], hi[2] = (h - origin[2] for h in robust_heights(src))
     if view is None:
         view = choose_view(lo, hi)
     R = view_axes(view, lo, hi)
@@ -803,6 +865,7 @@ def render_arrays(
         sel = None
         if bbox is not None:
             sel = (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
+        if sel is not None:
             x, y, z, index = x[sel], y[sel], z[sel], index[sel]
         u = x * R[0, 0] + y * R[0, 1] + z * R[0, 2]
         v = x * R[1, 0] + y * R[1, 1] + z * R[1, 2]
@@ -911,7 +974,8 @@ def render_figure(img: RenderImage):
 
 def render(
     input: str | os.PathLike, output: str | os.PathLike, *, color: str, view: str | None = None, bbox=None,
-    width: int = 1600, shade: bool | None = None, value_range=None, fill: int | None = None, chunk: int = 1 << 20,
+    width: int = 1600, shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust",
+    chunk: int = 1 << 20,
 ) -> RenderSummary:
     """Write a PNG picture of a LAS/LAZ file of any size (out of core; see :func:`render_array` for the options).
 
@@ -936,7 +1000,7 @@ def render(
     if not out.resolve().parent.exists():
         raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
     img = render_array(input, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
-                       chunk=chunk)
+                       heights=heights, chunk=chunk)
     save_png(render_figure(img), out)
     H, W = img.filled.shape
     return RenderSummary(

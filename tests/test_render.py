@@ -330,3 +330,21 @@ def test_several_colours_from_one_read_equal_one_colour_at_a_time(tmp_path):
     for img, colour in zip(together, colours):
         alone = render_array(path, color=colour, width=120)
         assert img.color == colour and np.array_equal(img.rgb, alone.rgb) and img.value_range == alone.value_range
+
+
+def test_outliers_far_above_do_not_spoil_the_framing(tmp_path):
+    # an aerial-like 40 m tile, 3 m high, with three "birds" 500 m up and one low return 80 m down
+    xy = grid_xy(80, 40.0)
+    z = 0.05 * xy[:, 0]
+    xyz = np.vstack([np.column_stack([xy, z]), [[10.0, 10.0, 500.0], [20.0, 20.0, 510.0], [30.0, 5.0, 505.0], [5, 5, -80.0]]])
+    path = write_las(tmp_path / "o.las", xyz)
+    robust = render_array(path, color="elevation", width=200)
+    everything = render_array(path, color="elevation", width=200, heights="all")
+    assert robust.view == "top" and everything.view == "oblique"  # the 590 m of outliers made the tile look tall
+    assert robust.value_range[1] < 3.0  # the colours span the tile, not the birds (2nd-98th percentiles)
+    side = render_array(path, color="elevation", width=200, view="side")
+    assert side.rgb.shape[0] < 40 and side.points_in_box == len(xy)  # a flat strip, not a 590 m tall frame; birds outside
+    tall = render_array(path, color="elevation", width=200, view="side", heights="all")
+    assert tall.rgb.shape[0] > 10 * side.rgb.shape[0] and tall.points_in_box == len(xyz)
+    with pytest.raises(PatchcloudValueError, match="heights must be one of robust, all"):
+        render_array(path, color="elevation", heights="some")

@@ -20,7 +20,7 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
               help="What the colours show: normals (RGB = (n+1)/2), curvature, don (|DoN|), segments (ClusterID), "
               "patches (PatchId, boundaries darkened), classification (ASPRS colours), intensity, elevation.")
 @click.option("--view", type=click.Choice(["top", "oblique", "side"]), default=None,
-              help="Orthographic view. Default: top when the height range is under 0.2 x the larger horizontal "
+              help="Orthographic view. Default: top when the height range is under 0.5 x the larger horizontal "
               "extent (aerial, street scans), else oblique (from the south-west, 35 degrees up).")
 @click.option("--bbox", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Draw only this box (file coordinates, metres); it is the frame.")
@@ -32,9 +32,12 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
 @click.option("--fill", type=int, default=None, metavar="PASSES",
               help="Close holes: passes in which an empty pixel takes its neighbour nearest the viewer (0: none). "
               "Default: 3/4 of the mean point spacing in pixels, 1 to 8.")
+@click.option("--heights", type=click.Choice(["robust", "all"]), default="robust", show_default=True,
+              help="robust: frame the heights of a sample of the file, so noise far above or below (birds, low "
+              "returns) does not squash the picture; all: frame the header's bounds.")
 @options.quiet
 @options.reports_errors
-def render_command(input, output, color, view, bbox, width, shade, value_range, fill, quiet):
+def render_command(input, output, color, view, bbox, width, shade, value_range, fill, heights, quiet):
     """A PNG picture of INPUT (LAS/LAZ, any size) in OUTPUT.
 
     The file is read in chunks and decimated to the point nearest the viewer
@@ -51,7 +54,8 @@ def render_command(input, output, color, view, bbox, width, shade, value_range, 
 
     if width is not None and width < 1:
         raise PatchcloudValueError(f"--width must be a positive number of pixels; got {width}")
-    s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill)
+    s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
+               heights=heights)
     if not quiet:
         click.echo(s.format())
 
