@@ -24,7 +24,7 @@ import numpy as np
 from .moments import N_MOMENTS, shift_entries
 from .quadric import fit_nodes
 
-__all__ = ["leaf_neighbours", "merge_leaves", "shift_moments"]
+__all__ = ["leaf_neighbours", "merge_leaves", "shift_moments", "sum_moments", "moment_scale"]
 
 #: The 26 offsets to the cells that touch a cell (faces, edges and corners).
 _OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
@@ -117,20 +117,46 @@ def _union(ma: np.ndarray, ca: np.ndarray, mb: np.ndarray, cb: np.ndarray) -> tu
     return shift_moments(ma, ca - c) + shift_moments(mb, cb - c), c
 
 
+def sum_moments(moments: np.ndarray, centres: np.ndarray, label: np.ndarray, G: int) -> tuple[np.ndarray, np.ndarray]:
+    """Moments of groups of rows (the rows with the same ``label``), each about its group's centroid.
+
+    Parameters
+    ----------
+    moments : (K, 35) float64
+        Moments of each row's points about ``centres``.
+    centres : (K, 3) float64
+    label : (K,) int64
+        Group of each row, in ``0..G-1``.
+
+    Returns
+    -------
+    moments : (G, 35) float64
+        Zero for a group with no rows.
+    centroids : (G, 3) float64
+        NaN for a group with no rows.
+    """
+    n = np.bincount(label, weights=moments[:, 0], minlength=G)
+    first = np.column_stack([np.bincount(label, weights=moments[:, i] + moments[:, 0] * centres[:, i - 1], minlength=G)
+                             for i in (1, 2, 3)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = first / n[:, None]
+    shifted = shift_moments(moments, centres - c[label])
+    return np.stack([np.bincount(label, weights=shifted[:, i], minlength=G) for i in range(N_MOMENTS)], axis=1), c
+
+
+def moment_scale(moments: np.ndarray) -> np.ndarray:
+    """(M,) RMS distance of each group's points to its centroid (moments about the centroid): the fit's length unit."""
+    n = np.maximum(moments[:, 0], 1.0)
+    return np.sqrt(np.maximum((moments[:, 4] + moments[:, 7] + moments[:, 9]) / n, 0.0)) + 1e-12
+
+
 def _stars(gm: np.ndarray, gc: np.ndarray, sink: np.ndarray, joins: np.ndarray, P: int) -> tuple[np.ndarray, np.ndarray]:
     """Moments (about their centroids) of every sink with the groups that join it; other rows unchanged."""
-    members = np.concatenate([np.unique(sink), joins])
-    into = np.concatenate([np.unique(sink), sink])
-    n = np.bincount(into, weights=gm[members, 0], minlength=P)
-    first = np.column_stack([np.bincount(into, weights=gm[members, i] + gm[members, 0] * gc[members, i - 1], minlength=P)
-                             for i in (1, 2, 3)])
-    c = gc.copy()
     hub = np.unique(sink)
-    c[hub] = first[hub] / n[hub, None]
-    shifted = shift_moments(gm[members], gc[members] - c[into])
-    m = gm.copy()
-    m[hub] = 0.0
-    np.add.at(m, into, shifted)
+    members = np.concatenate([hub, joins])
+    sm, sc = sum_moments(gm[members], gc[members], np.concatenate([hub, sink]), P)
+    m, c = gm.copy(), gc.copy()
+    m[hub], c[hub] = sm[hub], sc[hub]
     return m, c
 
 
@@ -144,9 +170,7 @@ def _pair_cost_of(a: np.ndarray, b: np.ndarray, cost: np.ndarray, x: np.ndarray,
 
 def _rmse(moments: np.ndarray) -> np.ndarray:
     """RMS distance of each group's points to its quadric (moments about the centroid)."""
-    n = np.maximum(moments[:, 0], 1.0)
-    spread = np.sqrt(np.maximum((moments[:, 4] + moments[:, 7] + moments[:, 9]) / n, 0.0)) + 1e-12
-    return fit_nodes(moments, spread).rmse
+    return fit_nodes(moments, moment_scale(moments)).rmse
 
 
 def merge_leaves(

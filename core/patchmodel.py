@@ -27,11 +27,11 @@ import numpy as np
 
 from ._kernels import cell_moments
 from .errors import PatchcloudValueError
-from .merge import leaf_neighbours, merge_leaves, shift_moments
+from .merge import leaf_neighbours, merge_leaves, moment_scale, sum_moments
 from .normals import _root_cube, _validate_points
 from .octree import estimate_spacing, sort_points
 from .patches import PatchKind
-from .quadric import fit_nodes
+from .quadric import fit_nodes, implicit_value
 from .tiles import fit_tile
 
 __all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "check_budget", "close_masks", "MASK_SIDE"]
@@ -222,15 +222,9 @@ def _starts(counts: np.ndarray) -> np.ndarray:
 
 
 def _group_fits(moments: np.ndarray, centres: np.ndarray, group: np.ndarray, G: int):
-    """Centroid, frame, quadric and RMSE of each group of cells, from the cells' moments about their centres."""
-    n = np.bincount(group, weights=moments[:, 0], minlength=G)
-    first = np.column_stack([np.bincount(group, weights=moments[:, i] + moments[:, 0] * centres[:, i - 1], minlength=G)
-                             for i in (1, 2, 3)])
-    c = first / n[:, None]
-    shifted = shift_moments(moments, centres - c[group])
-    gm = np.stack([np.bincount(group, weights=shifted[:, i], minlength=G) for i in range(shifted.shape[1])], axis=1)
-    spread = np.sqrt(np.maximum((gm[:, 4] + gm[:, 7] + gm[:, 9]) / n, 0.0)) + 1e-12
-    f = fit_nodes(gm, spread)
+    """Centroid, frame and quadric of each group of cells, from the cells' moments about their centres."""
+    gm, c = sum_moments(moments, centres, group, G)
+    f = fit_nodes(gm, moment_scale(gm))
     return c + f.centroid, f.frame, f.coeffs
 
 
@@ -258,8 +252,7 @@ def _assign(world, leaf, nb, surf_group, g_size, g_centroid, g_frame, g_coeffs, 
         k = c_start[lf + 1] - c_start[lf]
         pt = np.repeat(np.arange(lo, hi), k)
         g = cand[np.repeat(c_start[lf], k) + np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k), 1]
-        uvw = np.einsum("nij,ni->nj", g_frame[g], world[pt] - g_centroid[g])
-        e = uvw[:, 2] - _quadric(g_coeffs[g], uvw[:, 0], uvw[:, 1])
+        e = implicit_value(world[pt], g_centroid[g], g_frame[g], g_coeffs[g])
         own = g == surf_group[leaf[pt]]
         # rank (lowest wins): within the budget first, then by error in steps of a quarter budget,
         # then the largest patch, then the lowest patch index; one int64 key per candidate
@@ -310,8 +303,7 @@ def _pull_to_majority(world, leaf, pt, pg, perr, g_centroid, g_frame, g_coeffs, 
     if other.size == 0:
         return pg, perr
     g = m[other]
-    uvw = np.einsum("nij,ni->nj", g_frame[g], world[pt[other]] - g_centroid[g])
-    e = uvw[:, 2] - _quadric(g_coeffs[g], uvw[:, 0], uvw[:, 1])
+    e = implicit_value(world[pt[other]], g_centroid[g], g_frame[g], g_coeffs[g])
     move = np.abs(e) <= budget
     pg, perr = pg.copy(), perr.copy()
     pg[other[move]] = g[move]
@@ -389,9 +381,9 @@ def fit_models(
 
     # 1. the points of surface leaves within the limit of their leaf's quadric
     surface = t.kind[leaf] == PatchKind.SURFACE
-    uvw = np.einsum("nij,ni->nj", t.frame[leaf[surface]], world[surface] - t.centroid[leaf[surface]])
+    ls = leaf[surface]
     kept = surface.copy()
-    kept[surface] = np.abs(uvw[:, 2] - _quadric(t.coeffs[leaf[surface]], uvw[:, 0], uvw[:, 1])) <= limit
+    kept[surface] = np.abs(implicit_value(world[surface], t.centroid[ls], t.frame[ls], t.coeffs[ls])) <= limit
     kept &= (np.bincount(leaf[kept], minlength=len(t)) >= 3)[leaf]
 
     # 2. cells: the leaves that keep points; their moments about their centres; groups of them
@@ -401,7 +393,6 @@ def fit_models(
     centres = corner + (ijk + 0.5) * cell_edge[:, None]
     cell_of = np.full(len(t), -1, dtype=np.int64)
     cell_of[cell_leaf] = np.arange(cell_leaf.size)
-    cp = cell_of[leaf[kept]]  # cell of each kept point (ascending: points are sorted by leaf)
     kw = world[kept]
     moments = np.zeros((cell_leaf.size, 35))
     if cell_leaf.size:
@@ -443,7 +434,6 @@ def fit_models(
     C = key.size
     level, ijk = t.level[c_leaf], t.ijk[c_leaf]
     uvw = np.einsum("nij,ni->nj", g_frame[pg], world[pt] - g_centroid[pg])
-    err = perr
 
     # 4. per cell: count, extent and occupancy mask of its points in its patch's frame
     u, v = uvw[:, 0], uvw[:, 1]
@@ -461,7 +451,7 @@ def fit_models(
         mask = close_masks(np.bitwise_or.reduceat(np.left_shift(np.uint64(1), bit.astype(np.uint64)), st))
     cg = new_group[c_group]  # patch of each cell row
     P = int(live_group.sum())
-    rmse = np.sqrt(np.bincount(cg[r], weights=err**2, minlength=P) / np.maximum(np.bincount(cg[r], minlength=P), 1))
+    rmse = np.sqrt(np.bincount(cg[r], weights=perr**2, minlength=P) / np.maximum(np.bincount(cg[r], minlength=P), 1))
     models = PatchModels(
         root_corner=corner.copy(), root_edge=float(edge), centroid=g_centroid[live_group], frame=g_frame[live_group],
         coeffs=g_coeffs[live_group], rmse=rmse, cells=np.bincount(cg, minlength=P).astype(np.int64),
@@ -473,7 +463,7 @@ def fit_models(
     error = np.zeros(n)
     patch[rows] = cg[r]
     cell[rows] = r
-    error[rows] = err
+    error[rows] = perr
     return ModelFit(models=models, patch=patch, cell=cell, residual=np.flatnonzero(patch < 0), error=error)
 
 
