@@ -90,7 +90,7 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     """Patch models of one tile within the budget, quantised; its residual points; stored as the tile's ``pcz_*`` arrays."""
     store = Store.open(url)
     key = params["key"]
-    if store.tile_attrs(ijk).get("done", {}).get("compress") == key:
+    if store.tile_done(ijk, "compress", key):
         return store.tile_attrs(ijk)["compress"]
     grid = store.grid
     T = grid.tile_size

@@ -38,10 +38,6 @@ __all__ = ["skin_tile", "don_tile", "cluster_tile", "merge_components", "HIST_BI
 HIST_BINS = 50
 
 
-def _done(store: Store, ijk, step: str, key: str) -> bool:
-    return store.tile_attrs(ijk).get("done", {}).get(step) == key
-
-
 def _halo_points(store: Store, ijk, neighbours, width: float, need_keep: bool = False):
     """Points of the neighbours' skins within ``width`` of tile ``ijk``'s box (box distance per axis).
 
@@ -82,7 +78,7 @@ def _write_in_input_order(store: Store, ijk, name: str, values: np.ndarray) -> N
 def skin_tile(url: str, ijk: tuple, width: float, key: str) -> int:
     """Store the tile's points within ``width`` (metres) of its faces: ``don_skin`` and their rows ``don_skin_rows``."""
     store = Store.open(url)
-    if _done(store, ijk, "don_skin", key):
+    if store.tile_done(ijk, "don_skin", key):
         return int(store.tile_attrs(ijk)["don_skin_points"])
     grid = store.grid
     xyz = store.read(ijk, "xyz")
@@ -98,7 +94,7 @@ def don_tile(url: str, ijk: tuple, params: dict, neighbours: list) -> dict:
     """DoN of the tile's points; stores ``don`` (input order, float64) and ``keep`` (sorted order)."""
     store = Store.open(url)
     key = params["don_key"]
-    if _done(store, ijk, "don", key):
+    if store.tile_done(ijk, "don", key):
         return store.tile_attrs(ijk)["don"]
     grid = store.grid
     own = grid.local(store.read(ijk, "xyz"))
@@ -139,7 +135,7 @@ def cluster_tile(url: str, ijk: tuple, params: dict, neighbours: list) -> dict:
     """
     store = Store.open(url)
     key = params["cluster_key"]
-    if _done(store, ijk, "cluster", key):
+    if store.tile_done(ijk, "cluster", key):
         return store.tile_attrs(ijk)["cluster"]
     grid = store.grid
     own = grid.local(store.read(ijk, "xyz"))

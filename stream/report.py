@@ -34,7 +34,6 @@ import datetime as _dt
 import html
 import io
 import os
-import tempfile
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, fields

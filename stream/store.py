@@ -222,8 +222,10 @@ class Store:
         except KeyError:
             return {}
 
-    def tile_done(self, ijk, step: str) -> bool:
-        return bool(self.tile_attrs(ijk).get("done", {}).get(step))
+    def tile_done(self, ijk, step: str, key=None) -> bool:
+        """Step ``step`` is done on tile ``ijk`` (with ``key``, the parameters it was marked with, when given)."""
+        done = self.tile_attrs(ijk).get("done", {}).get(step)
+        return bool(done) if key is None else done == key
 
     def mark_tile(self, ijk, step: str, value=True, **attrs) -> None:
         """Mark ``step`` done on tile ``ijk``, storing ``attrs`` with it in one write."""

@@ -35,12 +35,7 @@ def compress_command(input, output, max_error, tile_size, scheduler, workers, st
 
     summary = compress(input, output, max_error=max_error, tile_size=tile_size, scheduler=scheduler, workers=workers,
                        store=store, keep_store=keep_store or None, overwrite=overwrite, quiet=quiet)
-    if not quiet:
-        click.echo(summary.format())
-    if report is not None:
-        report_compress(summary, report)
-        if not quiet:
-            click.echo(f"  report          {report}")
+    options.finish_job(summary, quiet, report, report_compress)
 
 
 @click.command("decompress")

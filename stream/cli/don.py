@@ -36,9 +36,4 @@ def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, sch
         input, output, r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, tile_size=tile_size,
         scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None, overwrite=overwrite, quiet=quiet,
     )
-    if not quiet:
-        click.echo(summary.format())
-    if report is not None:
-        report_don(summary, report)
-        if not quiet:
-            click.echo(f"  report          {report}")
+    options.finish_job(summary, quiet, report, report_don)

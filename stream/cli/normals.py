@@ -48,9 +48,4 @@ def normals_command(
         viewpoint=viewpoint or None, blend=not no_blend, scheduler=scheduler, workers=workers, store=store,
         keep_store=keep_store or None, overwrite=overwrite, quiet=quiet,
     )
-    if not quiet:
-        click.echo(summary.format())
-    if report is not None:
-        report_normals(summary, report)
-        if not quiet:
-            click.echo(f"  report          {report}")
+    options.finish_job(summary, quiet, report, report_normals)

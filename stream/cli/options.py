@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core.errors import PatchcloudError
 
-__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options", "job_options", "report_option", "check_report"]
+__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -42,6 +42,16 @@ def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:
         from patchcloud.stream.report import check_report_path
 
         check_report_path(report, overwrite=overwrite, others=job_files)
+
+
+def finish_job(summary, quiet: bool, report: str | None, write_report) -> None:
+    """After a job: print its summary (unless ``quiet``) and write its ``--report`` with ``write_report(summary, path)``."""
+    if not quiet:
+        click.echo(summary.format())
+    if report is not None:
+        write_report(summary, report)
+        if not quiet:
+            click.echo(f"  report          {report}")
 
 
 def job_options(func):

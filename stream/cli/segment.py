@@ -48,9 +48,4 @@ def segment_command(
         tile_size=tile_size, scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None,
         overwrite=overwrite, quiet=quiet,
     )
-    if not quiet:
-        click.echo(summary.format())
-    if report is not None:
-        report_don(summary, report)
-        if not quiet:
-            click.echo(f"  report          {report}")
+    options.finish_job(summary, quiet, report, report_don)
