@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from .scales import ScalesResult
 
-__all__ = ["STYLE", "CMAP", "new_figure", "style_axes", "save_png", "scale_selection_figure"]
+__all__ = ["STYLE", "CMAP", "new_figure", "style_axes", "check_png_path", "save_png", "scale_selection_figure"]
 
 #: Shared look of every figure: resolution (dots per inch) and font sizes (points).
 STYLE = {"dpi": 150, "title": 10, "label": 9, "tick": 8, "annotation": 7, "suptitle": 11}
@@ -77,6 +77,19 @@ def style_axes(ax: "Axes", title: str | None = None, xlabel: str | None = None, 
     ax.tick_params(labelsize=STYLE["tick"])
 
 
+def check_png_path(path: str | os.PathLike) -> Path:
+    """``path`` as a Path if a PNG can be written there (an existing file is replaced); else a PatchcloudIOError naming it.
+
+    Jobs that draw after a long read call it first, so a bad path fails before the work.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise PatchcloudIOError(f"{p}: is a directory")
+    if not p.resolve().parent.exists():
+        raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
+    return p
+
+
 def save_png(fig: Figure, path: str | os.PathLike) -> Path:
     """Write ``fig`` as a PNG at ``path``: to ``path + ".partial"`` first, then renamed (never a half-written file).
 
@@ -93,9 +106,7 @@ def save_png(fig: Figure, path: str | os.PathLike) -> Path:
     ...     save_png(fig, os.path.join(d, "x.png")).read_bytes()[:4] == b"\\x89PNG"
     True
     """
-    p = Path(path)
-    if p.is_dir():
-        raise PatchcloudIOError(f"{p}: is a directory")
+    p = check_png_path(path)
     if not isinstance(fig.canvas, FigureCanvasAgg):
         FigureCanvasAgg(fig)
     try:

@@ -991,14 +991,10 @@ def render(
     >>> s = render("city_normals.laz", "city.png", color="curvature")   # doctest: +SKIP
     >>> print(s.format())                                               # doctest: +SKIP
     """
-    from .plots import save_png
+    from .plots import check_png_path, save_png
 
     t0 = time.perf_counter()
-    out = Path(output)
-    if out.is_dir():
-        raise PatchcloudIOError(f"{out}: is a directory")
-    if not out.resolve().parent.exists():
-        raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
+    out = check_png_path(output)
     img = render_array(input, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
                        heights=heights, chunk=chunk)
     save_png(render_figure(img), out)

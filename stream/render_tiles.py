@@ -15,7 +15,6 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -250,16 +249,12 @@ def render_tiles(store: str | os.PathLike, output: str | os.PathLike, *, by: str
     >>> s = render_tiles("city.store", "tiles.png", by="patches")   # doctest: +SKIP
     >>> print(s.format())                                            # doctest: +SKIP
     """
-    from .plots import save_png
+    from .plots import check_png_path, save_png
 
     t0 = time.perf_counter()
     if by not in ("points", "patches"):
         raise PatchcloudValueError(f"by must be 'points' or 'patches'; got {by!r}")
-    out = Path(output)
-    if out.is_dir():
-        raise PatchcloudIOError(f"{out}: is a directory")
-    if not out.resolve().parent.exists():
-        raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
+    out = check_png_path(output)
     if not Store.exists(str(store)):
         raise PatchcloudIOError(f"{store}: not a patchcloud store")
     ts = tile_state(str(store), step)
