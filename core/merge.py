@@ -162,8 +162,9 @@ def _stars(gm: np.ndarray, gc: np.ndarray, sink: np.ndarray, joins: np.ndarray, 
 
 def _pair_cost_of(a: np.ndarray, b: np.ndarray, cost: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The cost of each pair (x, y) from the table of pairs (a, b) (either order)."""
-    key = np.minimum(x, y) * (max(a.max(initial=0), b.max(initial=0), x.max(initial=0), y.max(initial=0)) + 1) + np.maximum(x, y)
-    table = a * (max(a.max(initial=0), b.max(initial=0), x.max(initial=0), y.max(initial=0)) + 1) + b
+    base = max(a.max(initial=0), b.max(initial=0), x.max(initial=0), y.max(initial=0)) + 1
+    key = np.minimum(x, y) * base + np.maximum(x, y)
+    table = a * base + b
     o = np.argsort(table)
     return cost[o[np.searchsorted(table[o], key)]]
 
