@@ -156,3 +156,24 @@ def test_quantised_models_stay_within_half_the_budget(rng, budget):
     # the quantised extents hold the fitted ones
     assert np.all(back.extent[:, [0, 2]] <= fit.models.extent[:, [0, 2]] + 1e-12)
     assert np.all(back.extent[:, [1, 3]] >= fit.models.extent[:, [1, 3]] - 1e-12)
+
+
+def test_a_leaf_is_split_between_patches_only_where_its_majority_patch_does_not_fit(rng):
+    from patchcloud.core.quadric import implicit_value
+
+    p = sphere(rng, n=30000, noise=0.001)
+    budget = 0.01
+    fit = fit_models(p, budget)
+    m = fit.models
+    leaf = np.unique(np.column_stack([m.level, m.ijk]), axis=0, return_inverse=True)[1].ravel()  # leaf of each cell
+    patch = m.cell_patch
+    assert leaf.max() + 1 < m.count.size  # some leaves are split: the check below is not empty
+    # the majority cell of each leaf: most points, then the lowest patch
+    order = np.lexsort((patch, -m.count, leaf))
+    first = np.unique(leaf[order], return_index=True)[1]
+    major = patch[order][first]  # leaf k's majority patch (leaves numbered 0.. by np.unique)
+    on = fit.cell >= 0
+    others = np.flatnonzero(on)[patch[fit.cell[on]] != major[leaf[fit.cell[on]]]]
+    g = major[leaf[fit.cell[others]]]
+    off = np.abs(implicit_value(p[others], m.centroid[g], m.frame[g], m.coeffs[g]))
+    assert others.size > 0 and np.all(off > budget)
