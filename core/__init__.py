@@ -10,6 +10,7 @@ Numpy arrays in, numpy arrays out; no files and no dask here.
 ((5000, 3), dtype('float32'))
 """
 
+from . import _numba_cache  # noqa: F401  (first, before numba is imported: see its docstring)
 from .cluster import euclidean_clusters
 from .don import difference_of_normals, don_magnitude, don_mask, segment_don
 from .errors import PatchcloudError, PatchcloudIOError, PatchcloudValueError

@@ -1,6 +1,7 @@
 """The building blocks against brute-force or hand-computed answers."""
 
 import numpy as np
+import pytest
 
 import synthetic
 from conftest import angles_deg
@@ -118,3 +119,17 @@ def test_flipped_patch_is_the_same_surface_reversed(rng):
     na = surface_normals(q, t.centroid[rows], t.frame[rows], t.coeffs[rows])
     nb = surface_normals(q, f.centroid[rows], f.frame[rows], f.coeffs[rows])
     assert np.allclose(na, -nb)
+
+
+def test_numba_caches_outside_the_installed_package():
+    # a cache inside site-packages/patchcloud/core outlives an uninstall and shadows the next install
+    import os
+
+    import patchcloud.core
+    from numba.core import config
+
+    package = os.path.dirname(patchcloud.core.__file__)
+    if os.environ.get("NUMBA_CACHE_DIR") not in (None, patchcloud.core._numba_cache.cache_dir()):
+        pytest.skip("NUMBA_CACHE_DIR was set by the user")
+    assert config.CACHE_DIR == patchcloud.core._numba_cache.cache_dir()
+    assert not os.path.abspath(config.CACHE_DIR).startswith(os.path.abspath(package))
