@@ -2,6 +2,11 @@
 
 Numpy arrays in, numpy arrays out; no files and no dask here.
 
+``__all__`` has two groups: the user API, then the tile interface, the
+lower-level pieces :mod:`patchcloud.stream` builds its per-tile steps from.
+The stream imports from ``patchcloud.core`` only, and only names of
+``__all__``; the submodules' other names may change without notice.
+
 >>> import numpy as np
 >>> from patchcloud.core import estimate_normals
 >>> xy = np.random.default_rng(0).uniform(0, 10, (5000, 2))
@@ -11,18 +16,41 @@ Numpy arrays in, numpy arrays out; no files and no dask here.
 """
 
 from . import _numba_cache  # noqa: F401  (first, before numba is imported: see its docstring)
-from .cluster import euclidean_clusters
+from .cluster import components, euclidean_clusters, number_by_first
 from .don import difference_of_normals, don_magnitude, don_mask, segment_don
 from .errors import PatchcloudError, PatchcloudIOError, PatchcloudValueError
-from .normals import Method, NormalsParameters, NormalsResult, estimate_normals
-from .patches import PatchKind, PatchTable
-from .patchmodel import ModelFit, PatchModels, fit_models, sample_models
-from .radius import default_viewpoint, radius_normals
+from .moments import cell_moments
+from .morton import MAX_DEPTH, decode
+from .codes import Method, PatchKind
+from .normals import NormalsParameters, NormalsResult, estimate_normals
+from .options import CompressOptions, DonOptions, NormalsOptions, SegmentOptions, options_with
+from .octree import FLOOR_FACTOR, NOISE_FACTOR, max_level_for, point_keys, sort_points
+from .orient import LeafSet, cross_face_pairs, link_agreements
+from .patches import PatchTable
+from .patchmodel import (
+    MASK_SIDE,
+    ModelFit,
+    PatchModels,
+    QuantisedModels,
+    dequantise_models,
+    fit_models,
+    quantise_models,
+    sample_models,
+)
+from .quadric import fit_nodes, surface_normals
+from .radius import MODES, check_points, default_viewpoint, halo_width, radius_normals
+from .tiles import Skin, finish_tile, fit_tile, patch_signs
 
 __all__ = [
+    # the user API
     "estimate_normals",
     "NormalsResult",
     "NormalsParameters",
+    "NormalsOptions",
+    "DonOptions",
+    "SegmentOptions",
+    "CompressOptions",
+    "options_with",
     "Method",
     "PatchTable",
     "PatchKind",
@@ -40,4 +68,40 @@ __all__ = [
     "PatchcloudError",
     "PatchcloudValueError",
     "PatchcloudIOError",
+    # the tile interface: what patchcloud.stream uses (besides names of the user API above)
+    # .morton
+    "MAX_DEPTH",
+    "decode",
+    # .octree
+    "FLOOR_FACTOR",
+    "NOISE_FACTOR",
+    "max_level_for",
+    "point_keys",
+    "sort_points",
+    # .moments
+    "cell_moments",
+    # .quadric
+    "fit_nodes",
+    "surface_normals",
+    # .orient
+    "LeafSet",
+    "cross_face_pairs",
+    "link_agreements",
+    # .tiles
+    "Skin",
+    "fit_tile",
+    "finish_tile",
+    "patch_signs",
+    # .radius
+    "MODES",
+    "check_points",
+    "halo_width",
+    # .cluster
+    "components",
+    "number_by_first",
+    # .patchmodel
+    "MASK_SIDE",
+    "QuantisedModels",
+    "quantise_models",
+    "dequantise_models",
 ]

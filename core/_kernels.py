@@ -17,9 +17,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents"]
+from .codes import PatchKind
 
-_KIND_SURFACE = 0
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "eigh3"]
+
+_KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
 
 
@@ -393,7 +395,7 @@ def _cholesky_solve6(G, b):
 
 
 @njit(cache=True)
-def _eigh3(A):
+def eigh3(A):
     """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric 3x3 matrix, cyclic Jacobi."""
     a = A.copy()
     v = np.eye(3)
@@ -452,7 +454,7 @@ def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
                 for b in range(3):
                     cov[a, b] += da * (points[nb[m, j], b] - c[b])
         cov /= k
-        w, v = _eigh3(cov)
+        w, v = eigh3(cov)
         tot = w[0] + w[1] + w[2]
         sigma3[m] = max(w[0], 0.0) / tot if tot > 0 else 0.0
         frame = np.empty((1, 3, 3))

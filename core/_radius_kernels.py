@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import _eigh3
+from ._kernels import eigh3
 
 __all__ = ["ball_moments", "build_row_table", "voxel_moments", "pca_normals", "union_cells"]
 
@@ -210,7 +210,7 @@ def pca_normals(moments, query, viewpoint, min_points, normals, variation):
         cov[1, 2] = moments[m, 8] / n - my * mz
         cov[2, 2] = moments[m, 9] / n - mz * mz
         cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
-        w, v = _eigh3(cov)
+        w, v = eigh3(cov)
         if not (w[1] > 1e-12 * w[2]) or w[2] <= 0.0:
             for a in range(3):
                 normals[m, a] = np.nan

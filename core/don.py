@@ -14,42 +14,10 @@ import numpy as np
 
 from .cluster import check_cluster_sizes, euclidean_clusters
 from .errors import PatchcloudValueError
+from .options import AXES, DonOptions, check_threshold
 from .radius import check_points, check_radius, default_viewpoint, radius_normals
 
-__all__ = ["difference_of_normals", "don_magnitude", "don_mask", "segment_don", "check_scales", "check_threshold", "AXES"]
-
-#: Names of the DoN vector's components, for thresholds on one of them.
-AXES = ("x", "y", "z")
-
-
-def check_scales(r_small, r_large) -> tuple[float, float]:
-    """Validated radii: both positive, ``r_small < r_large``."""
-    rs = check_radius("r_small", r_small)
-    rl = check_radius("r_large", r_large)
-    if not rs < rl:
-        raise PatchcloudValueError(f"r_small must be smaller than r_large; got r_small={rs:g} m, r_large={rl:g} m")
-    return rs, rl
-
-
-def check_threshold(threshold, axis=None, axis_threshold=None) -> None:
-    """Validated thresholds: magnitudes in [0, 1], an axis among :data:`AXES` with its own threshold."""
-    for name, v in (("threshold", threshold), ("axis_threshold", axis_threshold)):
-        if v is None and name == "axis_threshold":
-            continue
-        try:
-            ok = 0.0 <= float(v) <= 1.0
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            raise PatchcloudValueError(f"{name} must be a DoN magnitude in [0, 1]; got {v!r}")
-    if axis is None and axis_threshold is not None:
-        raise PatchcloudValueError("axis_threshold needs an axis (one of x, y, z)")
-    if axis is not None:
-        if axis not in AXES:
-            raise PatchcloudValueError(f"axis must be one of {', '.join(AXES)}; got {axis!r}")
-        if axis_threshold is None:
-            raise PatchcloudValueError(f"axis {axis!r} needs an axis_threshold in [0, 1]")
-
+__all__ = ["difference_of_normals", "don_magnitude", "don_mask", "segment_don"]
 
 def difference_of_normals(
     points: np.ndarray,
@@ -73,7 +41,9 @@ def difference_of_normals(
     viewpoint : (3,) array, optional
         Both normals face it.  Default: above the middle of the cloud
         (:func:`patchcloud.core.radius.default_viewpoint`).
-    mode, resolution, min_points, at :
+    mode, resolution, min_points :
+        As :class:`patchcloud.core.DonOptions` (which checks all of these).
+    at :
         As :func:`patchcloud.core.radius_normals`.
 
     Returns
@@ -91,10 +61,10 @@ def difference_of_normals(
     0.0
     """
     pts = check_points(points)
-    rs, rl = check_scales(r_small, r_large)
-    vp = default_viewpoint(pts) if viewpoint is None else viewpoint
-    kw = dict(viewpoint=vp, mode=mode, resolution=resolution, min_points=min_points, at=at)
-    return (radius_normals(pts, rs, **kw) - radius_normals(pts, rl, **kw)) / 2.0
+    o = DonOptions(r_small, r_large, mode=mode, viewpoint=viewpoint, resolution=resolution, min_points=min_points)
+    vp = default_viewpoint(pts) if o.viewpoint is None else np.asarray(o.viewpoint)
+    kw = dict(viewpoint=vp, mode=o.mode, resolution=o.resolution, min_points=o.min_points, at=at)
+    return (radius_normals(pts, o.r_small, **kw) - radius_normals(pts, o.r_large, **kw)) / 2.0
 
 
 def don_magnitude(don: np.ndarray) -> np.ndarray:

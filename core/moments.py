@@ -18,10 +18,13 @@ from math import comb
 
 import numpy as np
 
+from . import _kernels
+
 __all__ = [
     "EXPONENTS",
     "N_MOMENTS",
     "point_moments",
+    "cell_moments",
     "shift_matrices",
     "shift_entries",
     "pca",
@@ -110,6 +113,54 @@ def point_moments(rel: np.ndarray, starts: np.ndarray, chunk: int = 1 << 18) -> 
             out[k0:k1, i] = np.add.reduceat(val, local)
             if a + b + c < 4:
                 values[(a, b, c)] = val
+    return out
+
+
+def cell_moments(local: np.ndarray, starts: np.ndarray, centres: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Moments of contiguous runs of points about their cells' centres (compiled).
+
+    The compiled counterpart of :func:`point_moments`, which the tests
+    compare it with: one parallel pass over the points, each run's sums
+    accumulated in its own order, so the result does not depend on the
+    thread count.
+
+    Parameters
+    ----------
+    local : (N, 3) float64
+        Points, C-ordered, sorted so that each cell's points are one run.
+    starts : (M,) int64
+        Index of the first point of each run; run ``k`` is
+        ``local[starts[k]:starts[k + 1]]`` (the last one ends at ``N``) and
+        ``starts[0] == 0``.
+    centres : (M, 3) float64
+        The centre of each run's cell, in the coordinates of ``local``.
+    out : (M, 35) float64, optional
+        Where to write the moments (every entry is overwritten); default: a
+        new array.
+
+    Returns
+    -------
+    (M, 35) float64
+        ``out``: row ``k`` holds the moments of run ``k`` about ``centres[k]``,
+        in the order of :data:`EXPONENTS`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> pts = np.random.default_rng(0).uniform(0, 2, (1000, 3))
+    >>> pts = pts[np.argsort(pts[:, 0] >= 1, kind="stable")]
+    >>> starts = np.array([0, int(np.count_nonzero(pts[:, 0] < 1))])
+    >>> centres = np.array([[0.5, 1.0, 1.0], [1.5, 1.0, 1.0]])
+    >>> m = cell_moments(pts, starts, centres)
+    >>> m.shape, m[:, 0].tolist() == [starts[1], 1000 - starts[1]]
+    ((2, 35), True)
+    >>> rel = pts - np.repeat(centres, np.diff(np.r_[starts, 1000]), axis=0)
+    >>> bool(np.allclose(m, point_moments(rel, starts)))
+    True
+    """
+    if out is None:
+        out = np.empty((starts.shape[0], N_MOMENTS), dtype=np.float64)
+    _kernels.cell_moments(local, starts, centres, out)
     return out
 
 

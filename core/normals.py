@@ -19,35 +19,31 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import Sequence
 
 import numpy as np
 
 from . import _kernels
+from .codes import Method
 from .errors import PatchcloudValueError
-from .octree import CRITERIA, estimate_spacing, sort_points
-from .orient import ORIENT_RULES
+from .octree import estimate_spacing, sort_points
+from .options import NormalsOptions, options_with
 from .patches import PatchTable
+from .points import root_cube, validate_points
 from .tiles import finish_tile, fit_tile, patch_signs
 
-__all__ = ["Method", "NormalsParameters", "NormalsResult", "check_parameters", "estimate_normals"]
-
-
-class Method(IntEnum):
-    """Which computation gave a point its normal."""
-
-    #: The quadric of the point's own patch, at the point's projection.
-    QUADRIC = 1
-    #: The own quadric blended with neighbouring patches' (near a leaf face).
-    BLENDED = 2
-    #: PCA of the k nearest neighbours (points of edge and sparse leaves).
-    KNN = 3
+__all__ = ["NormalsParameters", "NormalsResult", "estimate_normals"]
 
 
 @dataclass(frozen=True)
 class NormalsParameters:
-    """The parameters a run used, defaults resolved (lengths in metres)."""
+    """The parameters a run used, defaults resolved from the data (lengths in metres).
+
+    What the user asked is a :class:`~patchcloud.core.options.NormalsOptions`;
+    this is what the run made of it: ``threshold``, ``d_min`` and
+    ``max_edge`` as computed, the point ``spacing`` they came from, and the
+    root cube of the octree.
+    """
 
     criterion: str
     threshold: float
@@ -119,112 +115,12 @@ class NormalsResult:
         return self.curvature
 
 
-def _validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The points as C-ordered float64, and their per-axis minimum and maximum."""
-    arr = np.asarray(points)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise PatchcloudValueError(f"points must be a real numeric array (float or int), got dtype {arr.dtype}")
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise PatchcloudValueError(f"points must have shape (N, 3), got {arr.shape}")
-    arr = np.ascontiguousarray(arr, dtype=np.float64)
-    lo, hi, finite = _kernels.bounds(arr)
-    if not finite:
-        bad = ~np.isfinite(arr).all(axis=1)
-        first = int(np.flatnonzero(bad)[0])
-        raise PatchcloudValueError(
-            f"points contain {int(bad.sum())} rows with NaN or infinite coordinates (first at row {first})"
-        )
-    return arr, lo, hi
-
-
-def _positive(name: str, value, integer: bool = False):
-    if value is None:
-        return None
-    if integer:
-        if isinstance(value, bool) or int(value) != value or value < 1:
-            raise PatchcloudValueError(f"{name} must be a positive integer, got {value!r}")
-        return int(value)
-    if not np.isfinite(value) or value <= 0:
-        raise PatchcloudValueError(f"{name} must be a positive finite number, got {value!r}")
-    return float(value)
-
-
-def _root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
-    if root is not None:
-        corner, edge = root
-        corner = np.asarray(corner, dtype=np.float64).reshape(3)
-        edge = _positive("root edge", edge)
-        if np.any(lo < corner) or np.any(hi > corner + edge):
-            raise PatchcloudValueError("points lie outside the given root cube")
-        return corner, edge
-    extent = float((hi - lo).max())
-    scale = max(extent, float(np.abs(lo).max()) * 1e-12, 1e-9)
-    edge = extent + 1e-6 * scale if extent > 0 else scale
-    corner = (lo + hi) / 2.0 - edge / 2.0
-    return corner, edge
-
-
-def check_parameters(
-    criterion: str,
-    orient: str,
-    viewpoint=None,
-    *,
-    threshold: float | None = None,
-    d_min: float | None = None,
-    max_edge: float | None = None,
-    n_min: int = 12,
-    min_sigma2: float = 0.01,
-    k_fallback: int = 16,
-) -> dict:
-    """The parameters of :func:`estimate_normals`, validated and normalised.
-
-    Returns a dict with ``threshold``, ``d_min``, ``max_edge`` (float or
-    None), ``n_min``, ``k_fallback`` (int) and ``viewpoint`` ((3,) float64
-    with ``orient="viewpoint"``, else None).
-
-    Raises
-    ------
-    PatchcloudValueError
-        The first invalid parameter, with the valid values.
-    """
-    if criterion not in CRITERIA:
-        raise PatchcloudValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
-    if orient not in ORIENT_RULES:
-        raise PatchcloudValueError(f"orient must be one of {', '.join(ORIENT_RULES)}; got {orient!r}")
-    out = {
-        "n_min": _positive("n_min", n_min, integer=True),
-        "k_fallback": _positive("k_fallback", k_fallback, integer=True),
-        "threshold": _positive("threshold", threshold),
-        "d_min": _positive("d_min", d_min),
-        "max_edge": _positive("max_edge", max_edge),
-        "viewpoint": None,
-    }
-    if not (0 <= min_sigma2 < 1 / 3 + 1e-12):
-        raise PatchcloudValueError(f"min_sigma2 must be in [0, 1/3), got {min_sigma2!r}")
-    if orient == "viewpoint":
-        if viewpoint is None:
-            raise PatchcloudValueError('orient="viewpoint" needs a viewpoint (x, y, z)')
-        vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
-        if vp.shape != (3,) or not np.isfinite(vp).all():
-            raise PatchcloudValueError(f"viewpoint must be three finite numbers, got {viewpoint!r}")
-        out["viewpoint"] = vp
-    return out
-
-
 def estimate_normals(
     points: np.ndarray,
-    criterion: str = "rmse",
+    options: NormalsOptions | None = None,
     *,
-    threshold: float | None = None,
-    d_min: float | None = None,
-    max_edge: float | None = None,
-    n_min: int = 12,
-    min_sigma2: float = 0.01,
-    k_fallback: int = 16,
-    orient: str = "up",
-    viewpoint: Sequence[float] | None = None,
-    blend: bool = True,
     root: tuple[Sequence[float], float] | None = None,
+    **kwargs,
 ) -> NormalsResult:
     """Normals, curvatures and quadric patch models of one cloud.
 
@@ -234,42 +130,20 @@ def estimate_normals(
         Coordinates (metres, or any unit: the defaults scale with the data).
         Large offsets such as UTM are fine: everything is computed in float64
         relative to the root cube's corner.
-    criterion : {"rmse", "sigma3"}
-        When a node is uniform: its quadric fit RMSE is at most
-        ``threshold`` metres ("rmse"), or its surface variation sigma3 is at
-        most ``threshold`` ("sigma3", dimensionless).
-    threshold : float, optional
-        Default for "rmse": twice the median fit RMSE of the smallest
-        nodes (the scanner noise) and at least 1/50 of the point spacing;
-        for "sigma3": 0.005.
-    d_min : float, optional
-        Minimum leaf edge (metres). Default: 3 times the point spacing
-        estimated from the octree occupancy.
-    max_edge : float, optional
-        Maximum leaf edge (metres): larger nodes are split even when
-        uniform, so one patch never spans a whole flat tile.  Default: 256
-        times the point spacing.
-    n_min : int
-        Nodes with fewer points are not split and get no surface (default 12).
-    min_sigma2 : float
-        Leaves with sigma2 (paper eq. 4) below this are 3D curves: edge
-        patches (default 0.01).
-    k_fallback : int
-        Neighbours of the k-NN PCA normal of points in edge and sparse
-        leaves (default 16).
-    orient : {"up", "viewpoint", "outward", "none"}
-        Global orientation rule applied to every connected group of patches
-        after propagation: towards +Z (LiDAR default), towards
-        ``viewpoint``, away from the cloud's centroid (closed objects), or
-        none (consistent but arbitrary sign).
-    viewpoint : (3,) float, optional
-        Required with ``orient="viewpoint"``, in the points' coordinates.
-    blend : bool
-        Blend normals and curvatures across leaf faces (paper 2.4).
+    options : NormalsOptions, optional
+        What to compute: the criterion and its threshold, ``d_min``,
+        ``max_edge``, ``n_min``, ``min_sigma2``, ``k_fallback``, the
+        orientation rule (``orient``, ``viewpoint``) and ``blend``; see
+        :class:`~patchcloud.core.options.NormalsOptions` for each one's
+        meaning and default (None: from the data).
     root : ((3,) float, float), optional
         Minimum corner and edge of the root cube; default: the bounding cube
         of the points.  The stream passes a tile's cube so per-tile octrees
         are subtrees of one global octree.
+    **kwargs
+        Any field of :class:`~patchcloud.core.options.NormalsOptions` by
+        name (``criterion="sigma3"``, ``orient="outward"``), overriding
+        ``options``.
 
     Returns
     -------
@@ -293,19 +167,17 @@ def estimate_normals(
     >>> bool(np.median(cos) > 0.9998)
     True
     """
-    pts, lo, hi = _validate_points(points)
-    checked = check_parameters(
-        criterion, orient, viewpoint, threshold=threshold, d_min=d_min, max_edge=max_edge, n_min=n_min,
-        min_sigma2=min_sigma2, k_fallback=k_fallback,
-    )
-    threshold, d_min, max_edge = checked["threshold"], checked["d_min"], checked["max_edge"]
-    n_min, k_fallback, vp = checked["n_min"], checked["k_fallback"], checked["viewpoint"]
+    pts, lo, hi = validate_points(points)
+    opts = options_with(NormalsOptions, options, kwargs)
+    criterion, threshold, d_min, max_edge = opts.criterion, opts.threshold, opts.d_min, opts.max_edge
+    n_min, min_sigma2, k_fallback, orient, blend = opts.n_min, opts.min_sigma2, opts.k_fallback, opts.orient, opts.blend
+    vp = np.asarray(opts.viewpoint, dtype=np.float64) if orient == "viewpoint" else None
     n = pts.shape[0]
     if n < n_min:
         raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")
 
     clock = _Clock()
-    corner, edge = _root_cube(lo, hi, root)
+    corner, edge = root_cube(lo, hi, root)
     local = pts - corner
     sorted_input = sort_points(local, np.zeros(3), edge)
     spacing = estimate_spacing(sorted_input[1], edge)

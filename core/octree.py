@@ -15,18 +15,18 @@ from functools import cached_property
 
 import numpy as np
 
-from .morton import MAX_DEPTH, containing, decode, key_range
 from . import _kernels
+from .codes import PatchKind
+from .morton import MAX_DEPTH, containing, decode, key_range
 from .moments import EXPONENTS, shift_entries
 from .quadric import NodeFit, fit_nodes
 
-__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "CRITERIA", "KIND_SURFACE", "KIND_EDGE", "KIND_SPARSE", "max_level_for", "point_keys"]
+__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "CRITERIA", "max_level_for", "point_keys", "NOISE_FACTOR", "FLOOR_FACTOR"]
 
 #: Subdivision criteria: "rmse" (quadric fit error, metres) and "sigma3" (surface variation).
 CRITERIA = ("rmse", "sigma3")
 
 #: Leaf kinds: a smooth patch modelled by its quadric, a sharp feature or 3D curve, too few points.
-KIND_SURFACE, KIND_EDGE, KIND_SPARSE = 0, 1, 2
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,7 @@ class Octree:
     fit : NodeFit
         PCA and quadric of every leaf (centroids relative to the leaf centre).
     kind : (P,) uint8
-        ``KIND_SURFACE``, ``KIND_EDGE`` or ``KIND_SPARSE``.
+        a :class:`~patchcloud.core.codes.PatchKind` value.
     threshold : float
         The uniformity threshold that was used.
     """
@@ -324,9 +324,9 @@ def build_octree(
     level, cell, start, moments, uniform = level[srt], cell[srt], start[srt], moments[srt], uniform[srt]
     count = np.diff(np.r_[start, pts.shape[0]])
     fit = fit_nodes(moments, edge / np.exp2(level + 1))
-    kind = np.full(level.shape[0], KIND_SURFACE, dtype=np.uint8)
-    kind[~uniform | (fit.sigma2 < min_sigma2)] = KIND_EDGE
-    kind[count < n_min] = KIND_SPARSE
+    kind = np.full(level.shape[0], PatchKind.SURFACE, dtype=np.uint8)
+    kind[~uniform | (fit.sigma2 < min_sigma2)] = PatchKind.EDGE
+    kind[count < n_min] = PatchKind.SPARSE
     return Octree(
         edge=float(edge),
         max_level=max_level,

@@ -18,7 +18,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
 from .morton import MAX_DEPTH, containing, encode, key_range
-from .octree import KIND_SURFACE, Octree
+from .codes import PatchKind
+from .octree import Octree
 from .quadric import implicit_value, surface_normals
 
 __all__ = [
@@ -90,7 +91,7 @@ class LeafSet(NamedTuple):
     frame: np.ndarray  #: (P, 3, 3) PCA axes as columns
     coeffs: np.ndarray  #: (P, 6) quadric in the frame
     rmse: np.ndarray  #: (P,) quadric fit RMSE
-    kind: np.ndarray  #: (P,) KIND_SURFACE, KIND_EDGE or KIND_SPARSE
+    kind: np.ndarray  #: (P,) PatchKind values
     count: np.ndarray  #: (P,) points
 
     @classmethod
@@ -123,7 +124,7 @@ def link_agreements(
     """
     keep = (A.count[i] >= 3) & (B.count[j] >= 3)
     i, j, d = i[keep], j[keep], d[keep]
-    both = (A.kind[i] == KIND_SURFACE) & (B.kind[j] == KIND_SURFACE)
+    both = (A.kind[i] == PatchKind.SURFACE) & (B.kind[j] == PatchKind.SURFACE)
     agreement = np.einsum("ni,ni->n", A.frame[i, :, 2], B.frame[j, :, 2])
     # a PCA normal of a sharp or sparse spot is rough: trust only nearly parallel ones
     agreement[~both & (np.abs(agreement) < DOT_MIN)] = 0.0

@@ -7,24 +7,13 @@ holds every leaf's octree key, point count, PCA plane and quadric.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
-from enum import IntEnum
 
 import numpy as np
 
+from .codes import PatchKind
 from .quadric import turn_over
 
 __all__ = ["PatchKind", "PatchTable"]
-
-
-class PatchKind(IntEnum):
-    """What a leaf holds."""
-
-    #: A smooth piece of surface, modelled by its quadric.
-    SURFACE = 0
-    #: A sharp feature or a 3D curve (paper eq. 4); no surface model.
-    EDGE = 1
-    #: Fewer than ``n_min`` points; no surface model.
-    SPARSE = 2
 
 
 @dataclass(frozen=True)

@@ -28,9 +28,9 @@ import numpy as np
 from ._kernels import cell_moments
 from .errors import PatchcloudValueError
 from .merge import leaf_neighbours, merge_leaves, moment_scale, sum_moments
-from .normals import _root_cube, _validate_points
 from .octree import estimate_spacing, sort_points
 from .patches import PatchKind
+from .points import root_cube, validate_points
 from .quadric import fit_nodes, implicit_value
 from .tiles import fit_tile
 
@@ -356,14 +356,14 @@ def fit_models(
     >>> len(fit.models), fit.residual.size, int(fit.models.count.sum())
     (2, 0, 20000)
     """
-    pts, lo, hi = _validate_points(points)
+    pts, lo, hi = validate_points(points)
     budget = check_budget(max_error)
     if not np.isfinite(outlier_factor) or outlier_factor < 1:
         raise PatchcloudValueError(f"outlier_factor must be at least 1, got {outlier_factor!r}")
     n = pts.shape[0]
     if n < n_min:
         raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")
-    corner, edge = _root_cube(lo, hi, root)
+    corner, edge = root_cube(lo, hi, root)
     sorted_input = sort_points(pts - corner, np.zeros(3), edge)
     spacing = estimate_spacing(sorted_input[1], edge)
     if d_min is None:

@@ -37,7 +37,8 @@ from . import _kernels
 from .blend import blend_across_faces
 from .fallback import knn_normals
 from .morton import encode
-from .octree import KIND_SURFACE, Octree, build_octree, max_level_for, point_keys, sort_points
+from .codes import Method, PatchKind
+from .octree import Octree, build_octree, max_level_for, point_keys, sort_points
 from .orient import (
     MIN_RELIABILITY,
     LeafSet,
@@ -52,10 +53,8 @@ from .orient import (
 from .patches import PatchTable
 from .quadric import NodeFit, turn_over
 
-__all__ = ["TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile", "METHOD_QUADRIC", "METHOD_BLENDED", "METHOD_KNN"]
+__all__ = ["TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile"]
 
-#: Method codes (see :class:`patchcloud.core.Method`).
-METHOD_QUADRIC, METHOD_BLENDED, METHOD_KNN = 1, 2, 3
 
 
 @dataclass(frozen=True)
@@ -307,17 +306,17 @@ def finish_tile(
     frames, coeffs = turn_over(patches.frame, patches.coeffs, np.asarray(sign) < 0)
     oriented = PatchTable(**{**patches.__dict__, "frame": frames, "coeffs": coeffs})
     n = local.shape[0]
-    surface = tree.kind == KIND_SURFACE
+    surface = tree.kind == PatchKind.SURFACE
     normals = np.zeros((n, 3))
     scalars = np.zeros((n, 3))
     dir1 = np.zeros((n, 3))
     _kernels.eval_surface_points(
         tree.local, tree.start, tree.count, surface, tree.centroid, frames, coeffs, tree.fit.sigma3, normals, scalars, dir1
     )
-    method = np.repeat(np.where(surface, METHOD_QUADRIC, 0).astype(np.uint8), tree.count)
+    method = np.repeat(np.where(surface, Method.QUADRIC, 0).astype(np.uint8), tree.count)
     if blend:
         was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1, outside=outside, corner=corner)
-        method[was] = METHOD_BLENDED
+        method[was] = Method.BLENDED
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64) - corner
     ctr = None if centre is None else np.asarray(centre, dtype=np.float64) - corner
     if skin is not None and skin.points.shape[0]:
@@ -351,7 +350,7 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centr
     flat = length < 1e-9  # k1 direction along the normal: any tangent will do
     t[flat] = np.cross(nrm[flat], np.where(np.abs(nrm[flat, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
     dir1[query] = t / np.linalg.norm(t, axis=1)[:, None]
-    method[query] = METHOD_KNN
+    method[query] = Method.KNN
     todo = np.ones(query.size, dtype=bool)
     sign = np.empty(query.size)
     for _ in range(rounds):

@@ -104,7 +104,7 @@ def test_bad_points_raise_clear_value_errors(points, match):
         ({"criterion": "angle"}, "criterion must be one of rmse, sigma3"),
         ({"orient": "down"}, "orient must be one of up, viewpoint, outward, none"),
         ({"orient": "viewpoint"}, "needs a viewpoint"),
-        ({"orient": "viewpoint", "viewpoint": (1, 2)}, "three finite numbers"),
+        ({"orient": "viewpoint", "viewpoint": (1, 2)}, "three finite"),
         ({"threshold": -1.0}, "threshold must be a positive"),
         ({"d_min": 0.0}, "d_min must be a positive"),
         ({"n_min": 0}, "n_min must be a positive integer"),

@@ -13,7 +13,7 @@ CRITERIA = ["rmse", "sigma3"]
 @pytest.mark.parametrize("criterion", CRITERIA)
 def test_plane_normals_are_exact_and_up(rng, criterion):
     p, n = synthetic.plane(rng, 20000, size=10.0, tilt=(0.2, -0.1))
-    res = estimate_normals(p, criterion)
+    res = estimate_normals(p, criterion=criterion)
     assert res.normals.dtype == np.float32 and res.normals.shape == p.shape
     ang = angles_deg(res.normals, n, signed=True)
     assert np.max(ang) < 0.01  # noise-free plane: exact, and oriented up
@@ -26,7 +26,7 @@ def test_plane_normals_are_exact_and_up(rng, criterion):
 def test_sphere_normals_curvature_and_outward(rng, criterion):
     R = 2.0
     p, n = synthetic.sphere(rng, 40000, radius=R, centre=(3.0, -1.0, 0.5))
-    res = estimate_normals(p, criterion, orient="outward")
+    res = estimate_normals(p, criterion=criterion, orient="outward")
     ang = angles_deg(res.normals, n)
     assert np.median(ang) < 1.0
     cos = np.einsum("ij,ij->i", res.normals, n)
@@ -71,7 +71,7 @@ def test_paraboloid_curvature_at_apex(rng):
 @pytest.mark.parametrize("criterion", CRITERIA)
 def test_torus_outward(rng, criterion):
     p, n = synthetic.torus(rng, 60000, major=2.0, minor=0.6)
-    res = estimate_normals(p, criterion, orient="outward")
+    res = estimate_normals(p, criterion=criterion, orient="outward")
     assert np.median(angles_deg(res.normals, n)) < 1.0
     assert np.mean(np.einsum("ij,ij->i", res.normals, n) > 0) >= 0.995
 

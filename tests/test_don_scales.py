@@ -1,4 +1,4 @@
-"""DoN scale selection (patchcloud.stream.scales, the don-scales command, its figure) on a synthetic labelled scene."""
+"""DoN scale selection (patchcloud.stream.jobs.don_scales, the don-scales command, its figure) on a synthetic labelled scene."""
 
 import laspy
 import numpy as np
@@ -8,8 +8,8 @@ from matplotlib.image import imread
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, difference_of_normals, don_magnitude
 from patchcloud.stream.cli.don_scales import don_scales_command
-from patchcloud.stream.plots import save_png, scale_selection_figure
-from patchcloud.stream.scales import don_scales, fisher_ratio, scale_pairs, select_scales, stratified_sample
+from patchcloud.stream.views.plots import save_png, scale_selection_figure
+from patchcloud.stream.jobs.don_scales import don_scales, fisher_ratio, scale_pairs, select_scales, stratified_sample
 
 OFFSET = np.array([650000.0, 6860000.0, 30.0])
 POLES = [(4, 4), (4, 12), (10, 6), (12, 14), (6, 22), (14, 24)]

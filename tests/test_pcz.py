@@ -8,7 +8,7 @@ import pytest
 
 from patchcloud.core.errors import PatchcloudIOError
 from patchcloud.core.patchmodel import dequantise_models, fit_models, quantise_models, sample_models
-from patchcloud.stream import pcz
+from patchcloud.stream.io import pcz
 
 BUDGET = 0.01
 T = 8.0

@@ -9,13 +9,13 @@ from matplotlib.image import imread
 from patchcloud.stream.cli import main
 from patchcloud.core.errors import PatchcloudValueError
 from patchcloud.stream import render, render_array, render_tiles
-from patchcloud.stream.render import render_arrays
-from patchcloud.stream.render import (
+from patchcloud.stream.views.render import render_arrays
+from patchcloud.stream.views.render import (
     AMBIENT, BOUNDARY_DARKEN, LIGHT, NO_SEGMENT, ZBuffer, choose_view, class_colours, colorize, fill_gaps, lambert,
     make_frame, patch_boundaries, patch_colours, segment_colours, view_axes,
 )
-from patchcloud.stream.render_tiles import STATE_COLOURS, tile_state
-from patchcloud.stream.store import Store
+from patchcloud.stream.views.render_tiles import STATE_COLOURS, tile_state
+from patchcloud.stream.io.store import Store
 
 X0, Y0 = 650000.0, 6860000.0
 

@@ -15,8 +15,8 @@ import synthetic
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import DonSummary, compress, normals, report_compress, report_don, report_normals, segment, write_report
 from patchcloud.stream.cli import main
-from patchcloud.stream.plots import new_figure
-from patchcloud.stream.report import (
+from patchcloud.stream.views.plots import new_figure
+from patchcloud.stream.views.report import (
     ReportFigure, ReportTable, check_report_path, don_histogram, figure_png, histogram_figure, normal_statistics, pcz_parts,
     pcz_tiles, segment_sizes,
 )
@@ -24,7 +24,7 @@ from patchcloud.stream.report import (
 OFFSET = np.array([650000.0, 6860000.0, 40.0])
 IMG = '<img src="data:image/png;base64,'
 
-HAVE_RENDER = importlib.util.find_spec("patchcloud.stream.render") is not None  # the views need it
+HAVE_RENDER = importlib.util.find_spec("patchcloud.stream.views.render") is not None  # the views need it
 
 
 def write_las(path, pts, *, normals_as=None, nrm=None, classification=None):

@@ -12,7 +12,7 @@ import synthetic
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 from patchcloud.core.octree import point_keys
 from patchcloud.stream import Store, normals, tile
-from patchcloud.stream import steps as stream_steps
+from patchcloud.stream.jobs import normals_tiles as stream_steps
 from patchcloud.stream.cli import main
 
 OFFSET = np.array([650000.0, 6860000.0, 40.0])  # UTM-like: the local frame must keep millimetres

@@ -10,8 +10,8 @@ from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import Store, don, segment
 from patchcloud.stream.cli import main
 from patchcloud.core.radius import cell_density, uses_voxels
-from patchcloud.stream.segmentation import _density, default_viewpoint_of
-from patchcloud.stream.lasio import open_source
+from patchcloud.stream.jobs.don import cloud_density, default_viewpoint_of
+from patchcloud.stream.io.las import open_source
 
 OFFSET = np.array([770496.0, 6277504.0, 30.0])  # Lambert-93-sized; tile faces fall on whole metres of the local frame
 
@@ -93,7 +93,7 @@ def test_tilewise_don_equals_the_whole_cloud_whatever_the_tile_size(scene, tmp_p
         tiled = store_don(st, local)
         if mode == "fast":  # the file's density, from the tiles' occupancy, is the one a whole-cloud run measures
             for edge in (0.075, 0.375):
-                assert _density(Store.open(str(st)), edge) == pytest.approx(cell_density(local, edge), rel=1e-12)
+                assert cloud_density(Store.open(str(st)), edge) == pytest.approx(cell_density(local, edge), rel=1e-12)
             assert not uses_voxels(0.3, 4, cell_density(local, 0.075)) and uses_voxels(1.5, 4, cell_density(local, 0.375))
         assert np.array_equal(np.isnan(tiled), np.isnan(whole))
         ok = np.isfinite(whole)

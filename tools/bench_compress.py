@@ -444,7 +444,7 @@ def plot(infos: list[dict], path: Path) -> Path:
     """Rate-distortion curves (bits/pt against symmetric mean error, log-log), one panel per input."""
     from matplotlib.lines import Line2D
 
-    from patchcloud.stream.plots import STYLE, new_figure, save_png, style_axes
+    from patchcloud.stream.views.plots import STYLE, new_figure, save_png, style_axes
 
     cols = min(4, len(infos) + 1)
     rows = math.ceil((len(infos) + 1) / cols)

@@ -66,9 +66,9 @@ def _worker(method: str, inp: str, out: str, orient: str) -> None:
 
         crit = method.split("-")[1]
         rng = np.random.default_rng(0)
-        estimate_normals(rng.normal(size=(2000, 3)), crit)  # warm the compiled kernels
+        estimate_normals(rng.normal(size=(2000, 3)), criterion=crit)  # warm the compiled kernels
         t = time.perf_counter()
-        res = estimate_normals(pts, crit, orient=orient)
+        res = estimate_normals(pts, criterion=crit, orient=orient)
         dt = time.perf_counter() - t
         n = res.normals
         steps = {k: round(v, 3) for k, v in res.timings.items()}

@@ -18,7 +18,7 @@ import laspy
 import numpy as np
 
 from patchcloud.core.patchmodel import fit_models, quantise_models
-from patchcloud.stream import pcz
+from patchcloud.stream.io import pcz
 
 BUDGET = 0.01
 T = 4.0

@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import laspy
 
-    from patchcloud.core import Method, PatchKind, estimate_normals
+    from patchcloud.core import Method, NormalsOptions, PatchKind, estimate_normals
 
     if a.output.exists() and not a.overwrite:
         print(f"error: {a.output}: exists (use --overwrite to replace it)", file=sys.stderr)
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     t_kernels = time.perf_counter() - t_k
     t1 = time.perf_counter()
     try:
-        res = estimate_normals(xyz, a.criterion, orient=a.orient, viewpoint=a.viewpoint)
+        res = estimate_normals(xyz, NormalsOptions(criterion=a.criterion, orient=a.orient, viewpoint=a.viewpoint))
     except ValueError as exc:
         print(f"error: {a.input}: {exc}", file=sys.stderr)
         return 2

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import click
 
+from patchcloud.core import CompressOptions
+
 from . import options
 
 
 @click.command("compress")
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.argument("output", type=click.Path(dir_okay=False))
-@click.option("--max-error", type=float, default=0.02, show_default=True, metavar="METRES",
+@click.option("--max-error", type=float, default=CompressOptions.max_error, show_default=True, metavar="METRES",
               help="Error budget: patches fit their points within it (RMS); points no patch models within it are kept exactly.")
 @options.job_options
 @options.report_option
@@ -33,8 +35,8 @@ def compress_command(input, output, max_error, tile_size, scheduler, workers, st
 
     options.check_report(report, overwrite, input, output)
 
-    summary = compress(input, output, max_error=max_error, tile_size=tile_size, scheduler=scheduler, workers=workers,
-                       store=store, keep_store=keep_store or None, overwrite=overwrite, quiet=quiet)
+    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet)
+    summary = compress(input, output, CompressOptions(max_error=max_error), run)
     options.finish_job(summary, quiet, report, report_compress)
 
 

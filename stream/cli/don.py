@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from patchcloud.core import DonOptions
+
 from . import options
 
 
@@ -32,8 +34,6 @@ def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, sch
 
     options.check_report(report, overwrite, input, output)
 
-    summary = don(
-        input, output, r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, tile_size=tile_size,
-        scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None, overwrite=overwrite, quiet=quiet,
-    )
+    asked = DonOptions(r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None)
+    summary = don(input, output, asked, options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet))
     options.finish_job(summary, quiet, report, report_don)

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import click
 
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from ..lasio import atomic_output
+from patchcloud.stream.io.las import atomic_output
 from . import options
 
 __all__ = ["don_scales_command", "parse_list"]
@@ -97,7 +97,7 @@ def don_scales_command(input, radii, small, large, classes_from, classes, sample
       patchcloud don-scales city.laz --classes 2,6,64 --radii 0.2,0.5,1,2,4 --plot scales.png --table scales.md
       patchcloud don-scales city.laz --classes-from user_data --mode exact --sample 20000
     """
-    from patchcloud.stream.scales import don_scales
+    from patchcloud.stream.jobs.don_scales import don_scales
 
     radii_v = parse_list("--radii", radii)
     small_v = parse_list("--small", small)
@@ -117,7 +117,7 @@ def don_scales_command(input, radii, small, large, classes_from, classes, sample
     if table is not None:
         _write_text(table, text)
     if plot_path is not None:
-        from patchcloud.stream.plots import save_png, scale_selection_figure
+        from patchcloud.stream.views.plots import save_png, scale_selection_figure
 
         save_png(scale_selection_figure(result), plot_path)
     if not quiet:

@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import click
 
+from patchcloud.core import Method, NormalsOptions
+
 from . import options
 
 
 @click.command("normals")
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.argument("output", type=click.Path(dir_okay=False))
-@click.option("--criterion", type=click.Choice(["rmse", "sigma3"]), default="rmse", show_default=True,
+@click.option("--criterion", type=click.Choice(["rmse", "sigma3"]), default=NormalsOptions.criterion, show_default=True,
               help="When an octree node is one smooth patch: quadric fit RMSE below the threshold (metres), or surface variation.")
 @click.option("--threshold", type=float, default=None, help="Threshold of the criterion. Default: from the scanner noise (rmse), 0.005 (sigma3).")
-@click.option("--orient", type=click.Choice(["up", "viewpoint", "outward", "none"]), default="up", show_default=True,
+@click.option("--orient", type=click.Choice(["up", "viewpoint", "outward", "none"]), default=NormalsOptions.orient, show_default=True,
               help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule.")
 @click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z", help="With --orient viewpoint, in the file's coordinates.")
 @click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
@@ -28,8 +30,7 @@ def normals_command(
 
     OUTPUT (LAZ when its name ends in .laz) holds every input point once, in
     input order, with every original dimension unchanged, plus NormalX,
-    NormalY, NormalZ, Curvature (surface variation), NormalMethod (1 quadric
-    patch, 2 blended across patches, 3 k-nearest-neighbour fallback) and
+    NormalY, NormalZ, Curvature (surface variation), NormalMethod ({methods}) and
     PatchId.  Memory depends on --tile-size, not on the file.  A run that is
     stopped can be resumed by running the same command again with --store.
 
@@ -43,9 +44,10 @@ def normals_command(
 
     options.check_report(report, overwrite, input, output)
 
-    summary = normals(
-        input, output, tile_size=tile_size, criterion=criterion, threshold=threshold, orient=orient,
-        viewpoint=viewpoint or None, blend=not no_blend, scheduler=scheduler, workers=workers, store=store,
-        keep_store=keep_store or None, overwrite=overwrite, quiet=quiet,
-    )
+    asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend)
+    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet)
+    summary = normals(input, output, asked, run)
     options.finish_job(summary, quiet, report, report_normals)
+
+
+normals_command.help = normals_command.help.replace("{methods}", Method.describe(long=True))

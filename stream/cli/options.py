@@ -7,9 +7,9 @@ import sys
 
 import click
 
-from patchcloud.core.errors import PatchcloudError
+from patchcloud.core import DonOptions, PatchcloudError
 
-__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job"]
+__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -39,7 +39,7 @@ report_option = click.option(
 def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:
     """Before a job runs: the ``--report`` path can be written (a PatchcloudIOError, hence one error line, if not)."""
     if report is not None:
-        from patchcloud.stream.report import check_report_path
+        from patchcloud.stream.views.report import check_report_path
 
         check_report_path(report, overwrite=overwrite, others=job_files)
 
@@ -54,6 +54,14 @@ def finish_job(summary, quiet: bool, report: str | None, write_report) -> None:
             click.echo(f"  report          {report}")
 
 
+def run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet):
+    """The :class:`patchcloud.stream.RunOptions` of the options :func:`job_options` adds (``--keep-store`` absent: the default rule)."""
+    from patchcloud.stream import RunOptions
+
+    return RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None,
+                      overwrite=overwrite, quiet=quiet)
+
+
 def job_options(func):
     """The options every out-of-core job shares: --tile-size, --scheduler, --workers, --store, --keep-store, --overwrite, -q."""
     for option in reversed([tile_size, scheduler, workers, store, keep_store, overwrite, quiet]):
@@ -64,9 +72,9 @@ def job_options(func):
 def don_options(func):
     """The options of the Difference of Normals: --rs, --rl, --mode, --viewpoint."""
     for option in reversed([
-        click.option("--rs", "r_small", type=float, default=0.2, show_default=True, metavar="METRES", help="Small support radius."),
-        click.option("--rl", "r_large", type=float, default=2.0, show_default=True, metavar="METRES", help="Large support radius."),
-        click.option("--mode", type=click.Choice(["exact", "fast"]), default="fast", show_default=True,
+        click.option("--rs", "r_small", type=float, default=DonOptions.r_small, show_default=True, metavar="METRES", help="Small support radius."),
+        click.option("--rl", "r_large", type=float, default=DonOptions.r_large, show_default=True, metavar="METRES", help="Large support radius."),
+        click.option("--mode", type=click.Choice(["exact", "fast"]), default=DonOptions.mode, show_default=True,
                      help="Radius normals by PCA of every point in the ball (exact, PCL's definition) or from voxel moments (fast)."),
         click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z",
                      help="Both normals face it (file coordinates). Default: above the middle of the file, one extent above its top."),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from patchcloud.core.errors import PatchcloudValueError
+from patchcloud.core import PatchcloudValueError
 
 from . import options
 
@@ -50,7 +50,7 @@ def render_command(input, output, color, view, bbox, width, shade, value_range, 
       patchcloud render city_segments.laz seg.png --color segments --view oblique --width 2400
       patchcloud render city.laz z.png --color elevation --bbox 650000 6860000 650100 6860100
     """
-    from patchcloud.stream.render import render
+    from patchcloud.stream.views.render import render
 
     if width is not None and width < 1:
         raise PatchcloudValueError(f"--width must be a positive number of pixels; got {width}")
@@ -76,7 +76,7 @@ def render_tiles_command(store, output, by, step, quiet):
     Tiles stacked in z are one column: done only if all its tiles are.  The
     store does not record failures: a tile whose task failed stays pending.
     """
-    from patchcloud.stream.render_tiles import render_tiles
+    from patchcloud.stream.views.render_tiles import render_tiles
 
     s = render_tiles(store, output, by=by, step=step)
     if not quiet:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from patchcloud.core import SegmentOptions
+
 from . import options
 
 
@@ -11,12 +13,12 @@ from . import options
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.argument("output", type=click.Path(dir_okay=False))
 @options.don_options
-@click.option("--threshold", type=float, default=0.25, show_default=True, help="Smallest DoN magnitude (0 to 1) of a point kept.")
+@click.option("--threshold", type=float, default=SegmentOptions.threshold, show_default=True, help="Smallest DoN magnitude (0 to 1) of a point kept.")
 @click.option("--axis", type=click.Choice(["x", "y", "z"]), default=None,
               help="Also require |DoN| along this axis >= --axis-threshold (e.g. z for kerbs).")
 @click.option("--axis-threshold", type=float, default=None, help="With --axis: smallest |DoN| along it.")
-@click.option("--tolerance", type=float, default=0.2, show_default=True, metavar="METRES", help="Largest gap between two points of one segment.")
-@click.option("--min-points", type=int, default=50, show_default=True, help="Smaller segments are dropped (ClusterID 0).")
+@click.option("--tolerance", type=float, default=SegmentOptions.tolerance, show_default=True, metavar="METRES", help="Largest gap between two points of one segment.")
+@click.option("--min-points", type=int, default=SegmentOptions.min_cluster, show_default=True, help="Smaller segments are dropped (ClusterID 0).")
 @click.option("--max-points", type=int, default=None, help="Larger segments are dropped (ClusterID 0). Default: no limit.")
 @options.job_options
 @options.report_option
@@ -42,10 +44,9 @@ def segment_command(
 
     options.check_report(report, overwrite, input, output)
 
-    summary = segment(
-        input, output, r_small=r_small, r_large=r_large, threshold=threshold, tolerance=tolerance, min_cluster=min_points,
-        max_cluster=max_points, axis=axis, axis_threshold=axis_threshold, mode=mode, viewpoint=viewpoint or None,
-        tile_size=tile_size, scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None,
-        overwrite=overwrite, quiet=quiet,
+    asked = SegmentOptions(
+        r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, threshold=threshold, tolerance=tolerance,
+        min_cluster=min_points, max_cluster=max_points, axis=axis, axis_threshold=axis_threshold,
     )
+    summary = segment(input, output, asked, options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet))
     options.finish_job(summary, quiet, report, report_don)

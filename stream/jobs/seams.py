@@ -3,7 +3,7 @@
 Each tile's fit kept its orientation forest (the most reliable face
 agreements inside the tile, and links to the global rule).  Here the
 leaves on either side of every tile face are linked the same way, by face
-sampling of the two patch models (:func:`.steps.seam_links`, one task per
+sampling of the two patch models (:func:`.normals_tiles.seam_links`, one task per
 pair of tiles); the union of the tiles' forests and these links holds the
 forest of the whole cloud's graph, so one maximum spanning forest over it
 (:func:`patchcloud.core.tiles.patch_signs`) orients every patch as a
@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from patchcloud.core.tiles import patch_signs
+from patchcloud.core import patch_signs
 
-from . import steps
-from .scheduling import Runner
-from .store import Store
+from patchcloud.stream.jobs import normals_tiles
+from patchcloud.stream.engine.runner import Runner
+from patchcloud.stream.io.store import Store
 
 __all__ = ["orient_tiles", "tile_pairs"]
 
@@ -57,7 +57,7 @@ def orient_tiles(store: Store, runner: Runner, orient: str, quiet: bool = False)
         score.append(store.read(t, "score"))
     pairs = tile_pairs(tiles)
     calls = [((store.url, a, b, axis), {}) for a, b, axis in pairs]
-    results = runner.map(steps.seam_links, calls, "seams") if calls else []
+    results = runner.map(normals_tiles.seam_links, calls, "seams") if calls else []
     cross = 0
     for (a, b, _), (ra, rb, ag) in zip(pairs, results):
         links.append(np.column_stack([ra + offsets[index[a]], rb + offsets[index[b]]]))

@@ -8,11 +8,11 @@ import zipfile
 import laspy
 import numpy as np
 
-from patchcloud.core.errors import PatchcloudIOError
+from patchcloud.core import PatchcloudIOError
 
-from .lasio import open_source
-from .pcz import open_pcz
-from .store import Store
+from patchcloud.stream.io.las import open_source
+from patchcloud.stream.io.pcz import open_pcz
+from patchcloud.stream.io.store import Store
 
 __all__ = ["info", "format_info"]
 
@@ -24,6 +24,12 @@ def info(path: str | os.PathLike) -> dict:
     ------
     PatchcloudIOError
         ``path`` is neither a readable LAS/LAZ file nor a patchcloud store.
+
+    Examples
+    --------
+    >>> d = info(sample)
+    >>> d["kind"], d["point_count"], d["point_format"]
+    ('las', 60653, 8)
     """
     p = str(path)
     if os.path.isfile(p) and zipfile.is_zipfile(p):
@@ -56,7 +62,15 @@ def info(path: str | os.PathLike) -> dict:
 
 
 def format_info(d: dict) -> str:
-    """``info``'s dictionary as a few lines of text."""
+    """``info``'s dictionary as a few lines of text.
+
+    Examples
+    --------
+    >>> print(format_info(info(sample)))                # doctest: +ELLIPSIS
+    /...test_data_77055_627760_LA93_IGN69.laz: LAS 1.4 point format 8 (LAZ)
+      points       60,653
+    ...
+    """
     if d["kind"] == "pcz":
         c = d["counts"]
         n = max(c["points"], 1)

@@ -54,8 +54,7 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec
 
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
-from patchcloud.core.patchmodel import QuantisedModels
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
 __all__ = ["FORMAT", "VERSION", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
 

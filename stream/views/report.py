@@ -23,8 +23,10 @@ from its summary:
 Every statistic that reads a file reads it in chunks of fixed size into
 fixed-size accumulators: memory does not grow with the file.
 
->>> from patchcloud.stream import normals, report_normals     # doctest: +SKIP
->>> report_normals(normals("city.laz", "out.laz"), "out.html")  # doctest: +SKIP
+>>> from patchcloud.stream import normals, report_normals
+>>> page = report_normals(normals(sample, tmp / "out.laz", quiet=True), tmp / "out.html")
+>>> page.name, "data:image/png;base64," in page.read_text()   # one file, its images inline
+('out.html', True)
 """
 
 from __future__ import annotations
@@ -44,15 +46,15 @@ import laspy
 import numpy as np
 from matplotlib.figure import Figure
 
-from patchcloud.core.errors import PatchcloudError, PatchcloudIOError, PatchcloudValueError
+from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError
 
-from .lasio import atomic_output, open_source, read_chunks
-from .plots import CMAP, STYLE, new_figure, style_axes
+from patchcloud.stream.io.las import atomic_output, open_source, read_chunks
+from patchcloud.stream.views.plots import CMAP, STYLE, new_figure, style_axes
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .compression import CompressSummary
-    from .pipeline import NormalsSummary
-    from .segmentation import DonSummary
+    from patchcloud.stream.jobs.compress import CompressSummary
+    from patchcloud.stream.jobs.normals import NormalsSummary
+    from patchcloud.stream.jobs.don import DonSummary
 
 __all__ = [
     "ReportFigure", "ReportTable", "Histogram", "NormalStatistics", "write_report", "check_report_path", "figure_png",
@@ -115,7 +117,7 @@ class Histogram:
 
 
 def figure_png(fig: Figure) -> bytes:
-    """``fig`` as PNG bytes (the :data:`~patchcloud.stream.plots.STYLE` resolution).
+    """``fig`` as PNG bytes (the :data:`~patchcloud.stream.views.plots.STYLE` resolution).
 
     Examples
     --------
@@ -603,7 +605,7 @@ def pcz_tiles(path: str | os.PathLike) -> dict[str, np.ndarray]:
     dict of arrays, one row per tile
         ``ijk`` (T, 3), ``patches``, ``patch_points``, ``residual``, ``residual_bytes`` (T,).
     """
-    from .pcz import open_pcz
+    from patchcloud.stream.io.pcz import open_pcz
 
     with open_pcz(path) as f:
         ps = np.asarray(f.patch_start, dtype=np.int64)
@@ -673,15 +675,15 @@ def segment_size_histogram(sizes: np.ndarray) -> Histogram:
 
 
 # --------------------------------------------------------------------------------------------------------------------
-# Views (patchcloud.stream.render)
+# Views (patchcloud.stream.views.render)
 # --------------------------------------------------------------------------------------------------------------------
 def _views(path: str, colours: Sequence[tuple[str, str]], width: int) -> tuple[list[ReportFigure], list[str]]:
-    """PNG views of ``path`` (LAS/LAZ), one per colour, from one read of the file (:func:`patchcloud.stream.render.render_arrays`).
+    """PNG views of ``path`` (LAS/LAZ), one per colour, from one read of the file (:func:`patchcloud.stream.views.render.render_arrays`).
 
     A colour the file has no dimension for, or views that cannot be drawn
     (a PatchcloudError), become notes instead.
     """
-    from .render import file_dimensions, render_arrays, render_figure, supported_modes
+    from patchcloud.stream.views.render import file_dimensions, render_arrays, render_figure, supported_modes
 
     notes = []
     try:

@@ -11,60 +11,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from patchcloud.core import _kernels
-from patchcloud.core.morton import MAX_DEPTH, decode
-from patchcloud.core.octree import FLOOR_FACTOR, KIND_SURFACE, NOISE_FACTOR, max_level_for, point_keys, sort_points
-from patchcloud.core.orient import LeafSet, cross_face_pairs, link_agreements
-from patchcloud.core.quadric import fit_nodes, surface_normals
-from patchcloud.core.tiles import Skin, finish_tile, fit_tile
+from patchcloud.core import (
+    FLOOR_FACTOR, MAX_DEPTH, NOISE_FACTOR, LeafSet, PatchKind, Skin, cell_moments, cross_face_pairs, decode, finish_tile,
+    fit_nodes, fit_tile, link_agreements, max_level_for, point_keys, surface_normals,
+)
 
-from .store import Store, table_to_array
+from patchcloud.stream.io.store import Store, table_to_array
 
-__all__ = ["sort_tile", "calibrate_tile", "fit_one_tile", "seam_links", "finish_one_tile", "RMSE_BINS", "occupancy_spacing"]
+__all__ = ["calibrate_tile", "threshold_from_histogram", "fit_one_tile", "seam_links", "finish_one_tile", "RMSE_BINS"]
 
 #: log10 bin edges of the fit-RMSE histograms (metres) behind the default threshold: 0.25 % wide.
 RMSE_BINS = np.linspace(-7.0, 2.0, 9 * 400 + 1)
 #: Finest cells used for the default threshold: those whose hash falls in 1 of this many.
 CALIBRATION_STRIDE = 8
-
-
-def sort_tile(url: str, ijk: tuple) -> list[int]:
-    """Sort a tile's points by octree key; return the tile's occupancy per level (for the global spacing).
-
-    ``occupancy[l]`` is the number of occupied cells of edge ``tile_size / 2**l``.
-    """
-    store = Store.open(url)
-    if store.tile_done(ijk, "sort"):
-        store.delete(ijk, "raw")
-        return list(store.tile_attrs(ijk)["occupancy"])
-    grid = store.grid
-    raw = store.read(ijk, "raw")
-    local = grid.local(raw) - grid.corner(ijk)
-    order, keys, _ = sort_points(local, np.zeros(3), grid.tile_size)
-    store.write(ijk, "xyz", raw[order])
-    store.write(ijk, "rank", order.astype(np.uint32))
-    occ = [int(np.count_nonzero(np.diff(keys >> np.uint64(3 * (MAX_DEPTH - lev))))) + 1 for lev in range(MAX_DEPTH + 1)]
-    store.mark_tile(ijk, "sort", index=[int(v) for v in ijk], count=int(raw.shape[0]), occupancy=occ)
-    store.delete(ijk, "raw")
-    return occ
-
-
-def occupancy_spacing(occupancy: dict[int, int], n: int, target: float = 16.0) -> float:
-    """Point spacing (metres) from occupied-cell counts per power-of-two cell size.
-
-    ``occupancy[e]`` counts the occupied cells of edge ``2**e`` metres over
-    the whole cloud; as :func:`patchcloud.core.octree.estimate_spacing`, the
-    largest cell size whose cells hold fewer than ``target`` points on
-    average gives ``2**e / sqrt(points per cell)``.  The counts add up
-    across tiles for any cell no larger than a tile, so the result does
-    not depend on the tile size.
-    """
-    for e in sorted(occupancy, reverse=True):
-        m = n / occupancy[e]
-        if m < target:
-            return float(2.0**e / np.sqrt(max(m, 1.0)))
-    e = min(occupancy)
-    return float(2.0**e / np.sqrt(max(n / occupancy[e], 1.0)))
 
 
 def calibrate_tile(url: str, ijk: tuple, d_min: float, n_min: int) -> np.ndarray:
@@ -74,7 +33,7 @@ def calibrate_tile(url: str, ijk: tuple, d_min: float, n_min: int) -> np.ndarray
     at least ``n_min`` points, and one in :data:`CALIBRATION_STRIDE` of them
     chosen by a hash of their absolute position: the same cells whatever
     the tiling, so the median over all tiles, like the in-memory default
-    (:func:`patchcloud.core.octree.default_max_rmse`), measures the scanner
+    (``patchcloud.core.estimate_normals``' default threshold), measures the scanner
     noise of the whole cloud.
     """
     store = Store.open(url)
@@ -96,7 +55,7 @@ def calibrate_tile(url: str, ijk: tuple, d_min: float, n_min: int) -> np.ndarray
     edge = T / 2.0**level
     centres = (cells + 0.5) * edge
     moments = np.empty((starts.size, 35))
-    _kernels.cell_moments(local, starts, centres, moments)
+    cell_moments(local, starts, centres, moments)
     fit = fit_nodes(moments[keep], np.full(int(keep.sum()), edge / 2.0))
     rmse = np.maximum(fit.rmse, 10.0 ** RMSE_BINS[0])
     hist += np.histogram(np.log10(rmse), bins=RMSE_BINS)[0]
@@ -198,7 +157,7 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
         outside.append(oriented_table(n) if n in present else None)
     halo = params["halo"]
     sk_pts, sk_nrm, sk_ok = [], [], []
-    needs_knn = bool(np.any(table.kind != KIND_SURFACE))  # only k-NN normals look at the skin
+    needs_knn = bool(np.any(table.kind != PatchKind.SURFACE))  # only k-NN normals look at the skin
     for n in sorted(present) if needs_knn else []:
         sx = store.read(n, "skin")
         if sx.shape[0] == 0:
@@ -210,7 +169,7 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
         p = p[inside]
         rows = store.read(n, "skin_patch")[inside].astype(np.int64)
         t = oriented_table(n)
-        surf = t.kind[rows] == KIND_SURFACE
+        surf = t.kind[rows] == PatchKind.SURFACE
         nrm = np.zeros_like(p)
         if surf.any():
             r = rows[surf]

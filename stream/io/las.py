@@ -18,29 +18,10 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-__all__ = ["LasSource", "OUTPUT_DIMS", "DON_DIMS", "SEGMENT_DIMS", "open_source", "read_chunks", "output_header", "atomic_output", "is_laz_name"]
+__all__ = ["LasSource", "open_source", "read_chunks", "output_header", "atomic_output", "is_laz_name", "laz_backend"]
 
-#: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description.
-OUTPUT_DIMS = (
-    ("NormalX", np.float32, "unit normal x"),
-    ("NormalY", np.float32, "unit normal y"),
-    ("NormalZ", np.float32, "unit normal z"),
-    ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)"),
-    ("NormalMethod", np.uint8, "1 quadric 2 blended 3 kNN"),
-    ("PatchId", np.uint32, "patchcloud patch id"),
-)
-#: Dimensions ``patchcloud don`` adds (NaN where the DoN is undefined).
-#: The extra-bytes VLR declares NaN as their no-data value.
-DON_DIMS = (
-    ("DoN", np.float32, "DoN magnitude |n_s - n_l|/2", np.nan),
-    ("DoNX", np.float32, "DoN vector x", np.nan),
-    ("DoNY", np.float32, "DoN vector y", np.nan),
-    ("DoNZ", np.float32, "DoN vector z", np.nan),
-)
-#: Dimensions ``patchcloud segment`` adds: the DoN and PDAL's cluster id (0 = no segment).
-SEGMENT_DIMS = DON_DIMS + (("ClusterID", np.uint64, "DoN segment id, 0 = none"),)
 
 
 @dataclass(frozen=True)
@@ -142,7 +123,7 @@ def read_chunks(src: LasSource, chunk: int, start_chunk: int = 0) -> Iterator[tu
     """
     p = src.path
     try:
-        with laspy.open(p, laz_backend=_laz_backend()) as reader:
+        with laspy.open(p, laz_backend=laz_backend()) as reader:
             if start_chunk:
                 reader.seek(start_chunk * chunk)
             done = start_chunk * chunk
@@ -164,7 +145,7 @@ def read_chunks(src: LasSource, chunk: int, start_chunk: int = 0) -> Iterator[tu
         raise PatchcloudIOError(f"{p}: cannot read point data ({exc})") from exc
 
 
-def _laz_backend():
+def laz_backend():
     """lazrs, in parallel when the installed build offers it."""
     try:
         return laspy.LazBackend.LazrsParallel if laspy.LazBackend.LazrsParallel.is_available() else laspy.LazBackend.Lazrs
@@ -172,12 +153,12 @@ def _laz_backend():
         return None
 
 
-def output_header(src: LasSource, dims=OUTPUT_DIMS) -> laspy.LasHeader:
+def output_header(src: LasSource, dims) -> laspy.LasHeader:
     """The input's header (point format, version, scales, offsets, VLRs, CRS) with ``dims`` added.
 
     ``dims``: (name, numpy type, description[, no-data value]) of every
-    dimension to add (default :data:`OUTPUT_DIMS`, those of ``patchcloud
-    normals``).
+    dimension to add (each job declares its own, e.g.
+    :data:`patchcloud.stream.jobs.normals.NORMALS_DIMS`).
 
     A dimension of the same name and type already in the input (a file
     that went through ``patchcloud normals`` before) is reused; one of

@@ -29,8 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import zarr
 
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
-from patchcloud.core.patches import PatchTable
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError, PatchTable
 
 __all__ = ["Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name"]
 

@@ -21,16 +21,16 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from patchcloud.core.errors import PatchcloudIOError
+from patchcloud.core import PatchcloudIOError
 
-from .lasio import atomic_output
+from patchcloud.stream.io.las import atomic_output
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
 
-    from .scales import ScalesResult
+    from patchcloud.stream.jobs.don_scales import ScalesResult
 
-__all__ = ["STYLE", "CMAP", "new_figure", "style_axes", "check_png_path", "save_png", "scale_selection_figure"]
+__all__ = ["STYLE", "CMAP", "new_figure", "style_axes", "check_png_path", "save_png", "scale_selection_figure", "shorten"]
 
 #: Shared look of every figure: resolution (dots per inch) and font sizes (points).
 STYLE = {"dpi": 150, "title": 10, "label": 9, "tick": 8, "annotation": 7, "suptitle": 11}
@@ -124,8 +124,12 @@ def _wrap(label: str, width: int = 11) -> str:
     return textwrap.fill(label, width=width, break_long_words=False)
 
 
-def _shorten(text: str, most: int) -> str:
-    """``text`` cut in the middle with an ellipsis when longer than ``most`` characters."""
+def shorten(text: str, most: int) -> str:
+    """``text`` cut in the middle with an ellipsis when longer than ``most`` characters.
+
+    >>> shorten("a_very_long_file_name.laz", 12)
+    'a_very…e.laz'
+    """
     if len(text) <= most:
         return text
     keep = most - 1
@@ -139,7 +143,7 @@ def _text_colour(rgba) -> str:
 
 
 def scale_selection_figure(result: "ScalesResult") -> Figure:
-    """The DoN scale selection of :func:`patchcloud.stream.scales.don_scales` as one figure.
+    """The DoN scale selection of :func:`patchcloud.stream.jobs.don_scales.don_scales` as one figure.
 
     Left: heat map of the Fisher ratio over (r_s, r_l) (rows r_s, columns
     r_l, metres; the value written in each cell, blank where r_s >= r_l,
@@ -159,8 +163,13 @@ def scale_selection_figure(result: "ScalesResult") -> Figure:
 
     Examples
     --------
-    >>> from patchcloud.stream.scales import don_scales            # doctest: +SKIP
-    >>> save_png(scale_selection_figure(don_scales("a.laz")), "a_don_scales.png")  # doctest: +SKIP
+    >>> from patchcloud.stream.jobs.don_scales import don_scales
+    >>> r = don_scales(sample, radii=[0.5, 1, 2], classes=[2, 5], sample=1000)   # ground vs high vegetation
+    >>> fig = scale_selection_figure(r)
+    >>> len(fig.axes)   # heat map, per-class bars, colour bar
+    3
+    >>> save_png(fig, tmp / "don_scales.png").read_bytes()[:4] == b"\\x89PNG"
+    True
     """
     rs_all = np.unique(result.r_small)
     rl_all = np.unique(result.r_large)
@@ -213,7 +222,7 @@ def scale_selection_figure(result: "ScalesResult") -> Figure:
     bx.grid(axis="y", alpha=0.3)
     style_axes(bx, f"|DoN| per class at r_s={rs:g} m, r_l={rl:g} m", f"class ({result.classes_from}; defined points)",
                "|DoN|: mean ± std (o), median (◇)")
-    name = _shorten(Path(result.source).name if result.source else "points", 70)
+    name = shorten(Path(result.source).name if result.source else "points", 70)
     fig.suptitle(
         f"DoN scale selection: {name}\n{int(result.sampled.sum()):,} query points of {result.point_count:,}, "
         f"{result.mode} radius normals",

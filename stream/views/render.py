@@ -1,6 +1,6 @@
 """Pictures of LAS/LAZ files of any size: ``patchcloud render``.
 
-The file is streamed in chunks (:func:`~patchcloud.stream.lasio.read_chunks`)
+The file is streamed in chunks (:func:`~patchcloud.stream.io.las.read_chunks`)
 and every chunk is reduced at once to at most one point per pixel, the one
 nearest the viewer (a z-buffer), so memory depends on the image, never on the
 file.  The pieces are pure numpy functions, unit-tested on their own:
@@ -49,9 +49,9 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from .lasio import LasSource, _laz_backend, open_source, read_chunks
+from patchcloud.stream.io.las import LasSource, laz_backend, open_source, read_chunks
 
 __all__ = [
     "COLOR_MODES", "VIEWS", "AMBIENT", "FLAT_RATIO", "LIGHT", "BACKGROUND", "UNDEFINED", "NO_SEGMENT",
@@ -676,7 +676,7 @@ def robust_heights(src: LasSource) -> tuple[float, float]:
         zs = [np.asarray(pts.z, dtype=np.float64) for _, pts in read_chunks(src, 1 << 20)]
     else:
         try:
-            with laspy.open(src.path, laz_backend=_laz_backend()) as r:
+            with laspy.open(src.path, laz_backend=laz_backend()) as r:
                 for start in np.linspace(0, n - FRAME_WINDOW, FRAME_WINDOWS).astype(np.int64).tolist():
                     r.seek(start)
                     zs.append(np.asarray(r.read_points(FRAME_WINDOW).z, dtype=np.float64))
@@ -775,9 +775,11 @@ def render_array(
 
     Examples
     --------
-    >>> img = render_array("city_normals.laz", color="normals", width=800)   # doctest: +SKIP
-    >>> img.rgb.shape, img.view                                               # doctest: +SKIP
-    ((712, 800, 3), 'top')
+    >>> img = render_array(sample, color="classification", width=400)   # an aerial tile: seen from the top
+    >>> img.rgb.shape, img.rgb.dtype, img.view
+    ((400, 400, 3), dtype('float64'), 'top')
+    >>> img.point_count, img.points_drawn <= img.point_count, img.shaded   # no normals in the file: no shading
+    (60653, True, False)
     """
     return render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range,
                          fill=fill, heights=heights, chunk=chunk)[0]
@@ -800,7 +802,13 @@ def render_arrays(
 
     Examples
     --------
-    >>> normals, curvature = render_arrays("out.laz", colors=["normals", "curvature"])   # doctest: +SKIP
+    >>> from patchcloud.stream import normals
+    >>> _ = normals(sample, tmp / "n.laz", quiet=True)
+    >>> by_normal, by_curvature = render_arrays(tmp / "n.laz", colors=["normals", "curvature"], width=400)
+    >>> by_normal.color, by_curvature.color, by_normal.rgb.shape
+    ('normals', 'curvature', (400, 400, 3))
+    >>> bool((by_normal.filled == by_curvature.filled).all())   # the same pixels in both pictures
+    True
     """
     t0 = time.perf_counter()
     colors = list(colors)
@@ -932,7 +940,7 @@ def render_figure(img: RenderImage):
     from matplotlib.colors import Normalize
     from matplotlib.patches import Patch
 
-    from .plots import STYLE, _shorten, new_figure, style_axes
+    from patchcloud.stream.views.plots import STYLE, shorten, new_figure, style_axes
 
     H, W = img.filled.shape
     dpi = STYLE["dpi"]
@@ -940,7 +948,7 @@ def render_figure(img: RenderImage):
     fig, (ax,) = new_figure(W / dpi + side + 0.9, H / dpi + 1.1)
     ax.imshow(img.rgb, extent=img.extent, origin="upper", interpolation="nearest", aspect="equal")
     xl, yl = img.axis_labels
-    name = _shorten(Path(img.source).name, 60)
+    name = shorten(Path(img.source).name, 60)
     what = {"don": "DoN", "segments": "segments (ClusterID)", "patches": "patches (PatchId)",
             "normals": "normals RGB = (n + 1) / 2"}.get(img.color, img.color)
     title = (f"{name}: {what}, {img.view} view{', shaded' if img.shaded else ''}\n"
@@ -988,10 +996,16 @@ def render(
 
     Examples
     --------
-    >>> s = render("city_normals.laz", "city.png", color="curvature")   # doctest: +SKIP
-    >>> print(s.format())                                               # doctest: +SKIP
+    >>> from patchcloud.stream import normals
+    >>> _ = normals(sample, tmp / "n.laz", quiet=True)
+    >>> s = render(tmp / "n.laz", tmp / "n.png", color="curvature", width=400)
+    >>> print(s.format())   # doctest: +ELLIPSIS
+    /...n.png: 400 x 400 px, curvature, top view, shaded, colour range ... .. ...
+    60,653 points read, 60,653 in the frame, ... drawn (one per pixel), ... pixels filled, ... s
+    >>> (tmp / "n.png").read_bytes()[:4] == b"\\x89PNG"
+    True
     """
-    from .plots import check_png_path, save_png
+    from patchcloud.stream.views.plots import check_png_path, save_png
 
     t0 = time.perf_counter()
     out = check_png_path(output)

@@ -26,11 +26,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from patchcloud.core.cluster import components, number_by_first
-from patchcloud.core.don import don_magnitude, don_mask
-from patchcloud.core.radius import radius_normals
+from patchcloud.core import components, don_magnitude, don_mask, number_by_first, radius_normals
 
-from .store import Store
+from patchcloud.stream.io.store import Store
 
 __all__ = ["skin_tile", "don_tile", "cluster_tile", "merge_components", "HIST_BINS"]
 

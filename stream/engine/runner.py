@@ -1,10 +1,9 @@
-"""Where the per-tile tasks run: a local dask cluster, an existing one, or inline.
+"""Where tasks run: a local dask cluster (threads or processes), an existing cluster, or inline.
 
-``map_tiles(func, store, halo=...)`` is the one way every per-tile step is
-run (the model is xarray's ``map_blocks``): one task per tile, each given
-the store's URL, the tile's index and, with ``halo``, the indices of the
-tiles around it, results returned in the store's tile order whatever order
-the tasks finished in.
+:class:`Runner` maps a function over a list of calls and returns the
+results in call order, whatever order the tasks finished in; per-tile steps
+go through :func:`patchcloud.stream.engine.tasks.map_tiles`, which builds
+those calls.
 """
 
 from __future__ import annotations
@@ -12,15 +11,13 @@ from __future__ import annotations
 import os
 import resource
 from collections.abc import Callable, Sequence
-from itertools import product
 from typing import Any
 
-from patchcloud.core.errors import PatchcloudValueError
+from patchcloud.core import PatchcloudValueError
 
-from .progress import Progress
-from .store import Store
+from patchcloud.stream.engine.progress import Progress
 
-__all__ = ["Runner", "map_tiles", "SCHEDULERS"]
+__all__ = ["Runner", "SCHEDULERS"]
 
 #: Named schedulers; anything else is taken as the address of a dask.distributed scheduler.
 SCHEDULERS = ("threads", "processes", "synchronous")
@@ -32,25 +29,6 @@ def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> Any:
 
     numba.set_num_threads(max(1, min(numba_threads, numba.config.NUMBA_NUM_THREADS)))
     return func(*args, **kwargs)
-
-
-def _tile_task(func: Callable, url: str, ijk: tuple, **kwargs) -> Any:
-    """``func(url, ijk, **kwargs)``; when it raises, the tile records the failure (``render-tiles`` shows it), then it raises."""
-    from .store import Store
-
-    name = getattr(func, "__name__", "task")
-    try:
-        out = func(url, ijk, **kwargs)
-    except Exception as exc:
-        try:
-            Store.open(url).mark_failed(ijk, name, f"{type(exc).__name__}: {exc}")
-        except Exception:  # the store itself is the problem: the original error says more
-            pass
-        raise
-    st = Store.open(url)
-    if name in st.tile_attrs(ijk).get("failed", {}):
-        st.mark_failed(ijk, name, None)
-    return out
 
 
 def _peak_rss_bytes() -> int:
@@ -156,52 +134,3 @@ class Runner:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def map_tiles(
-    func: Callable,
-    store: Store,
-    *,
-    tiles: Sequence[tuple] | None = None,
-    halo: int = 0,
-    runner: Runner | None = None,
-    label: str | None = None,
-    **kwargs,
-) -> dict[tuple, Any]:
-    """Run ``func(store.url, ijk, **kwargs)`` for every tile, in parallel.
-
-    Parameters
-    ----------
-    func : callable
-        A module-level function (it may run in another process).
-    store : Store
-    tiles : sequence of (3,) int tuples, optional
-        The tiles to run on (default: all of the store's).
-    halo : int
-        With ``halo >= 1``, ``func`` also gets ``neighbours=``: the store's
-        tiles within ``halo`` tiles of ``ijk`` (per axis, ``ijk`` excluded).
-    runner : Runner, optional
-        Default: a synchronous runner.
-    kwargs :
-        Passed to every call.
-
-    Returns
-    -------
-    dict from tile index to ``func``'s result, in the order of ``tiles``.
-    """
-    runner = runner or Runner("synchronous", quiet=True)
-    all_tiles = store.tiles
-    todo = list(tiles) if tiles is not None else all_tiles
-    present = set(all_tiles)
-    calls = []
-    for ijk in todo:
-        kw = dict(kwargs)
-        if halo:
-            r = range(-halo, halo + 1)
-            kw["neighbours"] = [
-                (ijk[0] + a, ijk[1] + b, ijk[2] + c) for a, b, c in product(r, r, r)
-                if (a, b, c) != (0, 0, 0) and (ijk[0] + a, ijk[1] + b, ijk[2] + c) in present
-            ]
-        calls.append(((func, store.url, ijk), kw))
-    results = runner.map(_tile_task, calls, label or getattr(func, "__name__", "tiles"))
-    return dict(zip(todo, results))

@@ -49,10 +49,9 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core.errors import PatchcloudValueError
-from patchcloud.core.radius import MODES, check_points, default_viewpoint, radius_normals
+from patchcloud.core import check_points, default_viewpoint, MODES, PatchcloudValueError, radius_normals
 
-from .lasio import open_source, read_chunks
+from patchcloud.stream.io.las import open_source, read_chunks
 
 __all__ = [
     "DEFAULT_RADII",
@@ -667,10 +666,18 @@ def don_scales(
 
     Examples
     --------
-    >>> r = don_scales("labelled.laz", radii=[0.2, 0.5, 1, 2])   # doctest: +SKIP
-    >>> r.best_pair, r.best_fisher                                 # doctest: +SKIP
-    ((0.2, 2.0), 1.37)
-    >>> print(r.format())                                          # doctest: +SKIP
+    >>> r = don_scales(sample, radii=[0.5, 1, 2], classes=[2, 5], sample=1000)   # ground vs high vegetation
+    >>> r.labels(), r.sampled.tolist(), r.pairs.tolist()
+    (['2 ground', '5 high vegetation'], [500, 500], [[0.5, 1.0], [0.5, 2.0], [1.0, 2.0]])
+    >>> r.best_pair, round(r.best_fisher, 2)
+    ((0.5, 2.0), 0.75)
+    >>> bool(r.mean[r.best, 0] < r.mean[r.best, 1])   # at the best pair, the ground's |DoN| is the smaller
+    True
+    >>> print(r.format())   # doctest: +ELLIPSIS
+    DoN scale selection: test_data_77055_627760_LA93_IGN69.laz, 60,653 points, classes from 'classification', ...
+    ...
+    best pair: r_s = 0.5 m, r_l = 2 m, Fisher ratio 0.7504
+    ...
     """
     # Arguments first: nothing is read before they are known to be good.
     scale_pairs(radii, small=small, large=large)

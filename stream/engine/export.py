@@ -6,7 +6,8 @@ and since a tile's results are kept in input order, they are the next
 rows of that tile's result arrays.  Every byte of every original point
 record (extra bytes included) is copied as it is; the new dimensions are
 appended.  :func:`export_columns` does this for any set of per-tile result
-arrays; :func:`export_normals` is ``patchcloud normals``' use of it.
+arrays: a job declares its :class:`Column` s (see
+:meth:`patchcloud.stream.engine.job.Job.columns`).
 """
 
 from __future__ import annotations
@@ -17,14 +18,14 @@ from dataclasses import dataclass
 import laspy
 import numpy as np
 
-from patchcloud.core.errors import PatchcloudIOError
+from patchcloud.core import PatchcloudIOError
 
-from .ingest import _pack, tile_keys
-from .lasio import OUTPUT_DIMS, LasSource, _laz_backend, atomic_output, is_laz_name, output_header, read_chunks
-from .progress import Progress
-from .store import Store, tile_name
+from patchcloud.stream.engine.ingest import pack_tile_keys, tile_keys
+from patchcloud.stream.io.las import LasSource, atomic_output, is_laz_name, laz_backend, output_header, read_chunks
+from patchcloud.stream.engine.progress import Progress
+from patchcloud.stream.io.store import Store, tile_name
 
-__all__ = ["Column", "export_columns", "export_normals", "FirstSeenIds"]
+__all__ = ["Column", "export_columns", "FirstSeenIds"]
 
 
 @dataclass(frozen=True)
@@ -87,13 +88,13 @@ def export_columns(
     """Write ``output`` (LAS, or LAZ when the name ends in .laz): ``src`` plus ``columns`` as dimensions ``dims``.
 
     ``dims`` are (name, numpy type, description) of the dimensions added,
-    as :func:`patchcloud.stream.lasio.output_header` takes them.
+    as :func:`patchcloud.stream.io.las.output_header` takes them.
     """
     header = output_header(src, dims)
     grid = store.grid
     chunk = int(store.attrs["chunk_points"])
     tiles = store.tiles
-    tile_index = _pack(np.asarray(tiles, dtype=np.int64))  # sorted: the store lists tiles in key order
+    tile_index = pack_tile_keys(np.asarray(tiles, dtype=np.int64))  # sorted: the store lists tiles in key order
     index = store.group["index/chunk_tile"][...]
     bounds = np.searchsorted(index[:, 0], np.arange(-(-src.point_count // chunk) + 1))
     taken = np.zeros(len(tiles), dtype=np.int64)
@@ -101,7 +102,7 @@ def export_columns(
     bar = Progress("export", src.point_count, quiet=quiet)
     with atomic_output(output, overwrite) as f:
         with laspy.open(
-            f, mode="w", header=header, do_compress=is_laz_name(output), closefd=False, laz_backend=_laz_backend()
+            f, mode="w", header=header, do_compress=is_laz_name(output), closefd=False, laz_backend=laz_backend()
         ) as writer:
             for first, pts in read_chunks(src, chunk):
                 c = first // chunk
@@ -142,15 +143,3 @@ def export_columns(
                 writer.write_points(out)
                 bar.update(n)
     bar.close()
-
-
-def export_normals(store: Store, src: LasSource, output: str, overwrite: bool = False, quiet: bool = False) -> None:
-    """Write ``output`` from ``src`` and the store's normals (:data:`patchcloud.stream.lasio.OUTPUT_DIMS`)."""
-    patch_offsets = np.asarray(store.attrs["patch_offsets"], dtype=np.int64)
-    columns = [
-        Column("normal", ("NormalX", "NormalY", "NormalZ"), np.float32),
-        Column("curvature", ("Curvature",), np.float32),
-        Column("method", ("NormalMethod",), np.uint8),
-        Column("patch", ("PatchId",), np.uint32, per_tile=lambda t, v: v + patch_offsets[t]),
-    ]
-    export_columns(store, src, output, columns, OUTPUT_DIMS, overwrite=overwrite, quiet=quiet)

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from .store import Store
+from patchcloud.stream.io.store import Store
 
 __all__ = ["TILE_STEPS", "STATE_COLOURS", "TileState", "TilesSummary", "tile_state", "tiles_figure", "render_tiles"]
 
@@ -166,7 +166,7 @@ def tiles_figure(ts: TileState, by: str = "points"):
     from matplotlib.colors import LogNorm, Normalize
     from matplotlib.patches import Patch, Rectangle
 
-    from .plots import CMAP, STYLE, _shorten, new_figure, style_axes
+    from patchcloud.stream.views.plots import CMAP, STYLE, shorten, new_figure, style_axes
 
     T = ts.tile_size
     x0, y0 = ts.corner.min(axis=0)
@@ -217,7 +217,7 @@ def tiles_figure(ts: TileState, by: str = "points"):
     total = int(v.sum())
     extra = "" if known.all() else f"; grey: no patch table ({int((~known).sum()):,})"
     style_axes(bx, f"{by} per column ({total:,} in all{extra})", "x (m)", None)
-    fig.suptitle(f"tiles of {_shorten(ts.url, 70)}: {len(ts.tiles):,} columns of {T:g} m tiles", fontsize=STYLE["suptitle"])
+    fig.suptitle(f"tiles of {shorten(ts.url, 70)}: {len(ts.tiles):,} columns of {T:g} m tiles", fontsize=STYLE["suptitle"])
     return fig
 
 
@@ -246,10 +246,15 @@ def render_tiles(store: str | os.PathLike, output: str | os.PathLike, *, by: str
 
     Examples
     --------
-    >>> s = render_tiles("city.store", "tiles.png", by="patches")   # doctest: +SKIP
-    >>> print(s.format())                                            # doctest: +SKIP
+    >>> from patchcloud.stream import normals
+    >>> _ = normals(sample, tmp / "n.laz", store=str(tmp / "s.zarr"), quiet=True)   # keeps its store
+    >>> s = render_tiles(tmp / "s.zarr", tmp / "tiles.png", by="patches")
+    >>> s.step, s.columns, s.done, s.failed, s.points, s.patches > 0
+    ('finish', 2, 2, 0, 60653, True)
+    >>> print(s.format())   # doctest: +ELLIPSIS
+    /...tiles.png: step finish: 2 of 2 tiles done; columns: 0 failed, 2 done, 0 partly done, 0 pending; 60,653 points, ... patches, ... s
     """
-    from .plots import check_png_path, save_png
+    from patchcloud.stream.views.plots import check_png_path, save_png
 
     t0 = time.perf_counter()
     if by not in ("points", "patches"):

@@ -1,0 +1,116 @@
+"""The checks and the root cube shared by the entry points that take one cloud.
+
+:func:`patchcloud.core.estimate_normals` and :func:`patchcloud.core.fit_models`
+both validate their ``points`` argument and place them in a root cube, the
+octree's level 0; both do it here, so that their messages and their cubes
+are the same.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _kernels
+from .errors import PatchcloudValueError
+
+__all__ = ["validate_points", "root_cube"]
+
+
+def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points as C-ordered float64, and their per-axis minimum and maximum.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float or int
+        Coordinates.
+
+    Returns
+    -------
+    pts : (N, 3) float64
+        The points, C-ordered (``points`` itself when it already is).
+    lo, hi : (3,) float64
+        Per-axis minimum and maximum of the points.
+
+    Raises
+    ------
+    PatchcloudValueError
+        A dtype that is not real numeric, a shape other than (N, 3), or NaN or
+        infinite coordinates (the message gives their count and first row).
+
+    Examples
+    --------
+    >>> pts, lo, hi = validate_points([[0, 1, 2], [3, -1, 5]])
+    >>> pts.dtype, lo.tolist(), hi.tolist()
+    (dtype('float64'), [0.0, -1.0, 2.0], [3.0, 1.0, 5.0])
+    """
+    arr = np.asarray(points)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise PatchcloudValueError(f"points must be a real numeric array (float or int), got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise PatchcloudValueError(f"points must have shape (N, 3), got {arr.shape}")
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    lo, hi, finite = _kernels.bounds(arr)
+    if not finite:
+        bad = ~np.isfinite(arr).all(axis=1)
+        first = int(np.flatnonzero(bad)[0])
+        raise PatchcloudValueError(
+            f"points contain {int(bad.sum())} rows with NaN or infinite coordinates (first at row {first})"
+        )
+    return arr, lo, hi
+
+
+def _positive(name: str, value):
+    if value is None:
+        return None
+    if not np.isfinite(value) or value <= 0:
+        raise PatchcloudValueError(f"{name} must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
+    """The root cube of the octree: the given one, checked, or the bounding cube of the points.
+
+    Parameters
+    ----------
+    lo, hi : (3,) float64
+        Per-axis minimum and maximum of the points (as :func:`validate_points`).
+    root : ((3,) float, float) or None
+        Minimum corner and edge of the root cube (a tile of the stream), or
+        None for the points' bounding cube: centred on the points' box, its
+        edge the box's longest side plus a margin of 1e-6 of it (or a tiny
+        positive edge when all points coincide).
+
+    Returns
+    -------
+    corner : (3,) float64
+        Minimum corner of the cube.
+    edge : float
+        Its edge.
+
+    Raises
+    ------
+    PatchcloudValueError
+        A given edge that is not a positive finite number, or points outside
+        the given cube.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> corner, edge = root_cube(np.zeros(3), np.array([4.0, 2.0, 1.0]), None)
+    >>> bool(edge > 4.0), bool(np.all(corner < 0))
+    (True, True)
+    >>> root_cube(np.zeros(3), np.ones(3), ((0, 0, 0), 8))
+    (array([0., 0., 0.]), 8.0)
+    """
+    if root is not None:
+        corner, edge = root
+        corner = np.asarray(corner, dtype=np.float64).reshape(3)
+        edge = _positive("root edge", edge)
+        if np.any(lo < corner) or np.any(hi > corner + edge):
+            raise PatchcloudValueError("points lie outside the given root cube")
+        return corner, edge
+    extent = float((hi - lo).max())
+    scale = max(extent, float(np.abs(lo).max()) * 1e-12, 1e-9)
+    edge = extent + 1e-6 * scale if extent > 0 else scale
+    corner = (lo + hi) / 2.0 - edge / 2.0
+    return corner, edge

@@ -1,0 +1,240 @@
+"""``compress``: a LAS/LAZ file of any size to a ``.pcz`` of quadric patch models and residual points.
+
+The job's steps, on the scaffold of :mod:`patchcloud.stream.engine.job` (a
+store made by ``normals``, ``don`` or ``segment`` is reused):
+
+1. tile (shared), then ``records``: every point's record bytes bucketed by tile;
+2. ``fit``, per tile (one dask task each): :func:`patchcloud.core.fit_models` with
+   the budget as the RMSE threshold, the tile as the octree's root and the
+   whole file's spacing (touching leaves merged into larger patches); the
+   models quantised within half the budget; the majority class and mean
+   intensity of the points of each patch's octree cell; the residual
+   points' coordinates and records;
+3. ``pack`` (the job's write): the tiles' parts into one ``.pcz``
+   (:mod:`patchcloud.stream.io.pcz`), tile after tile.
+
+``decompress`` (:mod:`.decompress`) reads it back.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import laspy
+import numpy as np
+
+from patchcloud.core import CompressOptions, PatchModels, fit_models, quantise_models
+from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
+from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
+from patchcloud.stream.io import pcz
+from patchcloud.stream.io.las import LasSource
+from patchcloud.stream.io.store import Store
+
+__all__ = ["compress", "CompressJob", "CompressSummary", "compress_tile"]
+
+#: n_min of the compression octree (as the normals' default).
+N_MIN = 12
+#: Largest patch cell, in point spacings.  A patch's 8 x 8 occupancy mask then has cells of at most
+#: 4 spacings, so decompression does not fill gaps in the data wider than that (with the normals'
+#: 256 spacings, samples landed up to 5.7 m from any original point on a flat IGN tile).
+MAX_EDGE_SPACINGS = 32.0
+_PART = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask",
+         "classification", "intensity")
+
+
+@dataclass
+class CompressSummary:
+    """What a ``compress`` run did (sizes in bytes, times in seconds)."""
+
+    input: str
+    output: str
+    points: int
+    patches: int
+    cells: int
+    residual: int
+    max_error: float
+    input_bytes: int
+    output_bytes: int
+    mean_error: float
+    seconds: dict[str, float] = field(default_factory=dict)
+    peak_memory: int = 0
+    scheduler: str = "threads"
+
+    def format(self) -> str:
+        n = max(self.points, 1)
+        return "\n".join([
+            f"{self.input} -> {self.output}",
+            f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches ({self.cells:,} octree cells) "
+            f"({(self.points - self.residual) / n:.1%}), {self.residual:,} residual ({self.residual / n:.1%})",
+            f"  error           budget {self.max_error:g} m; mean distance of the modelled points to their surface "
+            f"{self.mean_error:.4f} m (before quantisation, which adds at most half the budget)",
+            f"  size            {self.output_bytes:,} bytes, {8 * self.output_bytes / n:.2f} bits/point; input "
+            f"{self.input_bytes:,} bytes ({self.input_bytes / max(self.output_bytes, 1):.1f}x larger)",
+            *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler),
+        ])
+
+
+def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
+    """Patch models of one tile within the budget, quantised; its residual points; stored as the tile's ``pcz_*`` arrays."""
+    store = Store.open(url)
+    key = params["key"]
+    if store.tile_done(ijk, "compress", key):
+        return store.tile_attrs(ijk)["compress"]
+    grid = store.grid
+    T = grid.tile_size
+    corner = grid.corner(ijk)
+    xyz = store.read(ijk, "xyz")
+    local = grid.local(xyz)
+    rank = store.read(ijk, "rank").astype(np.int64)  # xyz row r is the tile's point rank[r] in input order
+    in_order = store.read(ijk, "record")  # the tile's records in input order
+    budget = params["max_error"]
+    if xyz.shape[0] >= N_MIN:
+        fit = fit_models(local, budget, d_min=params["d_min"], max_edge=params["max_edge"], n_min=N_MIN, root=(corner, T))
+        models, cell, residual, err = fit.models, fit.cell, fit.residual, fit.error
+    else:  # too few points for a surface: all residual
+        n = xyz.shape[0]
+        models, cell, residual, err = PatchModels.empty(corner, T), np.full(n, -1), np.arange(n), np.zeros(n)
+    q = quantise_models(models, budget)
+    pf = laspy.PointFormat(params["point_format"])
+    for name in params["extra_dims"]:
+        pf.add_extra_dimension(laspy.ExtraBytesParams(name=name["name"], type=np.dtype(name["type"])))
+    rec = laspy.PackedPointRecord(np.ascontiguousarray(in_order).view(pf.dtype()).reshape(-1), pf)
+    on = cell >= 0
+    C = q.count.shape[0]
+    cls = np.asarray(rec["classification"]).astype(np.int64)[rank]
+    votes = np.bincount(cell[on] * 256 + cls[on], minlength=C * 256).reshape(C, 256)
+    inten = np.bincount(cell[on], weights=np.asarray(rec["intensity"], dtype=np.float64)[rank][on], minlength=C)
+    values = dict(
+        scale=q.scale, centroid=q.centroid, rotation=q.rotation, coeffs=q.coeffs, rmse=q.rmse, cells=q.cells,
+        level=q.level, ijk=q.ijk, count=q.count, extent=q.extent, mask=q.mask,
+        classification=votes.argmax(axis=1).astype(np.uint8), intensity=np.rint(inten / np.maximum(q.count, 1)).astype(np.uint16),
+    )
+    for name in _PART:
+        store.write(ijk, "pcz_" + name, values[name])
+    # in input order: LAZ predicts each record from the previous one (scan order: GPS time, returns, intensity)
+    laz = pcz.residual_laz(in_order[np.sort(rank[residual])], pf, params["version"], grid.scale, grid.offset)
+    store.write(ijk, "pcz_residual_laz", np.frombuffer(laz, dtype=np.uint8))
+    info = dict(patches=len(models), cells=C, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()))
+    store.mark_tile(ijk, "compress", key, compress=info)
+    return info
+
+
+def _parts(st: Store, max_error: float):
+    T = st.grid.tile_size
+    for ijk in st.tiles:
+        v = {name: st.read(ijk, "pcz_" + name) for name in _PART}
+        q = pcz.QuantisedModels(
+            max_error=max_error, root_corner=st.grid.corner(ijk), root_edge=T,
+            **{name: v[name] for name in _PART if name not in ("classification", "intensity")},
+        )
+        yield pcz.TilePart(ijk, q, v["classification"], v["intensity"], int(st.tile_attrs(ijk)["compress"]["residual"]),
+                           st.read(ijk, "pcz_residual_laz").tobytes())
+
+
+def _header_bytes(src: LasSource) -> tuple[bytes, bytes]:
+    """The input's header and VLRs, and its extended VLRs (LAS 1.4; after the points), as raw bytes."""
+    with open(src.path, "rb") as f:
+        h = laspy.LasHeader.read_from(f)
+        f.seek(0)
+        head = f.read(h.offset_to_point_data)
+        evlrs = b""
+        if h.version.minor >= 4 and h.number_of_evlrs > 0:
+            f.seek(h.start_of_first_evlr)
+            evlrs = f.read()
+        return head, evlrs
+
+
+class CompressJob(Job):
+    """The steps of ``compress`` on the scaffold; its write packs the ``.pcz``."""
+
+    write_step = "pack"
+
+    def __init__(self, options: CompressOptions) -> None:
+        self.options = options
+        self.params: dict = {}
+        self.infos: dict = {}
+        self.counts: dict = {}
+
+    def steps(self):
+        return [("records", self.records), ("fit", self.fit)]
+
+    def records(self, ctx: JobContext) -> None:
+        st = ctx.store
+        if not st.step_done("records"):
+            for t in st.tiles:
+                st.delete(t, "record")
+            bucket_records(st, ctx.source, chunk=ctx.run.chunk, quiet=ctx.run.quiet)
+            st.mark_step("records", {"chunk": ctx.run.chunk})
+
+    def fit(self, ctx: JobContext) -> None:
+        st, src = ctx.store, ctx.source
+        occ = {int(k): int(v) for k, v in st.attrs["occupancy"].items()}
+        spacing = occupancy_spacing(occ, int(st.tile_counts.sum()))
+        with laspy.open(src.path) as r:
+            pf = r.header.point_format
+        self.params = dict(
+            max_error=self.options.max_error, d_min=3.0 * spacing if spacing > 0 else st.grid.tile_size / 2.0**21,
+            max_edge=MAX_EDGE_SPACINGS * spacing if spacing > 0 else float("inf"), point_format=pf.id, version=src.version,
+            extra_dims=[{"name": d.name, "type": np.dtype(d.dtype).str} for d in pf.extra_dimensions],
+        )
+        self.params["key"] = params_key(self.params)
+        self.infos = ctx.map_tiles(compress_tile, label="compress", params=self.params)
+        self.point_format = pf
+
+    def write(self, ctx: JobContext) -> None:
+        st, src, pf, budget = ctx.store, ctx.source, self.point_format, self.options.max_error
+        head, evlrs = _header_bytes(src)
+        self.counts = pcz.write_pcz(
+            ctx.output, _parts(st, budget), max_error=budget, grid=st.grid.to_json(), header=head, evlrs=evlrs,
+            source=dict(src.to_json(), point_format=pf.id), record_bytes=pf.size - 12, overwrite=ctx.run.overwrite,
+        )
+
+    def summarise(self, ctx: JobContext) -> CompressSummary:
+        counts, v = self.counts, list(self.infos.values())
+        modelled = counts["points"] - counts["residual"]
+        return CompressSummary(
+            input=ctx.source.path, output=str(ctx.output), points=counts["points"], patches=counts["patches"],
+            cells=counts["cells"], residual=counts["residual"], max_error=self.options.max_error,
+            input_bytes=ctx.source.size, output_bytes=ctx.output.stat().st_size,
+            mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=ctx.seconds,
+            peak_memory=ctx.peak_memory, scheduler=ctx.run.scheduler,
+        )
+
+
+def compress(
+    input: str | os.PathLike, output: str | os.PathLike, options: CompressOptions | None = None, run: RunOptions | None = None,
+    **kwargs,
+) -> CompressSummary:
+    """Compress a LAS/LAZ file of any size to a ``.pcz`` of quadric patch models and residual points.
+
+    Parameters
+    ----------
+    input : path
+        LAS or LAZ.
+    output : path
+        The ``.pcz`` (see :mod:`patchcloud.stream.io.pcz`).
+    options : CompressOptions, optional
+        What to compute (:class:`patchcloud.core.CompressOptions`): the
+        error budget ``max_error`` (metres).  Patches are split until their
+        quadric fits their points with an RMS error below it; points farther
+        than 3 times it from their patch's surface, and the points of edge
+        and sparse leaves, are kept as residual points, exactly.  Quantising
+        the models adds at most half the budget.
+    run : RunOptions, optional
+        How to run it (:class:`patchcloud.stream.RunOptions`).
+    **kwargs
+        Any field of either, by name.
+
+    Returns
+    -------
+    CompressSummary
+
+    Examples
+    --------
+    >>> s = compress(sample, tmp / "sample.pcz", max_error=0.05, quiet=True)
+    >>> s.points, s.patches > 0, s.output_bytes < s.input_bytes
+    (60653, True, True)
+    """
+    options, run = split_options(kwargs, options, CompressOptions, run)
+    return run_job(CompressJob(options), input, output, run)

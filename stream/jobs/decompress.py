@@ -1,0 +1,148 @@
+"""``decompress``: the points of a ``.pcz`` back to LAS/LAZ, at any density, in any box.
+
+It reads a ``.pcz`` tile by tile (or only the tiles that meet a box),
+samples every patch cell by cell (its own count, a density, or a level of
+detail) and writes the samples and the residual points to LAS/LAZ with
+the original header and a ``Reconstructed`` dimension (1 sampled from a
+patch, 0 a residual point, byte for byte as it was).  It needs no store
+and no scheduler: one pass over the file.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+from dataclasses import dataclass
+
+import laspy
+import numpy as np
+
+from patchcloud.core import MASK_SIDE, PatchcloudValueError, dequantise_models, sample_models
+from patchcloud.stream.engine.job import check_output
+from patchcloud.stream.io import pcz
+from patchcloud.stream.io.las import atomic_output, is_laz_name, laz_backend
+
+__all__ = ["decompress", "DecompressSummary"]
+
+
+@dataclass
+class DecompressSummary:
+    """What a ``decompress`` run wrote."""
+
+    input: str
+    output: str
+    reconstructed: int
+    residual: int
+    seconds: float
+
+    def format(self) -> str:
+        return (f"{self.input} -> {self.output}\n  points          {self.reconstructed + self.residual:,}: "
+                f"{self.reconstructed:,} sampled from patches, {self.residual:,} residual\n  time            {self.seconds:.1f} s")
+
+
+def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
+    """Points to sample per cell: its own count, ``density`` per square metre of its occupied extent, or count / 4**lod."""
+    if density is not None:
+        e = models.extent
+        area = (e[:, 1] - e[:, 0]) * (e[:, 3] - e[:, 2]) * models.occupied() / MASK_SIDE**2
+        return np.maximum(np.rint(area * density), 1).astype(np.int64)
+    if lod is not None:
+        return np.maximum(models.count // 4**lod, 1).astype(np.int64)
+    return models.count.astype(np.int64)
+
+
+def decompress(
+    input: str | os.PathLike, output: str | os.PathLike, *, density: float | None = None, lod: int | None = None,
+    bbox=None, seed: int = 0, overwrite: bool = False,
+) -> DecompressSummary:
+    """Points of a ``.pcz``, written to LAS/LAZ: samples of every patch and the residual points as they were.
+
+    Parameters
+    ----------
+    input : path
+        A ``.pcz`` written by :func:`compress`.
+    output : path
+        LAS or LAZ (by its name), with the input file's header and VLRs and
+        a ``Reconstructed`` dimension (uint8: 1 sampled from a patch, 0 a
+        residual point).  Sampled points carry the majority class and
+        mean intensity of their patch's points in their octree cell; their other dimensions are 0.
+    density : float, optional
+        Points per square metre of each cell's occupied extent.
+    lod : int, optional
+        Level of detail: each cell's own count divided by ``4**lod`` (at
+        least one point); 0 (the default, with no density) is the count.
+    bbox : (xmin, ymin, zmin, xmax, ymax, zmax), optional
+        Only this box (the file's coordinates): only the tiles that meet it
+        are read, and only points inside it are written.
+    seed : int
+        Seed of the sampling (the same seed, the same points).
+
+    Returns
+    -------
+    DecompressSummary
+
+    Examples
+    --------
+    >>> from patchcloud.stream import compress
+    >>> _ = compress(sample, tmp / "sample.pcz", max_error=0.05, quiet=True)
+    >>> s = decompress(tmp / "sample.pcz", tmp / "back.laz", lod=1)
+    >>> s.residual > 0, s.reconstructed + s.residual < 60653
+    (True, True)
+    """
+    if density is not None and lod is not None:
+        raise PatchcloudValueError("give density or lod, not both")
+    if density is not None and (not np.isfinite(density) or density <= 0):
+        raise PatchcloudValueError(f"density must be a positive number of points per square metre, got {density!r}")
+    if lod is not None and (not isinstance(lod, (int, np.integer)) or lod < 0):
+        raise PatchcloudValueError(f"lod must be a whole number, at least 0; got {lod!r}")
+    box = None
+    if bbox is not None:
+        box = np.asarray(bbox, dtype=np.float64).reshape(-1)
+        if box.shape != (6,) or not np.isfinite(box).all() or np.any(box[:3] > box[3:]):
+            raise PatchcloudValueError(f"bbox must be xmin ymin zmin xmax ymax zmax with each min <= max; got {bbox!r}")
+    check_output(output, overwrite)
+    t0 = time.perf_counter()
+    with pcz.open_pcz(input) as f:
+        header = laspy.LasHeader.read_from(io.BytesIO(f.header_bytes), read_evlrs=False)
+        evlrs = f.evlrs(header.number_of_evlrs if header.version.minor >= 4 else 0)
+        header.vlrs = [v for v in header.vlrs if v.user_id != "laszip encoded"]
+        header.add_extra_dims([laspy.ExtraBytesParams(name="Reconstructed", type=np.uint8, description="1 from a patch, 0 residual")])
+        g = f.attrs["grid"]
+        origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
+        tiles = range(len(f.tiles)) if box is None else f.tiles_in(box[:3] - origin, box[3:] - origin)
+        L = header.point_format.size
+        n_rec = n_res = 0
+        with atomic_output(output, overwrite) as out:
+            with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
+                            laz_backend=laz_backend()) as writer:
+                for t in tiles:
+                    q, cls, inten = f.patches(int(t))
+                    models = dequantise_models(q)
+                    pts, k = sample_models(models, _counts(models, density, lod), seed=seed + int(t))
+                    xyz = np.rint((pts + origin - offset) / scale).astype(np.int64)
+                    rxyz, rrec = f.residual(int(t))
+                    sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
+                    sampled["X"], sampled["Y"], sampled["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+                    sampled["classification"] = cls[k]
+                    sampled["intensity"] = inten[k]
+                    sampled["Reconstructed"] = np.ones(len(xyz), np.uint8)
+                    resid = laspy.PackedPointRecord.zeros(len(rxyz), header.point_format)
+                    raw = resid.array.view(np.uint8).reshape(len(rxyz), L)
+                    raw[:, :12] = rxyz.astype("<i4").view(np.uint8).reshape(len(rxyz), 12)
+                    raw[:, 12 : 12 + rrec.shape[1]] = rrec
+                    for rec, is_res in ((sampled, False), (resid, True)):
+                        if box is not None and len(rec):
+                            p = np.column_stack([rec["X"], rec["Y"], rec["Z"]]) * scale + offset
+                            inside = np.all((p >= box[:3]) & (p <= box[3:]), axis=1)
+                            rec = laspy.PackedPointRecord(rec.array[inside], header.point_format)
+                        if len(rec):
+                            writer.write_points(rec)
+                        if is_res:
+                            n_res += len(rec)
+                        else:
+                            n_rec += len(rec)
+                if evlrs:
+                    writer.write_evlrs(evlrs)
+    return DecompressSummary(input=str(input), output=str(output), reconstructed=n_rec, residual=n_res,
+                             seconds=time.perf_counter() - t0)

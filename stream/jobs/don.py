@@ -1,0 +1,212 @@
+"""``don``: the Difference of Normals of every point of a LAS/LAZ file of any size.
+
+The job's steps (each resumable), on the scaffold of :mod:`patchcloud.stream.engine.job`:
+
+1. tile (shared with every job; a store made by any job is reused);
+2. skin: each tile's points within the halo width of its faces;
+3. DoN: one task per tile, over the tile plus its neighbours' skins, which
+   hold every point within ``r_large`` (plus, in fast mode, half a voxel
+   diagonal) of the tile: a point's DoN is the one a whole-cloud run
+   computes, bit for bit, whatever the tile size;
+4. export: the input plus :data:`DON_DIMS`.
+
+``segment`` (:mod:`.segment`) is this job with two more steps.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from patchcloud.core import DonOptions, halo_width
+from patchcloud.stream.engine.export import Column
+from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
+from patchcloud.stream.io.las import LasSource
+from patchcloud.stream.io.store import Store
+from patchcloud.stream.jobs import don_tiles
+
+__all__ = ["don", "DonJob", "DonSummary", "DON_DIMS", "default_viewpoint_of", "cloud_density"]
+
+#: Dimensions ``patchcloud don`` adds (NaN where the DoN is undefined).
+#: The extra-bytes VLR declares NaN as their no-data value.
+DON_DIMS = (
+    ("DoN", np.float32, "DoN magnitude |n_s - n_l|/2", np.nan),
+    ("DoNX", np.float32, "DoN vector x", np.nan),
+    ("DoNY", np.float32, "DoN vector y", np.nan),
+    ("DoNZ", np.float32, "DoN vector z", np.nan),
+)
+
+
+@dataclass
+class DonSummary:
+    """What a ``don`` or ``segment`` run did (times in seconds, memory in bytes)."""
+
+    input: str
+    output: str
+    points: int
+    tiles: int
+    tile_size: float
+    parameters: dict
+    defined: int
+    kept: int | None = None
+    segments: int | None = None
+    histogram: list[int] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+    peak_memory: int = 0
+    scheduler: str = "threads"
+    store: str = ""
+
+    def median_magnitude(self) -> float:
+        """Median DoN magnitude of the points where it is defined (from the histogram: to 1/50)."""
+        h = np.asarray(self.histogram, dtype=np.int64)
+        if h.sum() == 0:
+            return float("nan")
+        k = int(np.searchsorted(np.cumsum(h), (h.sum() + 1) // 2))
+        return (k + 0.5) / h.size
+
+    def format(self) -> str:
+        n = max(self.points, 1)
+        p = self.parameters
+        lines = [
+            f"{self.input} -> {self.output}",
+            f"  points          {self.points:,}",
+            f"  tiles           {self.tiles:,} of {self.tile_size:g} m",
+            f"  scales          r_s {p['r_small']:g} m, r_l {p['r_large']:g} m, mode {p['mode']}",
+            f"  DoN defined     {self.defined:,} ({self.defined / n:.1%}); median magnitude {self.median_magnitude():.2f}",
+        ]
+        if self.kept is not None:
+            extra = f", |DoN_{p['axis']}| >= {p['axis_threshold']:g}" if p.get("axis") else ""
+            lines.append(f"  kept            {self.kept:,} ({self.kept / n:.1%}) with magnitude >= {p['threshold']:g}{extra}")
+        if self.segments is not None:
+            mx = p["max_cluster"]
+            lines.append(
+                f"  segments        {self.segments:,} (tolerance {p['tolerance']:g} m, {p['min_cluster']}"
+                f"{'' if mx is None else f'-{mx}'}{'+' if mx is None else ''} points)"
+            )
+        lines += time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler)
+        return "\n".join(lines)
+
+
+def default_viewpoint_of(src: LasSource) -> np.ndarray:
+    """The default viewpoint of a file (its coordinates): as :func:`patchcloud.core.default_viewpoint`, from the header's bounds."""
+    lo, hi = np.asarray(src.mins, dtype=np.float64), np.asarray(src.maxs, dtype=np.float64)
+    ext = float(max((hi - lo).max(), 1.0))
+    return np.array([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, hi[2] + ext])
+
+
+def cloud_density(st: Store, edge: float) -> float:
+    """:func:`patchcloud.core.cell_density` of the whole file, from the store's occupancy counts.
+
+    Cells of a power-of-two edge no larger than a tile are cells of the
+    tiles' octrees, so the counts add up over tiles exactly.  A cell larger
+    than the tiles is scaled from the tile level as a surface's count
+    scales (an estimate, the same for every tile).
+    """
+    occ = {int(k): int(v) for k, v in st.attrs["occupancy"].items()}
+    n = int(st.tile_counts.sum())
+    e = int(np.floor(np.log2(edge)))
+    if e in occ:
+        return n / occ[e]
+    top = max(occ)
+    return n / occ[top] * 4.0 ** (e - top)
+
+
+class DonJob(Job):
+    """The steps of ``don`` on the scaffold; :class:`patchcloud.stream.jobs.segment.SegmentJob` adds two."""
+
+    def __init__(self, options: DonOptions) -> None:
+        self.options = options
+        self.params: dict = {}
+        self.width = 0.0
+        self.halo = 1
+        self.infos: dict = {}
+
+    def steps(self):
+        return [("skin", self.skin), ("don", self.don)]
+
+    def resolve(self, ctx: JobContext) -> None:
+        """The resolved parameters (viewpoint in the store's frame, densities, halo) and their key."""
+        o, st = self.options, ctx.store
+        origin = np.asarray(st.grid.origin)
+        vp = default_viewpoint_of(ctx.source) if o.viewpoint is None else np.asarray(o.viewpoint, dtype=np.float64)
+        self.params = dict(
+            r_small=o.r_small, r_large=o.r_large, mode=o.mode, resolution=o.resolution, min_points=o.min_points,
+            viewpoint_local=(vp - origin).tolist(), **self.selection(),
+        )
+        if o.mode == "fast":  # whether voxels pay off, from the whole file (as a whole-cloud run decides it)
+            self.params["density_small"] = cloud_density(st, o.r_small / o.resolution)
+            self.params["density_large"] = cloud_density(st, o.r_large / o.resolution)
+        self.params["don_width"] = halo_width(o.r_large, o.mode, o.resolution)
+        self.params["don_key"] = params_key(self.params)
+        self.width = self.params["don_width"]
+
+    def selection(self) -> dict:
+        """Which points the DoN step marks kept (none here; ``segment`` thresholds)."""
+        return dict(threshold=None, axis=None, axis_threshold=None)
+
+    def skin(self, ctx: JobContext) -> None:
+        self.resolve(ctx)
+        self.halo = max(1, math.ceil(self.width / ctx.store.grid.tile_size))
+        skin_key = params_key({"width": self.width})
+        todo = [t for t in ctx.store.tiles if ctx.store.tile_attrs(t).get("done", {}).get("don_skin") != skin_key]
+        ctx.map_tiles(don_tiles.skin_tile, tiles=todo, label="skin", width=self.width, key=skin_key)
+
+    def don(self, ctx: JobContext) -> None:
+        self.infos = ctx.map_tiles(don_tiles.don_tile, halo=self.halo, label="DoN", params=self.params)
+
+    def columns(self, ctx: JobContext):
+        def magnitude_and_vector(t, v):
+            return np.column_stack([np.sqrt(np.einsum("ij,ij->i", v, v)), v])
+
+        return [Column("don", ("DoN", "DoNX", "DoNY", "DoNZ"), np.float32, per_tile=magnitude_and_vector)], DON_DIMS
+
+    def summarise(self, ctx: JobContext) -> DonSummary:
+        v = list(self.infos.values())
+        return DonSummary(
+            input=ctx.source.path, output=str(ctx.output), points=ctx.source.point_count, tiles=len(ctx.store.tiles),
+            tile_size=ctx.store.grid.tile_size, parameters={k: self.params[k] for k in self.params if not k.endswith("_key")},
+            defined=sum(i["defined"] for i in v), histogram=np.sum([i["hist"] for i in v], axis=0).astype(int).tolist() if v else [],
+            seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.run.scheduler, store=ctx.kept_store,
+        )
+
+
+def don(
+    input: str | os.PathLike, output: str | os.PathLike, options: DonOptions | None = None, run: RunOptions | None = None,
+    **kwargs,
+) -> DonSummary:
+    """Difference of Normals of every point of a LAS/LAZ file of any size.
+
+    ``output`` is the input (every point once, in input order, every
+    original dimension unchanged) plus :data:`DON_DIMS`: ``DoN``
+    (magnitude, in [0, 1]) and ``DoNX``, ``DoNY``, ``DoNZ`` (the vector
+    ``(n_s - n_l) / 2``), float32; NaN where a normal is undefined (fewer
+    than ``min_points`` points in a ball, or collinear ones).
+
+    Parameters
+    ----------
+    input, output : path
+        LAS or LAZ in; LAS or LAZ out (LAZ when ``output`` ends in .laz).
+    options : DonOptions, optional
+        What to compute (:class:`patchcloud.core.DonOptions`: ``r_small``,
+        ``r_large``, ``mode``, ``viewpoint`` in the file's coordinates,
+        default above the middle of the file, one extent above its top).
+    run : RunOptions, optional
+        How to run it (:class:`patchcloud.stream.RunOptions`).
+    **kwargs
+        Any field of either, by name.
+
+    Returns
+    -------
+    DonSummary
+
+    Examples
+    --------
+    >>> s = don(sample, tmp / "don.laz", r_small=0.5, r_large=2.0, quiet=True)
+    >>> s.points, 0 < s.defined <= s.points
+    (60653, True)
+    """
+    options, run = split_options(kwargs, options, DonOptions, run)
+    return run_job(DonJob(options), input, output, run)

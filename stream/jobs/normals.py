@@ -1,0 +1,229 @@
+"""``normals``: normals and curvature of a LAS/LAZ file of any size.
+
+The job's steps (each resumable: a rerun skips what is done):
+
+1. tile (the scaffold's, shared by every job: :mod:`patchcloud.stream.engine.ingest`);
+2. calibrate: the global defaults (point spacing from the tiles' octree
+   occupancy, the RMSE threshold from the finest cells' fits), so every
+   tile uses the same parameters whatever the tiling;
+3. fit: one task per tile (:func:`.normals_tiles.fit_one_tile`);
+4. seams: links between the leaves on either side of every tile face,
+   then one orientation for all patches (:mod:`.seams`);
+5. finish: normals per tile, blended across tile faces with the
+   neighbours' patch models (:func:`.normals_tiles.finish_one_tile`);
+6. export: the input plus :data:`NORMALS_DIMS`.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from patchcloud.core import MAX_DEPTH, Method, NormalsOptions, PatchKind
+from patchcloud.stream.engine.export import Column
+from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
+from patchcloud.stream.engine.ingest import occupancy_spacing
+from patchcloud.stream.engine.tasks import map_tiles
+from patchcloud.stream.io.store import Store
+from patchcloud.stream.jobs import normals_tiles
+from patchcloud.stream.jobs.seams import orient_tiles
+
+__all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "resolve_parameters"]
+
+#: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description.
+NORMALS_DIMS = (
+    ("NormalX", np.float32, "unit normal x"),
+    ("NormalY", np.float32, "unit normal y"),
+    ("NormalZ", np.float32, "unit normal z"),
+    ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)"),
+    ("NormalMethod", np.uint8, Method.describe()),
+    ("PatchId", np.uint32, "patchcloud patch id"),
+)
+
+
+@dataclass
+class NormalsSummary:
+    """What a ``normals`` run did (times in seconds, memory in bytes)."""
+
+    input: str
+    output: str
+    points: int
+    tiles: int
+    tile_size: float
+    patches_by_kind: dict[str, int]
+    normals_by_method: dict[str, int]
+    parameters: dict
+    seconds: dict[str, float] = field(default_factory=dict)
+    peak_memory: int = 0
+    scheduler: str = "threads"
+    store: str = ""
+
+    def format(self) -> str:
+        n = max(self.points, 1)
+        m = self.normals_by_method
+        k = self.patches_by_kind
+        lines = [
+            f"{self.input} -> {self.output}",
+            f"  points          {self.points:,}",
+            f"  tiles           {self.tiles:,} of {self.tile_size:g} m",
+            f"  patches         {sum(k.values()):,} (surface {k['surface']:,}, edge {k['edge']:,}, sparse {k['sparse']:,})",
+            f"  normals by      quadric {m['quadric'] / n:.1%}, blended {m['blended'] / n:.1%}, k-NN fallback {m['knn'] / n:.1%}",
+            f"  parameters      {self.parameters['criterion']} threshold {self.parameters['threshold']:.4g}, "
+            f"d_min {self.parameters['d_min']:.3g} m, spacing {self.parameters['spacing']:.3g} m, orient {self.parameters['orient']}",
+            *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler),
+        ]
+        return "\n".join(lines)
+
+
+def resolve_parameters(store: Store, options: NormalsOptions, runner) -> dict:
+    """Spacing, d_min, max_edge and threshold of the whole cloud: the options' values, or the defaults from the data.
+
+    The defaults are those of :func:`patchcloud.core.estimate_normals` on
+    the whole cloud, computed from per-tile statistics on absolutely
+    positioned cells, so they do not depend on the tiling.
+    """
+    a = store.attrs
+    n = int(sum(a["tile_counts"]))
+    occ = {int(k): int(v) for k, v in a["occupancy"].items()}
+    spacing = occupancy_spacing(occ, n)
+    T = store.grid.tile_size
+    d_min, max_edge, threshold = options.d_min, options.max_edge, options.threshold
+    if d_min is None:
+        d_min = 3.0 * spacing if spacing > 0 else T / 2.0**MAX_DEPTH
+    if max_edge is None:
+        max_edge = 256.0 * spacing if spacing > 0 else float("inf")
+    if threshold is None:
+        if options.criterion == "sigma3":
+            threshold = 0.005
+        else:
+            key = {"d_min": d_min, "n_min": options.n_min}
+            cached = a.get("calibration")
+            if cached and cached.get("key") == key:
+                threshold = cached["threshold"]
+            else:
+                hists = map_tiles(normals_tiles.calibrate_tile, store, runner=runner, label="calibrate", d_min=d_min, n_min=options.n_min)
+                threshold = normals_tiles.threshold_from_histogram(np.sum(list(hists.values()), axis=0), spacing)
+                store.update(calibration={"key": key, "threshold": threshold})
+    return dict(spacing=float(spacing), d_min=float(d_min), max_edge=float(max_edge), threshold=float(threshold))
+
+
+class NormalsJob(Job):
+    """The steps of ``normals`` on the scaffold (see :mod:`patchcloud.stream.engine.job`)."""
+
+    def __init__(self, options: NormalsOptions) -> None:
+        self.options = options
+        self.params: dict = {}
+        self.key = ""
+
+    def steps(self):
+        return [("calibrate", self.calibrate), ("fit", self.fit), ("seams", self.seams), ("finish", self.finish)]
+
+    def calibrate(self, ctx: JobContext) -> None:
+        """Resolve the parameters; a change of them (or of the calibration) clears the steps that depend on them."""
+        o, st = self.options, ctx.store
+        origin = np.asarray(st.grid.origin)
+        self.params = dict(
+            criterion=o.criterion, n_min=o.n_min, min_sigma2=o.min_sigma2, k_fallback=o.k_fallback, orient=o.orient,
+            blend=o.blend, centre_local=list(st.attrs["centroid_local"]),
+            viewpoint_local=None if o.viewpoint is None else (np.asarray(o.viewpoint, dtype=float) - origin).tolist(),
+            **resolve_parameters(st, o, ctx.runner),
+        )
+        self.params["halo"] = 2.0 * self.params["d_min"]
+        self.key = params_key(self.params)
+        if st.attrs.get("params_key") != self.key:
+            st.clear_tile_steps(["fit", "finish"])
+            st.mark_step("seams", None)
+            st.update(params=self.params, params_key=self.key)
+
+    def fit(self, ctx: JobContext) -> None:
+        todo = [t for t in ctx.store.tiles if not ctx.store.tile_done(t, "fit")]
+        ctx.map_tiles(normals_tiles.fit_one_tile, tiles=todo, label="fit", params=self.params)
+
+    def seams(self, ctx: JobContext) -> None:
+        if ctx.store.step_done("seams") != self.key:
+            orient_tiles(ctx.store, ctx.runner, self.options.orient, quiet=ctx.run.quiet)
+            ctx.store.clear_tile_steps(["finish"])
+            ctx.store.mark_step("seams", self.key)
+
+    def finish(self, ctx: JobContext) -> None:
+        todo = [t for t in ctx.store.tiles if not ctx.store.tile_done(t, "finish")]
+        ctx.map_tiles(normals_tiles.finish_one_tile, tiles=todo, halo=1, label="finish", params=self.params)
+
+    def columns(self, ctx: JobContext):
+        patch_offsets = np.asarray(ctx.store.attrs["patch_offsets"], dtype=np.int64)
+        columns = [
+            Column("normal", ("NormalX", "NormalY", "NormalZ"), np.float32),
+            Column("curvature", ("Curvature",), np.float32),
+            Column("method", ("NormalMethod",), np.uint8),
+            Column("patch", ("PatchId",), np.uint32, per_tile=lambda t, v: v + patch_offsets[t]),
+        ]
+        return columns, NORMALS_DIMS
+
+    def summarise(self, ctx: JobContext) -> NormalsSummary:
+        st = ctx.store
+        kinds = np.zeros(len(PatchKind), dtype=np.int64)
+        methods = np.zeros(len(Method) + 1, dtype=np.int64)
+        for t in st.tiles:
+            a = st.tile_attrs(t)
+            kinds += np.asarray(a["fit"]["kinds"], dtype=np.int64)
+            methods += np.asarray(a["finish"]["methods"], dtype=np.int64)
+        return NormalsSummary(
+            input=ctx.source.path, output=str(ctx.output), points=ctx.source.point_count, tiles=len(st.tiles),
+            tile_size=st.grid.tile_size,
+            patches_by_kind={k.name.lower(): int(kinds[k]) for k in PatchKind},
+            normals_by_method={m.name.lower(): int(methods[m]) for m in Method},
+            parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.run.scheduler,
+            store=ctx.kept_store,
+        )
+
+
+def normals(
+    input: str | os.PathLike, output: str | os.PathLike, options: NormalsOptions | None = None, run: RunOptions | None = None,
+    **kwargs,
+) -> NormalsSummary:
+    """Normals and curvature of a LAS/LAZ file of any size, written as a copy of it with extra dimensions.
+
+    Parameters
+    ----------
+    input, output : path
+        LAS or LAZ in; LAS or LAZ out (LAZ when ``output`` ends in .laz), every
+        input point once, in input order, every original dimension unchanged,
+        plus :data:`NORMALS_DIMS`: NormalX, NormalY, NormalZ, Curvature
+        (float32), NormalMethod (uint8, :class:`patchcloud.core.Method`:
+        1 quadric, 2 blended, 3 k-NN) and PatchId (uint32).
+    options : NormalsOptions, optional
+        What to compute (:class:`patchcloud.core.NormalsOptions`, the
+        ``viewpoint`` in the file's coordinates); the defaults come from the
+        whole cloud.
+    run : RunOptions, optional
+        How to run it (:class:`patchcloud.stream.RunOptions`: tile size,
+        scheduler, workers, store, overwrite, quiet).
+    **kwargs
+        Any field of either, by name (``criterion="sigma3"``, ``workers=2``),
+        overriding the objects given.
+
+    Returns
+    -------
+    NormalsSummary
+
+    Raises
+    ------
+    PatchcloudIOError (an OSError)
+        An input that is not a readable, complete LAS/LAZ file, an existing
+        output without ``overwrite``, an unusable store.
+    PatchcloudValueError (a ValueError)
+        An invalid parameter; the message lists the valid values.
+
+    Examples
+    --------
+    >>> s = normals(sample, tmp / "normals.laz", quiet=True)
+    >>> s.points, sum(s.normals_by_method.values()) == s.points
+    (60653, True)
+    >>> import laspy
+    >>> laspy.read(tmp / "normals.laz").NormalZ.dtype
+    dtype('float32')
+    """
+    options, run = split_options(kwargs, options, NormalsOptions, run)
+    return run_job(NormalsJob(options), input, output, run)

@@ -1,0 +1,115 @@
+"""``segment``: DoN segments of a LAS/LAZ file of any size, numbered across tile faces.
+
+The ``don`` job (:mod:`.don`) with a threshold on the DoN, then two steps:
+
+4. cluster: components of each tile's kept points, with the kept points
+   of the neighbours' skins within the tolerance;
+5. merge: one union-find over all tiles' components gives segments that
+   cross tile faces, sized over the whole file;
+
+and an export that adds ``ClusterID``: 1, 2, ... in order of each
+segment's first point in the file, as :func:`patchcloud.core.segment_don`
+numbers them.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from patchcloud.core import SegmentOptions
+from patchcloud.stream.engine.export import Column, FirstSeenIds
+from patchcloud.stream.engine.job import JobContext, RunOptions, params_key, run_job, split_options
+from patchcloud.stream.jobs import don_tiles
+from patchcloud.stream.jobs.don import DON_DIMS, DonJob, DonSummary
+
+__all__ = ["segment", "SegmentJob", "SEGMENT_DIMS"]
+
+#: Dimensions ``patchcloud segment`` adds: the DoN and PDAL's cluster id (0 = no segment).
+SEGMENT_DIMS = DON_DIMS + (("ClusterID", np.uint64, "DoN segment id, 0 = none"),)
+
+
+class SegmentJob(DonJob):
+    """``don``'s steps with a threshold, then cluster and merge."""
+
+    options: SegmentOptions
+
+    def __init__(self, options: SegmentOptions) -> None:
+        super().__init__(options)
+        self.segments = 0
+
+    def steps(self):
+        return [*super().steps(), ("cluster", self.cluster)]
+
+    def selection(self) -> dict:
+        o = self.options
+        return dict(threshold=o.threshold, axis=o.axis, axis_threshold=o.axis_threshold)
+
+    def resolve(self, ctx: JobContext) -> None:
+        super().resolve(ctx)
+        o = self.options
+        self.params.update(tolerance=o.tolerance, min_cluster=o.min_cluster, max_cluster=o.max_cluster)
+        self.params["cluster_key"] = params_key({"don": self.params["don_key"], "tolerance": o.tolerance})
+        self.width = max(self.width, o.tolerance * (1 + 1e-9))
+
+    def cluster(self, ctx: JobContext) -> None:
+        ctx.map_tiles(don_tiles.cluster_tile, halo=self.halo, label="cluster", params=self.params)
+        self.segments = don_tiles.merge_components(ctx.store, self.options.min_cluster, self.options.max_cluster)
+
+    def columns(self, ctx: JobContext):
+        columns, _ = super().columns(ctx)
+        st = ctx.store
+        tiles = st.tiles
+        maps: dict[int, np.ndarray] = {}
+
+        def segment_of(t, comp):
+            if t not in maps:
+                maps[t] = np.r_[0, st.read(tiles[t], "comp_map")]  # comp -1 (not kept) -> 0
+            return maps[t][comp.astype(np.int64) + 1]
+
+        columns.append(Column("comp", ("ClusterID",), np.uint64, per_tile=segment_of, per_chunk=FirstSeenIds()))
+        return columns, SEGMENT_DIMS
+
+    def summarise(self, ctx: JobContext) -> DonSummary:
+        s = super().summarise(ctx)
+        s.kept = sum(i["kept"] for i in self.infos.values())
+        s.segments = self.segments
+        return s
+
+
+def segment(
+    input: str | os.PathLike, output: str | os.PathLike, options: SegmentOptions | None = None, run: RunOptions | None = None,
+    **kwargs,
+) -> DonSummary:
+    """DoN segments of a LAS/LAZ file of any size: threshold the DoN magnitude, cluster the points kept.
+
+    ``output`` is the input plus :data:`SEGMENT_DIMS`: the dimensions of
+    :func:`patchcloud.stream.don` and ``ClusterID`` (uint64, PDAL's name):
+    1, 2, ... in order of each segment's first point in the file, 0 for
+    points in no segment.  Segments that cross tile faces get one id.
+
+    Parameters
+    ----------
+    input, output : path
+    options : SegmentOptions, optional
+        What to compute (:class:`patchcloud.core.SegmentOptions`: the DoN's
+        scales, ``threshold``, ``tolerance``, ``min_cluster``,
+        ``max_cluster``, ``axis``, ``axis_threshold``).
+    run : RunOptions, optional
+        How to run it (:class:`patchcloud.stream.RunOptions`).
+    **kwargs
+        Any field of either, by name.
+
+    Returns
+    -------
+    DonSummary
+
+    Examples
+    --------
+    >>> s = segment(sample, tmp / "seg.laz", r_small=0.5, r_large=2.0, threshold=0.2, tolerance=1.0, quiet=True)
+    >>> s.segments > 0, s.kept <= s.points
+    (True, True)
+    """
+    options, run = split_options(kwargs, options, SegmentOptions, run)
+    return run_job(SegmentJob(options), input, output, run)

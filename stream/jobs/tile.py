@@ -1,0 +1,49 @@
+"""``tile``: ingest only, a LAS/LAZ file cut into a tiled store that later jobs start from."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from patchcloud.core import PatchcloudIOError
+from patchcloud.stream.engine.ingest import ensure_tiled
+from patchcloud.stream.engine.job import RunOptions
+from patchcloud.stream.engine.runner import Runner
+from patchcloud.stream.io.las import open_source
+from patchcloud.stream.io.store import Store
+
+__all__ = ["tile"]
+
+
+def _exists_nonempty(url: str) -> bool:
+    if "://" in url and not url.startswith("file://"):
+        return False
+    p = Path(url.removeprefix("file://"))
+    return p.exists() and (p.is_file() or any(p.iterdir()))
+
+
+def tile(
+    input: str | os.PathLike, store: str, *, tile_size: float | None = None, scheduler: str = "threads",
+    workers: int | None = None, overwrite: bool = False, quiet: bool = False, chunk: int = 1 << 20,
+) -> Store:
+    """Ingest only: cut ``input`` into a tiled store at ``store`` (a path or fsspec URL).
+
+    A later job given ``store=`` starts from it (``patchcloud normals IN
+    OUT --store STORE``).  The options are those of
+    :class:`~patchcloud.stream.engine.job.RunOptions`.
+
+    Examples
+    --------
+    >>> s = tile(sample, str(tmp / "sample.zarr"), tile_size=64, quiet=True)
+    >>> len(s.tiles), int(s.tile_counts.sum())
+    (4, 60653)
+    """
+    run = RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, overwrite=overwrite, quiet=quiet, chunk=chunk)
+    src = open_source(input)
+    if Store.exists(store) and overwrite:
+        Store.create(store, overwrite=True)
+    elif not Store.exists(store) and _exists_nonempty(store):
+        raise PatchcloudIOError(f"{store}: exists and is not a patchcloud store")
+    with Runner(run.scheduler, run.workers, quiet=run.quiet) as runner:
+        s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk)
+    return s
