@@ -36,6 +36,7 @@ from .errors import PatchcloudValueError
 from .octree import CRITERIA
 from .orient import ORIENT_RULES
 from .patchmodel import check_budget
+from .points import check_positive
 from .radius import check_mode, check_radius, check_viewpoint
 
 __all__ = [
@@ -45,18 +46,6 @@ __all__ = [
 
 def _set(obj, name: str, value) -> None:
     object.__setattr__(obj, name, value)
-
-
-def _positive(name: str, value, integer: bool = False):
-    if value is None:
-        return None
-    if integer:
-        if isinstance(value, bool) or int(value) != value or value < 1:
-            raise PatchcloudValueError(f"{name} must be a positive integer, got {value!r}")
-        return int(value)
-    if not np.isfinite(value) or value <= 0:
-        raise PatchcloudValueError(f"{name} must be a positive finite number, got {value!r}")
-    return float(value)
 
 
 def _viewpoint(viewpoint) -> tuple[float, float, float] | None:
@@ -148,10 +137,10 @@ class NormalsOptions:
             raise PatchcloudValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {self.criterion!r}")
         if self.orient not in ORIENT_RULES:
             raise PatchcloudValueError(f"orient must be one of {', '.join(ORIENT_RULES)}; got {self.orient!r}")
-        _set(self, "n_min", _positive("n_min", self.n_min, integer=True))
-        _set(self, "k_fallback", _positive("k_fallback", self.k_fallback, integer=True))
+        _set(self, "n_min", check_positive("n_min", self.n_min, integer=True))
+        _set(self, "k_fallback", check_positive("k_fallback", self.k_fallback, integer=True))
         for name in ("threshold", "d_min", "max_edge"):
-            _set(self, name, _positive(name, getattr(self, name)))
+            _set(self, name, check_positive(name, getattr(self, name)))
         if not (0 <= self.min_sigma2 < 1 / 3 + 1e-12):
             raise PatchcloudValueError(f"min_sigma2 must be in [0, 1/3), got {self.min_sigma2!r}")
         _set(self, "min_sigma2", float(self.min_sigma2))

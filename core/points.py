@@ -1,4 +1,4 @@
-"""The checks and the root cube shared by the entry points that take one cloud.
+"""The checks (points, positive numbers) and the root cube shared by the entry points that take one cloud.
 
 :func:`patchcloud.core.estimate_normals` and :func:`patchcloud.core.fit_models`
 both validate their ``points`` argument and place them in a root cube, the
@@ -13,7 +13,7 @@ import numpy as np
 from . import _kernels
 from .errors import PatchcloudValueError
 
-__all__ = ["validate_points", "root_cube"]
+__all__ = ["validate_points", "root_cube", "check_positive"]
 
 
 def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -59,9 +59,22 @@ def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return arr, lo, hi
 
 
-def _positive(name: str, value):
+def check_positive(name: str, value, integer: bool = False):
+    """``value`` as a positive float (or int with ``integer``), None kept; else a PatchcloudValueError naming ``name``.
+
+    >>> check_positive("d_min", 0.5), check_positive("n_min", 12.0, integer=True), check_positive("x", None)
+    (0.5, 12, None)
+    >>> check_positive("k", 2.5, integer=True)
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: k must be a positive integer, got 2.5
+    """
     if value is None:
         return None
+    if integer:
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise PatchcloudValueError(f"{name} must be a positive integer, got {value!r}")
+        return int(value)
     if not np.isfinite(value) or value <= 0:
         raise PatchcloudValueError(f"{name} must be a positive finite number, got {value!r}")
     return float(value)
@@ -105,7 +118,7 @@ def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
     if root is not None:
         corner, edge = root
         corner = np.asarray(corner, dtype=np.float64).reshape(3)
-        edge = _positive("root edge", edge)
+        edge = check_positive("root edge", edge)
         if np.any(lo < corner) or np.any(hi > corner + edge):
             raise PatchcloudValueError("points lie outside the given root cube")
         return corner, edge

@@ -67,6 +67,21 @@ def map_tiles(
     Returns
     -------
     dict from tile index to ``func``'s result, in the order of ``tiles``.
+
+    Examples
+    --------
+    The highest point of each tile of the embedded sample, and how many
+    tiles each has around it:
+
+    >>> from patchcloud.stream import Store, tile
+    >>> store = tile(sample, str(tmp / "sample.zarr"), tile_size=64, quiet=True)
+    >>> def top(url, ijk, neighbours):
+    ...     st = Store.open(url)
+    ...     z = st.grid.local(st.read(ijk, "xyz"))[:, 2] + st.grid.origin[2]
+    ...     return round(float(z.max()), 2), len(neighbours)
+    >>> result = map_tiles(top, store, halo=1)
+    >>> list(result) == store.tiles, [n for _, n in result.values()]
+    (True, [3, 3, 3, 3])
     """
     runner = runner or Runner("synchronous", quiet=True)
     all_tiles = store.tiles
