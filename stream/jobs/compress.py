@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import laspy
 import numpy as np
 
-from patchcloud.core import CompressOptions, PatchModels, fit_models, quantise_models
+from patchcloud.core import CompressOptions, PatchModels, QuantisedModels, fit_models, quantise_models
 from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
 from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
 from patchcloud.stream.io import pcz
@@ -124,7 +124,7 @@ def _parts(st: Store, max_error: float):
     T = st.grid.tile_size
     for ijk in st.tiles:
         v = {name: st.read(ijk, "pcz_" + name) for name in _PART}
-        q = pcz.QuantisedModels(
+        q = QuantisedModels(
             max_error=max_error, root_corner=st.grid.corner(ijk), root_edge=T,
             **{name: v[name] for name in _PART if name not in ("classification", "intensity")},
         )
@@ -155,6 +155,7 @@ class CompressJob(Job):
         self.params: dict = {}
         self.infos: dict = {}
         self.counts: dict = {}
+        self.point_format: laspy.PointFormat | None = None
 
     def steps(self):
         return [("records", self.records), ("fit", self.fit)]

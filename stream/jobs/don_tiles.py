@@ -1,6 +1,6 @@
 """Per-tile steps of ``patchcloud don`` and ``patchcloud segment``: the functions dask runs, one task per tile.
 
-As in :mod:`.steps`, each reads what it needs from the store, writes its
+As in :mod:`.normals_tiles`, each reads what it needs from the store, writes its
 arrays and only then marks the tile done (with the key of the parameters
 it ran with), so a task can be rerun after a crash and a rerun with the
 same parameters skips it.  Everything is computed in the store's local

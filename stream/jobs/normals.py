@@ -16,6 +16,7 @@ The job's steps (each resumable: a rerun skips what is done):
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass, field
 
@@ -124,11 +125,12 @@ class NormalsJob(Job):
         """Resolve the parameters; a change of them (or of the calibration) clears the steps that depend on them."""
         o, st = self.options, ctx.store
         origin = np.asarray(st.grid.origin)
+        asked = dataclasses.asdict(o)
+        del asked["viewpoint"]  # the tiles get it in the store's frame
         self.params = dict(
-            criterion=o.criterion, n_min=o.n_min, min_sigma2=o.min_sigma2, k_fallback=o.k_fallback, orient=o.orient,
-            blend=o.blend, centre_local=list(st.attrs["centroid_local"]),
+            asked, centre_local=list(st.attrs["centroid_local"]),
             viewpoint_local=None if o.viewpoint is None else (np.asarray(o.viewpoint, dtype=float) - origin).tolist(),
-            **resolve_parameters(st, o, ctx.runner),
+            **resolve_parameters(st, o, ctx.runner),  # threshold, d_min, max_edge as resolved, and the spacing
         )
         self.params["halo"] = 2.0 * self.params["d_min"]
         self.key = params_key(self.params)

@@ -1,4 +1,4 @@
-"""Per-tile steps: the functions dask runs, one task per tile (or per pair of tiles).
+"""Per-tile steps of ``patchcloud normals``: the functions dask runs, one task per tile (or per pair of tiles).
 
 Every step reads what it needs from the store, writes its arrays, and only
 then marks the tile done for that step, so a task can be run again after a
