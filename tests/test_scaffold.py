@@ -117,11 +117,11 @@ def test_codes_are_defined_once_and_written_as_documented(tmp_path):
 
 # --- a new job on the scaffold ---------------------------------------------------------------------------------
 
-def tile_numbers(url: str, ijk: tuple, index: int) -> int:
+def tile_numbers(url: str, ijk: tuple) -> int:
     """A per-tile task: the tile's position in the store's list, for each of its points, in input order."""
     st = Store.open(url)
     n = int(st.read(ijk, "rank").shape[0])
-    st.write(ijk, "tile_number", np.full(n, index, dtype=np.uint32))
+    st.write(ijk, "tile_number", np.full(n, st.tiles.index(tuple(ijk)), dtype=np.uint32))
     return n
 
 
@@ -135,8 +135,7 @@ class TileNumberJob(Job):
         return [("number", self.number)]
 
     def number(self, ctx: JobContext) -> None:
-        for k, t in enumerate(ctx.store.tiles):
-            self.counts[t] = ctx.map_tiles(tile_numbers, tiles=[t], label="number", index=k)[t]
+        self.counts = ctx.map_tiles(tile_numbers, label="number")
 
     def columns(self, ctx):
         return [Column("tile_number", ("TileNumber",), np.uint32)], (("TileNumber", np.uint32, "tile of the point"),)

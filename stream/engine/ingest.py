@@ -26,7 +26,7 @@ from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
-    "ensure_tiled", "auto_tile_size", "make_grid", "bucket", "bucket_records", "sort_tile", "occupancy_spacing", "tile_keys", "pack_tile_keys",
+    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "bucket", "bucket_records", "sort_tile", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
 
@@ -44,15 +44,31 @@ def auto_tile_size(src: LasSource, target: int = TARGET_TILE_POINTS) -> float:
     return float(np.clip(2.0 ** np.floor(np.log2(t)), 1.0, MAX_TILE))
 
 
+def check_tile_size(tile_size) -> float | None:
+    """``tile_size`` (metres) as a float, None kept; a PatchcloudValueError unless positive, finite and at most MAX_TILE.
+
+    >>> check_tile_size(64), check_tile_size(None)
+    (64.0, None)
+    >>> check_tile_size(-1)
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: tile size must be a positive number of metres, got -1
+    """
+    if tile_size is None:
+        return None
+    if isinstance(tile_size, bool) or not isinstance(tile_size, (int, float, np.number)) or not np.isfinite(tile_size) or tile_size <= 0:
+        raise PatchcloudValueError(f"tile size must be a positive number of metres, got {tile_size!r}")
+    if tile_size > MAX_TILE:
+        raise PatchcloudValueError(f"tile size must be at most {MAX_TILE:g} m, got {tile_size:g}")
+    return float(tile_size)
+
+
 def make_grid(src: LasSource, tile_size: float | None) -> Grid:
     """The tile grid of a file: ``tile_size`` rounded down to a power of two (metres), or the default."""
+    tile_size = check_tile_size(tile_size)
     if tile_size is None:
         t = auto_tile_size(src)
     else:
-        if not np.isfinite(tile_size) or tile_size <= 0:
-            raise PatchcloudValueError(f"tile size must be a positive number of metres, got {tile_size!r}")
-        if tile_size > MAX_TILE:
-            raise PatchcloudValueError(f"tile size must be at most {MAX_TILE:g} m, got {tile_size:g}")
         t = float(2.0 ** np.floor(np.log2(tile_size)))
     origin = tuple(float(np.floor(m / ANCHOR) * ANCHOR) for m in src.mins)
     return Grid(origin=origin, tile_size=t, scale=src.scale, offset=src.offset)

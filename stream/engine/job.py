@@ -50,11 +50,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, options_with
 from patchcloud.stream.engine.export import Column, export_columns
-from patchcloud.stream.engine.ingest import ensure_tiled
+from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.las import LasSource, open_source
@@ -106,11 +105,7 @@ class RunOptions:
     chunk: int = 1 << 20
 
     def __post_init__(self) -> None:
-        if self.tile_size is not None and (
-            isinstance(self.tile_size, bool) or not isinstance(self.tile_size, (int, float, np.number))
-            or not np.isfinite(self.tile_size) or self.tile_size <= 0
-        ):
-            raise PatchcloudValueError(f"tile size must be a positive number of metres, got {self.tile_size!r}")
+        check_tile_size(self.tile_size)
         if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) != self.workers or self.workers < 1):
             raise PatchcloudValueError(f"workers must be at least 1, got {self.workers!r}")
         if isinstance(self.chunk, bool) or int(self.chunk) != self.chunk or self.chunk < 1:
