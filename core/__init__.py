@@ -39,6 +39,7 @@ from .patchmodel import (
 )
 from .quadric import fit_nodes, surface_normals
 from .radius import MODES, check_points, default_viewpoint, halo_width, radius_normals
+from .threads import single_threaded
 from .tiles import Skin, finish_tile, fit_tile, patch_signs
 
 __all__ = [
@@ -104,4 +105,6 @@ __all__ = [
     "QuantisedModels",
     "quantise_models",
     "dequantise_models",
+    # .threads
+    "single_threaded",
 ]

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from .threads import parallel_kernel
+
 from .codes import PatchKind
 
 __all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "eigh3"]
@@ -25,7 +27,7 @@ _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _frame_coords(px, py, pz, l, centroid, frames):
     dx = px - centroid[l, 0]
     dy = py - centroid[l, 1]
@@ -36,7 +38,7 @@ def _frame_coords(px, py, pz, l, centroid, frames):
     return u, v, w
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _normal_at(u, v, l, frames, coeffs):
     a, b, c, d, e = coeffs[l, 0], coeffs[l, 1], coeffs[l, 2], coeffs[l, 3], coeffs[l, 4]
     su = 2.0 * a * u + b * v + d
@@ -49,7 +51,7 @@ def _normal_at(u, v, l, frames, coeffs):
     return nx, ny, nz, su, sv
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _curvatures(su, sv, l, coeffs):
     a, b, c = coeffs[l, 0], coeffs[l, 1], coeffs[l, 2]
     W = np.sqrt(1.0 + su * su + sv * sv)
@@ -63,7 +65,7 @@ def _curvatures(su, sv, l, coeffs):
     return H + disc, H - disc, E, F, G, L, M, N
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _k1_direction(su, sv, k1, E, F, G, L, M, N, l, frames):
     """Unit 3D tangent of principal curvature k1 from the fundamental forms."""
     r1u, r1v = M - k1 * F, -(L - k1 * E)
@@ -85,7 +87,7 @@ def _k1_direction(su, sv, k1, E, F, G, L, M, N, l, frames):
     return tx / tn, ty / tn, tz / tn
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _spread(x):
     x = x & np.uint64(0x1FFFFF)
     x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
@@ -96,7 +98,7 @@ def _spread(x):
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find_leaf(key, lo, hi):
     # last leaf whose first key is <= key
     a, b = 0, lo.shape[0]
@@ -112,7 +114,7 @@ def _find_leaf(key, lo, hi):
     return -1
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def eval_surface_points(local, start, count, surface, centroid, frames, coeffs, sigma3, normals, scalars, dir1):
     """Normal, (sigma3, k1, k2) and k1 direction of every point of a surface leaf.
 
@@ -133,7 +135,7 @@ def eval_surface_points(local, start, count, surface, centroid, frames, coeffs, 
             dir1[i, 0], dir1[i, 1], dir1[i, 2] = _k1_direction(su, sv, k1, E, F, G, L, M, N, l, frames)
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def blend_points(
     local, q, start, count, level, ijk, lo_key, hi_key, lower, edge, kind, centroid, frames, coeffs, sigma3,
     nb_off, nb_lo_key, nb_hi_key, nb_edge, nb_kind, nb_centroid, nb_frames, nb_coeffs, nb_sigma3,
@@ -239,7 +241,7 @@ def blend_points(
                 blended[i] = True
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def cell_moments(local, starts, centres, out):
     """Moments (:mod:`patchcloud.core.moments`) of runs of points about their cell centres.
 
@@ -366,7 +368,7 @@ def cell_moments(local, starts, centres, out):
         out[k, 34] = a34
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cholesky_solve6(G, b):
     """Solve ``G x = b`` for a symmetric positive definite 6x6 ``G`` (overwritten)."""
     for j in range(6):
@@ -394,7 +396,7 @@ def _cholesky_solve6(G, b):
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def eigh3(A):
     """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric 3x3 matrix, cyclic Jacobi."""
     a = A.copy()
@@ -430,7 +432,7 @@ def eigh3(A):
     return w[idx], v[:, idx]
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
     """PCA normal, surface variation and quadric curvatures of k-neighbourhoods.
 
@@ -505,7 +507,7 @@ def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
         dir1[m, 0], dir1[m, 1], dir1[m, 2] = _k1_direction(su, sv, k1, E, F, G_, L, M_, N, 0, frame)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def bounds(points):
     """Per-axis minimum and maximum of finite points, and whether all are finite."""
     lo = np.full(3, np.inf)
@@ -524,7 +526,7 @@ def bounds(points):
     return lo, hi, finite
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def morton_keys(points, corner, edge, q, keys):
     """Integer coordinates at depth 21 and Morton keys of ``points - corner`` in a cube of ``edge``.
 
@@ -545,7 +547,7 @@ def morton_keys(points, corner, edge, q, keys):
         keys[i] = key
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def unsort_outputs(order, normals, scalars, dir1, method, patch, o_normals, o_curv, o_k1, o_k2, o_dir1, o_method, o_patch):
     """Per-point results from sorted order back to input order (``out[order[i]] = value[i]``)."""
     for i in prange(order.shape[0]):
@@ -560,7 +562,7 @@ def unsort_outputs(order, normals, scalars, dir1, method, patch, o_normals, o_cu
         o_patch[j] = patch[i]
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def take_rows(values, order):
     """``values[order]`` for a 2-D array, in parallel."""
     out = np.empty((order.shape[0], values.shape[1]), dtype=values.dtype)
@@ -570,7 +572,7 @@ def take_rows(values, order):
     return out
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def neighbour_signs(query, nb, normals, oriented, todo, sign):
     """Sign that turns each pending query normal towards the sum of its oriented neighbours' normals.
 
@@ -597,7 +599,7 @@ def neighbour_signs(query, nb, normals, oriented, todo, sign):
     return count
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def shift_to_parents(moments, gstart, octant, rows, cols, coef, out):
     """Sum children's moments into their parents, each shifted to the parent centre.
 

@@ -13,11 +13,12 @@ import numpy as np
 from numba import njit, prange
 
 from ._kernels import eigh3
+from .threads import parallel_kernel
 
 __all__ = ["ball_moments", "build_row_table", "voxel_moments", "pca_normals", "union_cells"]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lookup(keys, key):
     """Index of ``key`` in the sorted array ``keys``, or -1."""
     i = np.searchsorted(keys, key)
@@ -26,7 +27,7 @@ def _lookup(keys, key):
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add_point(acc, dx, dy, dz):
     """Add one point's offset to the count and moments ``acc`` (layout of ball_moments_exact)."""
     acc[0] += 1.0
@@ -41,7 +42,7 @@ def _add_point(acc, dx, dy, dz):
     acc[9] += dz * dz
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def voxel_moments(points, cell_start, centres, out):
     """Count and moments of every voxel's points about the voxel's centre (layout as ball_moments_exact)."""
     C = cell_start.size - 1
@@ -60,12 +61,12 @@ def voxel_moments(points, cell_start, centres, out):
 _GOLDEN = np.uint64(11400714819323198485)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _slot(key, bits):
     return np.int64((np.uint64(key) * _GOLDEN) >> np.uint64(64 - bits))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def build_row_table(row_keys, bits):
     """Open-addressing hash table (size 2**bits) from row key to row index; -1 marks a free slot."""
     size = 1 << bits
@@ -80,7 +81,7 @@ def build_row_table(row_keys, bits):
     return keys, vals
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _row_of(table_keys, table_vals, bits, key):
     h = _slot(key, bits)
     size = table_keys.size
@@ -91,7 +92,7 @@ def _row_of(table_keys, table_vals, bits, key):
     return -1
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def ball_moments(
     voxels, points, cell_start, cell_k, row_start, table_keys, table_vals, bits, dims, rows,
     query, qorder, qgroup_start, qblock, r2, cell_moments, cell_centres, out,
@@ -184,7 +185,7 @@ def ball_moments(
                 out[row, t] = acc[t]
 
 
-@njit(cache=True, parallel=True)
+@parallel_kernel
 def pca_normals(moments, query, viewpoint, min_points, normals, variation):
     """Normal (smallest principal axis) and surface variation from ball moments about the query points.
 
@@ -225,7 +226,7 @@ def pca_normals(moments, query, viewpoint, min_points, normals, variation):
         variation[m] = max(w[0], 0.0) / (w[0] + w[1] + w[2])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find(parent, a):
     root = a
     while parent[root] != root:
@@ -237,7 +238,7 @@ def _find(parent, a):
     return root
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def union_cells(points, cell_keys, cell_start, cells, dims, offsets, tol2, parent):
     """Union-find over occupied cells: cells joined when any two of their points are within sqrt(tol2).
 

@@ -1,31 +1,42 @@
 """Export: the input file again, every point once and in input order, with the results as extra dimensions.
 
-The input is read a second time in the chunks used at ingest; for every
-chunk, the store's index says how many of its points went to each tile,
-and since a tile's results are kept in input order, they are the next
-rows of that tile's result arrays.  Every byte of every original point
-record (extra bytes included) is copied as it is; the new dimensions are
-appended.  :func:`export_columns` does this for any set of per-tile result
-arrays: a job declares its :class:`Column` s (see
-:meth:`patchcloud.stream.engine.job.Job.columns`).
+Writing runs as tasks, one per part of the file (the ingest's parts, each
+a whole number of LAZ chunks): a task (:func:`export_part`) reads its part
+of the input again; the store's index says how many of its points went
+to each tile and from which row of the tile's results they start (a
+tile's results are kept in input order), so the task gathers its
+points' results, appends them to the records (every byte of every
+original record, extra bytes included, copied as it is) and writes them:
+LAS at their place in the pre-sized output, LAZ as compressed chunks
+that the client stitches with one chunk table
+(:mod:`patchcloud.stream.io.las_output`).  The file is byte-identical
+whatever the number of workers, the scheduler or the part size.
+
+A job declares what it adds as :class:`Column` s (see
+:meth:`patchcloud.stream.engine.job.Job.columns`).  Ids that are renumbered
+in order of first appearance in the file (``renumber``, e.g. ClusterID)
+take one more pass over the parts first: each part's ids in the order they
+first appear (:func:`first_seen_part`), numbered by the client in part order.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import laspy
 import numpy as np
 
 from patchcloud.core import PatchcloudIOError
 
-from patchcloud.stream.engine.ingest import pack_tile_keys, tile_keys
-from patchcloud.stream.io.las import LasSource, atomic_output, is_laz_name, laz_backend, output_header, read_chunks
-from patchcloud.stream.engine.progress import Progress
+from patchcloud.stream.engine.ingest import pack_tile_keys, part_ranges, tile_keys
+from patchcloud.stream.engine.runner import Runner
+from patchcloud.stream.io import las_output
+from patchcloud.stream.io.las import LasSource, check_writable, is_laz_name, output_header, read_range
 from patchcloud.stream.io.store import Store, tile_name
 
-__all__ = ["Column", "export_columns", "FirstSeenIds"]
+__all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds"]
 
 
 @dataclass(frozen=True)
@@ -33,21 +44,23 @@ class Column:
     """A per-tile result array (in the tile's input order) and the output dimensions it fills.
 
     ``array`` is the tile array's name; ``dims`` the output dimensions, one
-    per column of the array (one for a 1-D array).  ``per_tile(t, values)``,
-    when given, turns a tile's rows into output values (``t`` the tile's
-    position in the store's list), e.g. to make ids global; ``per_chunk``
-    then sees the whole chunk's values in input order.
+    per column of the array (one for a 1-D array).  ``per_tile(store, t,
+    values)``, when given, turns a tile's rows into output values (``t``
+    the tile's position in the store's list), e.g. to make ids global: a
+    module-level function, since tasks may run in other processes.
+    ``renumber``: the values are ids (0 for none), renumbered 1, 2, ... in
+    the order they first appear in the file.
     """
 
     array: str
     dims: tuple[str, ...]
     dtype: type
-    per_tile: Callable[[int, np.ndarray], np.ndarray] | None = None
-    per_chunk: Callable[[np.ndarray], np.ndarray] | None = None
+    per_tile: Callable[[Store, int, np.ndarray], np.ndarray] | None = None
+    renumber: bool = False
 
 
 class FirstSeenIds:
-    """Renumbers ids 1, 2, ... in the order they first appear in the file (0 stays 0), chunk after chunk.
+    """Renumbers ids 1, 2, ... in the order they first appear (0 stays 0), call after call.
 
     Examples
     --------
@@ -82,64 +95,111 @@ class FirstSeenIds:
         return out
 
 
+def _part_values(store: Store, p: int, first: int, count: int, columns: list[Column], laz_parallel: bool):
+    """Part ``p``'s input records and, for each column, its points' values in input order."""
+    src = LasSource.from_json(store.attrs["source"])
+    tiles = store.tiles
+    index = store.get("index/part_tile")
+    lo, hi = np.searchsorted(index[:, 0], [p, p + 1])
+    rows = index[lo:hi]
+    starts = store.get("index/tile_start", slice(int(lo), int(hi)))
+    pts = read_range(src, first, count, parallel=laz_parallel)
+    n = len(pts)
+    xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]])
+    tid = np.searchsorted(pack_tile_keys(np.asarray(tiles, dtype=np.int64)), tile_keys(store.grid, xyz))
+    counts = np.bincount(tid, minlength=len(tiles))
+    if not np.array_equal(counts[rows[:, 1]], rows[:, 2]) or counts.sum() != rows[:, 2].sum():
+        raise PatchcloudIOError(f"{src.path}: the file no longer matches the store {store.url} (part {p})")
+    order = np.argsort(tid, kind="stable")
+    values = [np.empty((n, len(col.dims)) if len(col.dims) > 1 else n, col.dtype) for col in columns]
+    s = 0
+    for t, m, start in zip(rows[:, 1].tolist(), rows[:, 2].tolist(), starts.tolist()):
+        g = store.group[f"tiles/{tile_name(tiles[t])}"]
+        dst = order[s : s + m]
+        for col, v in zip(columns, values):
+            got = g[col.array][start : start + m]
+            v[dst] = col.per_tile(store, t, got) if col.per_tile else got
+        s += m
+    return pts, values
+
+
+def first_seen_part(url: str, p: int, first: int, count: int, columns: list[Column], laz_parallel: bool = False) -> list:
+    """Task: for each column to renumber, its ids in part ``p`` in the order they first appear (0 left out)."""
+    _, values = _part_values(Store.open(url), p, first, count, columns, laz_parallel)
+    out = []
+    for v in values:
+        v = np.asarray(v, dtype=np.int64).reshape(-1)
+        uniq, at = np.unique(v[v != 0], return_index=True)
+        out.append(uniq[np.argsort(at, kind="stable")])
+    return out
+
+
+def export_part(url: str, p: int, first: int, count: int, columns: list[Column], dims, tmp: str, start: int,
+                compressed: bool, laz_parallel: bool = False):
+    """Task: part ``p`` of the output: its input records plus the columns, written into ``tmp``.
+
+    Returns the part's header statistics and, for LAZ, its chunk-table entries.
+    """
+    store = Store.open(url)
+    src = LasSource.from_json(store.attrs["source"])
+    header = las_output.prepare_header(output_header(src, dims), compressed)
+    pts, values = _part_values(store, p, first, count, columns, laz_parallel)
+    n = len(pts)
+    out = laspy.PackedPointRecord.zeros(n, header.point_format)
+    old = pts.array.dtype.itemsize
+    out.array.view(np.uint8).reshape(n, out.array.dtype.itemsize)[:, :old] = pts.array.view(np.uint8).reshape(n, old)
+    for col, v in zip(columns, values):
+        if col.renumber:
+            known, number = store.get(f"export/{col.array}_ids"), store.get(f"export/{col.array}_numbers")
+            w = np.asarray(v, dtype=np.int64)
+            v = np.where(w != 0, number[np.clip(np.searchsorted(known, w), 0, max(known.size - 1, 0))] if known.size else 0, 0)
+        if len(col.dims) == 1:
+            out[col.dims[0]] = np.asarray(v).reshape(n)
+        else:
+            for k, name in enumerate(col.dims):
+                out[name] = v[:, k]
+    stats = las_output.point_stats(header, out)
+    if compressed:
+        return stats, las_output.write_laz_part(tmp, p, header, out)
+    las_output.write_las_part(tmp, start, first, out)
+    return stats, None
+
+
 def export_columns(
-    store: Store, src: LasSource, output: str, columns: list[Column], dims, overwrite: bool = False, quiet: bool = False,
+    store: Store, src: LasSource, output: str, columns: list[Column], dims, runner: Runner | None = None,
+    overwrite: bool = False, quiet: bool = False,
 ) -> None:
     """Write ``output`` (LAS, or LAZ when the name ends in .laz): ``src`` plus ``columns`` as dimensions ``dims``.
 
-    ``dims`` are (name, numpy type, description) of the dimensions added,
-    as :func:`patchcloud.stream.io.las.output_header` takes them.
+    ``dims`` are (name, numpy type, description[, no-data]) of the dimensions
+    added, as :func:`patchcloud.stream.io.las.output_header` takes them.
+    The tasks write ``OUTPUT.partial`` (the workers must reach the output's
+    directory), renamed to ``output`` when complete.
     """
-    header = output_header(src, dims)
-    grid = store.grid
-    chunk = int(store.attrs["chunk_points"])
-    tiles = store.tiles
-    tile_index = pack_tile_keys(np.asarray(tiles, dtype=np.int64))  # sorted: the store lists tiles in key order
-    index = store.group["index/chunk_tile"][...]
-    bounds = np.searchsorted(index[:, 0], np.arange(-(-src.point_count // chunk) + 1))
-    taken = np.zeros(len(tiles), dtype=np.int64)
-    arrays: dict[tuple, list] = {}
-    bar = Progress("export", src.point_count, quiet=quiet)
-    with atomic_output(output, overwrite) as f:
-        with laspy.open(
-            f, mode="w", header=header, do_compress=is_laz_name(output), closefd=False, laz_backend=laz_backend()
-        ) as writer:
-            for first, pts in read_chunks(src, chunk):
-                c = first // chunk
-                n = len(pts)
-                xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]])
-                tid = np.searchsorted(tile_index, tile_keys(grid, xyz))
-                order = np.argsort(tid, kind="stable")
-                rows = index[bounds[c] : bounds[c + 1]]
-                counts = np.bincount(tid, minlength=len(tiles))
-                if not np.array_equal(counts[rows[:, 1]], rows[:, 2]) or counts.sum() != rows[:, 2].sum():
-                    raise PatchcloudIOError(f"{src.path}: the file no longer matches the store {store.url} (chunk {c})")
-                values = [np.empty((n, len(col.dims)) if len(col.dims) > 1 else n, col.dtype) for col in columns]
-                s = 0
-                for t, m in zip(rows[:, 1].tolist(), rows[:, 2].tolist()):
-                    ijk = tiles[t]
-                    if ijk not in arrays:
-                        g = store.group[f"tiles/{tile_name(ijk)}"]
-                        arrays[ijk] = [g[col.array] for col in columns]
-                    sl = slice(int(taken[t]), int(taken[t]) + m)
-                    dst = order[s : s + m]
-                    for col, a, v in zip(columns, arrays[ijk], values):
-                        rows_t = a[sl]
-                        v[dst] = col.per_tile(t, rows_t) if col.per_tile else rows_t
-                    taken[t] += m
-                    s += m
-                out = laspy.PackedPointRecord.zeros(n, header.point_format)
-                old = pts.array.dtype.itemsize
-                new_bytes = out.array.view(np.uint8).reshape(n, out.array.dtype.itemsize)
-                new_bytes[:, :old] = pts.array.view(np.uint8).reshape(n, old)
-                for col, v in zip(columns, values):
-                    if col.per_chunk:
-                        v = col.per_chunk(v)
-                    if len(col.dims) == 1:
-                        out[col.dims[0]] = v.reshape(n)
-                    else:
-                        for k, name in enumerate(col.dims):
-                            out[name] = v[:, k]
-                writer.write_points(out)
-                bar.update(n)
-    bar.close()
+    runner = runner or Runner("synchronous", quiet=quiet)
+    out = check_writable(output, overwrite)
+    compressed = is_laz_name(out)
+    header = las_output.prepare_header(output_header(src, dims), compressed)
+    ranges = part_ranges(src.point_count, int(store.attrs["part_points"]))
+    laz_parallel = runner.numba_threads > 1
+    tmp = str(out.with_name(out.name + ".partial"))
+    try:
+        renumbered = [col for col in columns if col.renumber]
+        if renumbered:
+            calls = [((store.url, p, first, count, renumbered), {"laz_parallel": laz_parallel}) for p, (first, count) in enumerate(ranges)]
+            seen = runner.map(first_seen_part, calls, "export: ids")
+            for k, col in enumerate(renumbered):
+                f = FirstSeenIds()
+                for part in seen:
+                    f(part[k])
+                store.put(f"export/{col.array}_ids", f.known)
+                store.put(f"export/{col.array}_numbers", f.number)
+        start = las_output.begin(header, tmp, src.point_count)
+        calls = [((store.url, p, first, count, columns, dims, tmp, start, compressed), {"laz_parallel": laz_parallel})
+                 for p, (first, count) in enumerate(ranges)]
+        results = runner.map(export_part, calls, "export")
+        las_output.finish(header, tmp, start, [r[0] for r in results], [r[1] for r in results] if compressed else None)
+        Path(tmp).replace(out)
+    finally:
+        las_output.remove_partial(tmp)
+        store.remove("export")

@@ -1,14 +1,17 @@
-"""Ingest: read a LAS/LAZ file in chunks and cut it into the store's tiles.
+"""Ingest: cut a LAS/LAZ file into the store's tiles, in parallel tasks; no point passes through the client.
 
-The file is read once, in input order, ``chunk`` points at a time; each
-chunk's points are bucketed by tile and appended to the tiles' ``raw``
-arrays (LAS integer coordinates, so nothing is rounded), flushing the
-buffers whenever they hold more than ``buffer`` points: memory is bounded
-by these two settings, not by the file.  The store also records how many
-points of every input chunk went to every tile, which is how results find
-their way back to the input order at export.  The per-tile sort by octree
-key (:func:`sort_tile`) then runs as dask tasks.  :func:`ensure_tiled` is
-what every job calls: it reuses a store already made from the same file.
+The file is cut into parts of consecutive points (:func:`part_ranges`).
+One task per part (:func:`scatter_part`) reads and decodes its part (a
+range of LAZ chunks, or of LAS records), groups its points by tile in
+input order and writes them to the store as one fragment, with the part's
+table of tiles and counts; a part done is not read again when a run
+resumes.  The client adds up these small tables into the store's index
+(which part sent how many points to which tile: how results find their
+way back to the input order at export).  Then one task per tile
+(:func:`sort_tile`) gathers the tile's fragments and sorts them by octree
+key.  LAS integer coordinates are stored, so nothing is rounded; memory is
+one part per task, not the file.  :func:`ensure_tiled` is what every job
+calls: it reuses a store already made from the same file.
 """
 
 from __future__ import annotations
@@ -19,14 +22,15 @@ import numpy as np
 
 from patchcloud.core import MAX_DEPTH, PatchcloudValueError, sort_points
 
-from patchcloud.stream.io.las import LasSource, read_chunks
-from patchcloud.stream.engine.progress import Progress
+from patchcloud.stream.io.las import LasSource, read_range
+from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
-    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "bucket", "bucket_records", "sort_tile", "occupancy_spacing", "tile_keys", "pack_tile_keys",
+    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "part_size", "part_ranges", "part_path", "scatter_part",
+    "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
 
@@ -100,101 +104,172 @@ def _route(grid: Grid, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     return order, sk, starts, np.r_[starts[1:], sk.size]
 
 
-def bucket_records(store: Store, src: LasSource, name: str = "record", chunk: int = 1 << 20, buffer: int = 4_000_000,
-                   quiet: bool = False) -> None:
-    """Append every point's whole record (its bytes) to its tile's array ``name``, in input order.
+def part_size(point_count: int, slots: int, chunk: int | None = None) -> int:
+    """Points per part of the input (what one ingest or export task reads): ``chunk``, or a default for ``slots`` workers.
 
-    Row ``r`` of a tile's ``name`` belongs to the tile's point of ``rank`` r
-    (the tile's points in input order), as the stored ``raw`` points were.
+    The default gives every worker about four parts, in multiples of
+    :data:`~patchcloud.stream.io.las_output.LAZ_CHUNK` (so that every part
+    but the last is whole LAZ chunks of the output), between 2 and 20 LAZ
+    chunks.  Results do not depend on it.
+
+    >>> part_size(60_653, 2), part_size(10_000_000, 2), part_size(20_000_000, 16)
+    (100000, 1000000, 350000)
     """
+    if chunk:
+        return int(chunk)
+    per = -(-point_count // (4 * max(1, slots)))
+    return int(np.clip(-(-per // LAZ_CHUNK) * LAZ_CHUNK, 2 * LAZ_CHUNK, 20 * LAZ_CHUNK))
+
+
+def part_ranges(point_count: int, size: int) -> list[tuple[int, int]]:
+    """(first point, points) of every part of a file of ``point_count`` points cut every ``size`` points.
+
+    >>> part_ranges(250, 100)
+    [(0, 100), (100, 100), (200, 50)]
+    """
+    return [(first, min(size, point_count - first)) for first in range(0, point_count, size)]
+
+
+def part_path(p: int) -> str:
+    """Where part ``p``'s fragments are in the store.
+
+    >>> part_path(3)
+    'parts/000003'
+    """
+    return f"parts/{p:06d}"
+
+
+def scatter_part(url: str, p: int, first: int, count: int, field: str = "xyz", laz_parallel: bool = False) -> None:
+    """Ingest task: read part ``p`` of the input and store its points grouped by tile (a fragment of each tile).
+
+    ``field`` "xyz": the LAS integer coordinates, with the part's tiles, their
+    counts and the coordinates' sums in the part's attributes; "record":
+    every point's whole record (its bytes), for ``compress``.  Within a
+    tile the points keep their input order.  A part already done is skipped.
+    """
+    if field not in ("xyz", "record"):
+        raise PatchcloudValueError(f"field must be 'xyz' or 'record', got {field!r}")
+    store = Store.open(url)
+    path = part_path(p)
+    if store.group_attrs(path).get(f"done_{field}"):
+        return
+    src = LasSource.from_json(store.attrs["source"])
     grid = store.grid
-    buffers: dict[int, list[np.ndarray]] = {}
-    held = 0
-    bar = Progress("records", src.point_count, quiet=quiet)
-
-    def flush() -> None:
-        nonlocal held
-        for key in sorted(buffers):
-            store.append(tuple(unpack_tile_keys(np.array([key]))[0]), name, np.concatenate(buffers[key]))
-        buffers.clear()
-        held = 0
-
-    for _, pts in read_chunks(src, chunk):
+    pts = read_range(src, first, count, parallel=laz_parallel)
+    xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]]).astype(np.int32, copy=False)
+    order, sk, starts, ends = _route(grid, grid.local(xyz))
+    if field == "xyz":
+        store.put(f"{path}/xyz", xyz[order])
+        sums = xyz.astype(np.int64).sum(axis=0)
+        store.set_group_attrs(path, keys=sk[starts].tolist(), counts=(ends - starts).tolist(), sums=sums.tolist(), done_xyz=True)
+    else:
         rec = pts.array.view(np.uint8).reshape(len(pts), pts.array.dtype.itemsize)
-        xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]])
-        order, sk, starts, ends = _route(grid, grid.local(xyz))
-        for s, e in zip(starts.tolist(), ends.tolist()):
-            buffers.setdefault(int(sk[s]), []).append(rec[order[s:e]])
-        held += len(pts)
-        if held >= buffer:
-            flush()
-        bar.update(len(pts))
-    flush()
-    bar.close()
+        store.put(f"{path}/record", rec[order])
+        store.set_group_attrs(path, done_record=True)
 
 
-def bucket(store: Store, src: LasSource, grid: Grid, chunk: int = 1 << 20, buffer: int = 4_000_000, quiet: bool = False) -> None:
-    """Read ``src`` and append its points to the tiles' ``raw`` arrays; record the chunk/tile counts."""
-    buffers: dict[int, list[np.ndarray]] = {}
-    held = 0
-    total = np.zeros(3)
-    records: list[np.ndarray] = []
-    bar = Progress("tile: read", src.point_count, quiet=quiet)
+def _scatter(store: Store, src: LasSource, runner: Runner, field: str, label: str) -> None:
+    """Run :func:`scatter_part` on every part not yet done."""
+    ranges = part_ranges(src.point_count, int(store.attrs["part_points"]))
+    todo = [p for p in range(len(ranges)) if not store.group_attrs(part_path(p)).get(f"done_{field}")]
+    laz_parallel = runner.numba_threads > 1  # one task at a time: lazrs may use the cores
+    runner.map(scatter_part, [((store.url, p, *ranges[p]), {"field": field, "laz_parallel": laz_parallel}) for p in todo], label)
 
-    def flush() -> None:
-        nonlocal held
-        for key in sorted(buffers):
-            store.append(tuple(unpack_tile_keys(np.array([key]))[0]), "raw", np.concatenate(buffers[key]))
-        buffers.clear()
-        held = 0
 
-    for first, pts in read_chunks(src, chunk):
-        c = first // chunk
-        xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]]).astype(np.int32, copy=False)
-        local = grid.local(xyz)
-        total += local.sum(axis=0)
-        order, sk, starts, ends = _route(grid, local)
-        for s, e in zip(starts.tolist(), ends.tolist()):
-            buffers.setdefault(int(sk[s]), []).append(xyz[order[s:e]])
-        records.append(np.column_stack([np.full(starts.size, c), sk[starts], ends - starts]))
-        held += xyz.shape[0]
-        if held >= buffer:
-            flush()
-        bar.update(xyz.shape[0])
-    flush()
-    bar.close()
-    rec = np.concatenate(records) if records else np.zeros((0, 3), dtype=np.int64)
-    tile_keys_sorted = np.unique(rec[:, 1])
-    tiles = unpack_tile_keys(tile_keys_sorted)
-    counts = np.bincount(np.searchsorted(tile_keys_sorted, rec[:, 1]), weights=rec[:, 2], minlength=tiles.shape[0])
-    index = np.column_stack([rec[:, 0], np.searchsorted(tile_keys_sorted, rec[:, 1]), rec[:, 2]]).astype(np.int64)
-    a = store.group.create_array("index/chunk_tile", shape=index.shape, dtype=np.int64, chunks=(max(1, min(1 << 16, index.shape[0])), 3), overwrite=True)
-    a[...] = index
-    store.update(
-        tiles=tiles.tolist(), tile_counts=counts.astype(np.int64).tolist(), chunk_points=int(chunk),
-        centroid_local=(total / max(src.point_count, 1)).tolist(),
-    )
+def _starts(group: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Where each row's run starts within its group (rows of a group consecutive): the counts summed before it.
+
+    >>> _starts(np.array([0, 0, 1, 1, 1]), np.array([2, 3, 1, 1, 4])).tolist()
+    [0, 2, 0, 1, 2]
+    """
+    c = np.cumsum(counts) - counts
+    first = np.r_[True, group[1:] != group[:-1]]
+    return c - c[np.maximum.accumulate(np.where(first, np.arange(group.size), 0))]
+
+
+def _index_parts(store: Store, src: LasSource) -> None:
+    """From the parts' attributes: the tiles, their counts, the centroid, and the index of parts and tiles.
+
+    ``index/part_tile`` (K, 3) int64: part, tile (position in the store's
+    list), points of the part in the tile; ``index/part_start`` where that
+    run starts in the part's fragment, ``index/tile_start`` its first row
+    among the tile's points (in input order).
+    """
+    rows, sums = [], [0, 0, 0]
+    for p in range(len(part_ranges(src.point_count, int(store.attrs["part_points"])))):
+        a = store.group_attrs(part_path(p))
+        keys, counts = np.asarray(a["keys"], dtype=np.int64), np.asarray(a["counts"], dtype=np.int64)
+        rows.append(np.column_stack([np.full(keys.size, p), keys, counts]))
+        sums = [s + int(v) for s, v in zip(sums, a["sums"])]
+    rec = np.concatenate(rows)
+    keys_sorted = np.unique(rec[:, 1])
+    t = np.searchsorted(keys_sorted, rec[:, 1])
+    counts = np.bincount(t, weights=rec[:, 2], minlength=keys_sorted.size).astype(np.int64)
+    index = np.column_stack([rec[:, 0], t, rec[:, 2]]).astype(np.int64)
+    by_tile = np.lexsort((index[:, 0], index[:, 1]))
+    tile_start = np.empty(index.shape[0], dtype=np.int64)
+    tile_start[by_tile] = _starts(index[by_tile, 1], index[by_tile, 2])
+    store.put("index/part_tile", index)
+    store.put("index/part_start", _starts(index[:, 0], index[:, 2]))
+    store.put("index/tile_start", tile_start)
+    g = store.grid
+    mean = np.asarray([s / src.point_count for s in sums])  # exact integer sums: whatever the parts
+    centroid = mean * np.asarray(g.scale) + (np.asarray(g.offset) - np.asarray(g.origin))
+    store.update(tiles=unpack_tile_keys(keys_sorted).tolist(), tile_counts=counts.tolist(), centroid_local=centroid.tolist())
+
+
+def tile_pieces(store: Store, ijk: tuple) -> list[tuple[int, int, int]]:
+    """(part, first row in the part's fragment, rows) of every fragment of tile ``ijk``, in input order."""
+    t = store.tiles.index(tuple(ijk))
+    index = store.get("index/part_tile")
+    rows = np.flatnonzero(index[:, 1] == t)
+    starts = store.get("index/part_start")[rows]
+    return [(int(index[r, 0]), int(s), int(index[r, 2])) for r, s in zip(rows, starts)]
+
+
+def _gather(store: Store, ijk: tuple, field: str) -> np.ndarray:
+    """The tile's points (their ``field``) from every part, in input order."""
+    return np.concatenate([store.get(f"{part_path(p)}/{field}", slice(s, s + m)) for p, s, m in tile_pieces(store, ijk)])
 
 
 def sort_tile(url: str, ijk: tuple) -> list[int]:
-    """Sort a tile's points by octree key; return the tile's occupancy per level (for the global spacing).
+    """Task: gather a tile's points from the parts, sort them by octree key; return the tile's occupancy per level.
 
     ``occupancy[l]`` is the number of occupied cells of edge ``tile_size / 2**l``.
     """
     store = Store.open(url)
     if store.tile_done(ijk, "sort"):
-        store.delete(ijk, "raw")
         return list(store.tile_attrs(ijk)["occupancy"])
     grid = store.grid
-    raw = store.read(ijk, "raw")
+    raw = _gather(store, ijk, "xyz")
     local = grid.local(raw) - grid.corner(ijk)
     order, keys, _ = sort_points(local, np.zeros(3), grid.tile_size)
     store.write(ijk, "xyz", raw[order])
     store.write(ijk, "rank", order.astype(np.uint32))
     occ = [int(np.count_nonzero(np.diff(keys >> np.uint64(3 * (MAX_DEPTH - lev))))) + 1 for lev in range(MAX_DEPTH + 1)]
     store.mark_tile(ijk, "sort", index=[int(v) for v in ijk], count=int(raw.shape[0]), occupancy=occ)
-    store.delete(ijk, "raw")
     return occ
+
+
+def gather_records(url: str, ijk: tuple) -> None:
+    """Task: the tile's records from every part, as its ``record`` array (rows in the tile's input order)."""
+    store = Store.open(url)
+    if store.tile_done(ijk, "records"):
+        return
+    store.write(ijk, "record", _gather(store, ijk, "record"), chunk=Store.CHUNK * 4)
+    store.mark_tile(ijk, "records")
+
+
+def bucket_records(store: Store, src: LasSource, runner: Runner) -> None:
+    """Every point's whole record (its bytes) in its tile's array ``record``, in the tile's input order.
+
+    Row ``r`` of a tile's ``record`` belongs to the tile's point of ``rank``
+    r, as the coordinates do: the same parts are read again, scattered by
+    :func:`scatter_part` tasks and gathered by :func:`gather_records` tasks.
+    """
+    _scatter(store, src, runner, "record", "records: read")
+    map_tiles(gather_records, store, runner=runner, label="records: gather")
+    store.remove("parts")
 
 
 def occupancy_spacing(occupancy: dict[int, int], n: int, target: float = 16.0) -> float:
@@ -215,32 +290,39 @@ def occupancy_spacing(occupancy: dict[int, int], n: int, target: float = 16.0) -
     return float(2.0**e / np.sqrt(max(n / occupancy[e], 1.0)))
 
 
-def ensure_tiled(src: LasSource, url: str, tile_size: float | None, runner: Runner, quiet: bool, chunk: int) -> tuple[Store, float]:
+def ensure_tiled(src: LasSource, url: str, tile_size: float | None, runner: Runner, quiet: bool,
+                 chunk: int | None = None) -> tuple[Store, float]:
     """The store at ``url`` holding ``src`` tiled at ``tile_size``, and the seconds this took.
 
     A store made from the same file on the same grid is reused: as it is
-    when complete, finishing the sort when only that was interrupted;
-    anything else there is replaced.  Steps: bucket (:func:`bucket`, in
-    this process), then one :func:`sort_tile` task per tile; the store
-    then records the cloud's occupancy per cell size.
+    when complete, else resuming from the parts and tiles done; anything
+    else there is replaced.  Steps, all of them tasks on the workers: one
+    :func:`scatter_part` per part of the file (``chunk`` points, default
+    :func:`part_size`), then one :func:`sort_tile` per tile, which gathers
+    the tile's fragments; the client only adds up the parts' tables
+    (:func:`_index_parts`).  The store then records the cloud's occupancy
+    per cell size.
     """
     grid = make_grid(src, tile_size)
     t0 = time.perf_counter()
     if Store.exists(url):
         store = Store.open(url)
         a = store.attrs
-        same = a.get("source") and src.same_file(a["source"]) and a.get("grid") == grid.to_json()
+        same = a.get("source") and src.same_file(a["source"]) and a.get("grid") == grid.to_json() and "part_points" in a
         if same and store.step_done("tile"):
             return store, 0.0
-        if not (same and store.step_done("bucket")):  # else only the sort was interrupted: finish it below
+        if not same:  # else resume from the parts and tiles done
             store = Store.create(url, overwrite=True)
     else:
         store = Store.create(url)
+    if "part_points" not in store.attrs:
+        store.update(source=src.to_json(), grid=grid.to_json(), part_points=part_size(src.point_count, runner.slots, chunk))
     if not store.step_done("bucket"):
-        store.update(source=src.to_json(), grid=grid.to_json())
-        bucket(store, src, grid, chunk=chunk, quiet=quiet)
-        store.mark_step("bucket", {"chunk": chunk})
+        _scatter(store, src, runner, "xyz", "tile: read")
+        _index_parts(store, src)
+        store.mark_step("bucket", {"part_points": int(store.attrs["part_points"])})
     occ = map_tiles(sort_tile, store, runner=runner, label="tile: sort")
+    store.remove("parts")
     log_t = int(round(np.log2(grid.tile_size)))
     total: dict[int, int] = {}
     for o in occ.values():

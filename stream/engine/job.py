@@ -56,11 +56,12 @@ from patchcloud.stream.engine.export import Column, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.engine.tasks import map_tiles
-from patchcloud.stream.io.las import LasSource, open_source
+from patchcloud.stream.io.las import LasSource, check_writable, open_source
+from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io.store import Store
 
 __all__ = [
-    "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "check_output", "default_store_path",
+    "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path",
     "time_and_memory_lines",
 ]
 
@@ -91,8 +92,12 @@ class RunOptions:
         Replace an existing output.
     quiet : bool
         No progress bars.
-    chunk : int
-        Points read (and written) at a time.
+    chunk : int, optional
+        Points per part of the file (what one ingest or export task reads
+        and writes): a multiple of 50,000 (the LAZ chunk).  Default: about
+        four parts per worker, 100,000 to 1,000,000 points each
+        (:func:`patchcloud.stream.engine.ingest.part_size`).  Results do not
+        depend on it.
     """
 
     tile_size: float | None = None
@@ -102,14 +107,16 @@ class RunOptions:
     keep_store: bool | None = None
     overwrite: bool = False
     quiet: bool = False
-    chunk: int = 1 << 20
+    chunk: int | None = None
 
     def __post_init__(self) -> None:
         check_tile_size(self.tile_size)
         if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) != self.workers or self.workers < 1):
             raise PatchcloudValueError(f"workers must be at least 1, got {self.workers!r}")
-        if isinstance(self.chunk, bool) or int(self.chunk) != self.chunk or self.chunk < 1:
-            raise PatchcloudValueError(f"chunk must be a positive number of points, got {self.chunk!r}")
+        if self.chunk is not None and (
+            isinstance(self.chunk, bool) or int(self.chunk) != self.chunk or self.chunk < 1 or self.chunk % LAZ_CHUNK
+        ):
+            raise PatchcloudValueError(f"chunk must be a positive multiple of {LAZ_CHUNK:,} points, got {self.chunk!r}")
         if not isinstance(self.scheduler, str) or not self.scheduler:
             raise PatchcloudValueError(f"scheduler must be a name or an address, got {self.scheduler!r}")
 
@@ -154,16 +161,6 @@ def default_store_path(output: str | os.PathLike) -> str:
     'out/city.laz.store'
     """
     return str(output) + ".store"
-
-
-def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
-    """``output`` as a Path, after checking it can be written: not there (or ``overwrite``), its directory there."""
-    out = Path(output)
-    if out.exists() and not overwrite:
-        raise PatchcloudIOError(f"{out}: exists (use --overwrite to replace it)")
-    if not out.parent.exists():
-        raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
-    return out
 
 
 def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: int, scheduler: str) -> list[str]:
@@ -225,7 +222,8 @@ class Job:
     def write(self, ctx: JobContext) -> None:
         """Write the output: by default the input's records plus :meth:`columns`, under a temporary name."""
         columns, dims = self.columns(ctx)
-        export_columns(ctx.store, ctx.source, str(ctx.output), columns, dims, overwrite=ctx.run.overwrite, quiet=ctx.run.quiet)
+        export_columns(ctx.store, ctx.source, str(ctx.output), columns, dims, runner=ctx.runner, overwrite=ctx.run.overwrite,
+                       quiet=ctx.run.quiet)
 
     def summarise(self, ctx: JobContext):
         """The job's summary (a dataclass with ``format()``), made after the output is written."""
@@ -243,7 +241,7 @@ def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: 
     PatchcloudValueError (a ValueError)
         An invalid option (the scheduler's, say).
     """
-    out = check_output(output, run.overwrite)
+    out = check_writable(output, run.overwrite)
     src = open_source(input)
     url = run.store or default_store_path(out)
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)

@@ -13,7 +13,7 @@ import resource
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from patchcloud.core import PatchcloudValueError
+from patchcloud.core import PatchcloudValueError, single_threaded
 
 from patchcloud.stream.engine.progress import Progress
 
@@ -24,9 +24,17 @@ SCHEDULERS = ("threads", "processes", "synchronous")
 
 
 def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> Any:
-    """Run ``func`` with numba limited to ``numba_threads`` threads (the tasks themselves run in parallel)."""
+    """Run ``func`` with numba limited to ``numba_threads`` threads (the tasks themselves run in parallel).
+
+    With one thread, the kernels run their sequential, GIL-free versions
+    (:func:`patchcloud.core.single_threaded`): tasks on threads then compute
+    side by side.
+    """
     import numba
 
+    if numba_threads <= 1:
+        with single_threaded():
+            return func(*args, **kwargs)
     numba.set_num_threads(max(1, min(numba_threads, numba.config.NUMBA_NUM_THREADS)))
     return func(*args, **kwargs)
 

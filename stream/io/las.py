@@ -20,7 +20,9 @@ import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-__all__ = ["LasSource", "open_source", "read_chunks", "output_header", "atomic_output", "is_laz_name", "laz_backend"]
+__all__ = [
+    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "atomic_output", "is_laz_name", "laz_backend",
+]
 
 
 
@@ -43,6 +45,14 @@ class LasSource:
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
+
+    @classmethod
+    def from_json(cls, d: dict) -> "LasSource":
+        """The inverse of :meth:`to_json`."""
+        d = dict(d)
+        for k in ("scale", "offset", "mins", "maxs"):
+            d[k] = tuple(d[k])
+        return cls(**{f: d[f] for f in cls.__dataclass_fields__})
 
     def same_file(self, other: dict) -> bool:
         """True when ``other`` (a :meth:`to_json` dict) describes this file unchanged."""
@@ -113,6 +123,38 @@ def open_source(path: str | os.PathLike) -> LasSource:
     return src
 
 
+def read_range(src: LasSource, first: int, count: int, parallel: bool = False) -> laspy.ScaleAwarePointRecord:
+    """Points ``first`` to ``first + count`` of the file (what one ingest or export task reads).
+
+    ``parallel``: decode LAZ with lazrs' multi-threaded decoder (for a
+    process that runs one task at a time); tasks that run side by side
+    use the sequential one, so that no process starts a thread per core.
+
+    Raises
+    ------
+    PatchcloudIOError
+        The data ends before ``first + count`` (truncated or corrupt).
+    """
+    p = src.path
+    try:
+        with laspy.open(p, laz_backend=laz_backend(parallel)) as reader:
+            if first:
+                reader.seek(first)
+            try:
+                pts = reader.read_points(count)
+            except Exception as exc:
+                raise PatchcloudIOError(f"{p}: corrupt or truncated point data after point {first:,} ({exc})") from exc
+    except PatchcloudIOError:
+        raise
+    except Exception as exc:
+        raise PatchcloudIOError(f"{p}: cannot read point data ({exc})") from exc
+    if len(pts) != count:
+        raise PatchcloudIOError(
+            f"{p}: truncated: the header says {src.point_count:,} points but the data ends after {first + len(pts):,}"
+        )
+    return pts
+
+
 def read_chunks(src: LasSource, chunk: int, start_chunk: int = 0) -> Iterator[tuple[int, laspy.ScaleAwarePointRecord]]:
     """Chunks of ``chunk`` points of the file, from chunk ``start_chunk`` on, with their first index.
 
@@ -145,10 +187,12 @@ def read_chunks(src: LasSource, chunk: int, start_chunk: int = 0) -> Iterator[tu
         raise PatchcloudIOError(f"{p}: cannot read point data ({exc})") from exc
 
 
-def laz_backend():
-    """lazrs, in parallel when the installed build offers it."""
+def laz_backend(parallel: bool = True):
+    """lazrs: multi-threaded when ``parallel`` and the installed build offers it, else sequential."""
     try:
-        return laspy.LazBackend.LazrsParallel if laspy.LazBackend.LazrsParallel.is_available() else laspy.LazBackend.Lazrs
+        if parallel and laspy.LazBackend.LazrsParallel.is_available():
+            return laspy.LazBackend.LazrsParallel
+        return laspy.LazBackend.Lazrs
     except Exception:
         return None
 
@@ -181,14 +225,20 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
     return header
 
 
-@contextmanager
-def atomic_output(path: str | os.PathLike, overwrite: bool):
-    """Open ``path``'s temporary name for binary writing; rename to ``path`` on success, remove on failure."""
+def check_writable(path: str | os.PathLike, overwrite: bool) -> Path:
+    """``path`` as a Path, after checking an output can be written there: absent (or ``overwrite``), its directory there."""
     p = Path(path)
     if p.exists() and not overwrite:
         raise PatchcloudIOError(f"{p}: exists (use --overwrite to replace it)")
     if not p.parent.exists():
         raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
+    return p
+
+
+@contextmanager
+def atomic_output(path: str | os.PathLike, overwrite: bool):
+    """Open ``path``'s temporary name for binary writing; rename to ``path`` on success, remove on failure."""
+    p = check_writable(path, overwrite)
     tmp = p.with_name(p.name + ".partial")
     try:
         with open(tmp, "wb") as f:

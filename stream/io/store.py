@@ -284,6 +284,40 @@ class Store:
         if name in g:
             del g[name]
 
+    # -- arrays outside tiles (the ingest's parts, the export's tables) ------
+    def put(self, path: str, values: np.ndarray, chunk: int | None = None) -> None:
+        """Write (replace) the array at ``path`` (e.g. ``parts/000003/xyz``)."""
+        values = np.ascontiguousarray(values)
+        rows = chunk or self.CHUNK
+        chunks = (max(1, min(rows, values.shape[0])),) + values.shape[1:]
+        a = self.group.create_array(path, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True)
+        if values.size:
+            a[...] = values
+
+    def get(self, path: str, rows: slice | None = None) -> np.ndarray:
+        """The array at ``path`` (rows ``rows`` of it)."""
+        try:
+            a = self.group[path]
+        except KeyError:
+            raise PatchcloudValueError(f"{self.url}: no array {path!r} (step not run?)") from None
+        return a[...] if rows is None else a[rows]
+
+    def group_attrs(self, path: str) -> dict:
+        """The attributes of the group at ``path`` as stored now; {} when there is none."""
+        try:
+            return dict(self.group[path].attrs)
+        except KeyError:
+            return {}
+
+    def set_group_attrs(self, path: str, **attrs) -> None:
+        """Set attributes of the group at ``path`` (made if needed)."""
+        self.group.require_group(path).attrs.update(**json.loads(json.dumps(attrs)))
+
+    def remove(self, path: str) -> None:
+        """Remove the group or array at ``path`` if there."""
+        if path in self.group:
+            del self.group[path]
+
     def patch_table(self, ijk) -> PatchTable:
         grid = self.grid
         return array_to_table(self.read(ijk, "patches"), grid.corner(ijk), grid.tile_size)

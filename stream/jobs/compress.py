@@ -163,10 +163,8 @@ class CompressJob(Job):
     def records(self, ctx: JobContext) -> None:
         st = ctx.store
         if not st.step_done("records"):
-            for t in st.tiles:
-                st.delete(t, "record")
-            bucket_records(st, ctx.source, chunk=ctx.run.chunk, quiet=ctx.run.quiet)
-            st.mark_step("records", {"chunk": ctx.run.chunk})
+            bucket_records(st, ctx.source, ctx.runner)
+            st.mark_step("records", {"part_points": int(st.attrs["part_points"])})
 
     def fit(self, ctx: JobContext) -> None:
         st, src = ctx.store, ctx.source

@@ -19,9 +19,8 @@ import laspy
 import numpy as np
 
 from patchcloud.core import MASK_SIDE, PatchcloudValueError, dequantise_models, sample_models
-from patchcloud.stream.engine.job import check_output
 from patchcloud.stream.io import pcz
-from patchcloud.stream.io.las import atomic_output, is_laz_name, laz_backend
+from patchcloud.stream.io.las import atomic_output, check_writable, is_laz_name, laz_backend
 
 __all__ = ["decompress", "DecompressSummary"]
 
@@ -101,7 +100,7 @@ def decompress(
         box = np.asarray(bbox, dtype=np.float64).reshape(-1)
         if box.shape != (6,) or not np.isfinite(box).all() or np.any(box[:3] > box[3:]):
             raise PatchcloudValueError(f"bbox must be xmin ymin zmin xmax ymax zmax with each min <= max; got {bbox!r}")
-    check_output(output, overwrite)
+    check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
         header = laspy.LasHeader.read_from(io.BytesIO(f.header_bytes), read_evlrs=False)

@@ -28,7 +28,7 @@ from patchcloud.stream.io.las import LasSource
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import don_tiles
 
-__all__ = ["don", "DonJob", "DonSummary", "DON_DIMS", "default_viewpoint_of", "cloud_density"]
+__all__ = ["don", "DonJob", "DonSummary", "DON_DIMS", "default_viewpoint_of", "cloud_density", "magnitude_and_vector"]
 
 #: Dimensions ``patchcloud don`` adds (NaN where the DoN is undefined).
 #: The extra-bytes VLR declares NaN as their no-data value.
@@ -114,6 +114,11 @@ def cloud_density(st: Store, edge: float) -> float:
     return n / occ[top] * 4.0 ** (e - top)
 
 
+def magnitude_and_vector(store: Store, t: int, v: np.ndarray) -> np.ndarray:
+    """(n, 4): the DoN vectors' length, then the vectors (what the output's DoN, DoNX/Y/Z hold)."""
+    return np.column_stack([np.sqrt(np.einsum("ij,ij->i", v, v)), v])
+
+
 class DonJob(Job):
     """The steps of ``don`` on the scaffold; :class:`patchcloud.stream.jobs.segment.SegmentJob` adds two."""
 
@@ -158,9 +163,6 @@ class DonJob(Job):
         self.infos = ctx.map_tiles(don_tiles.don_tile, halo=self.halo, label="DoN", params=self.params)
 
     def columns(self, ctx: JobContext):
-        def magnitude_and_vector(t, v):
-            return np.column_stack([np.sqrt(np.einsum("ij,ij->i", v, v)), v])
-
         return [Column("don", ("DoN", "DoNX", "DoNY", "DoNZ"), np.float32, per_tile=magnitude_and_vector)], DON_DIMS
 
     def summarise(self, ctx: JobContext) -> DonSummary:

@@ -31,7 +31,7 @@ from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import normals_tiles
 from patchcloud.stream.jobs.seams import orient_tiles
 
-__all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "resolve_parameters"]
+__all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "resolve_parameters", "global_patch_ids"]
 
 #: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description.
 NORMALS_DIMS = (
@@ -110,6 +110,11 @@ def resolve_parameters(store: Store, options: NormalsOptions, runner) -> dict:
     return dict(spacing=float(spacing), d_min=float(d_min), max_edge=float(max_edge), threshold=float(threshold))
 
 
+def global_patch_ids(store: Store, t: int, patch: np.ndarray) -> np.ndarray:
+    """Tile ``t``'s patch ids (rows of its patch table) as ids over the whole cloud (the seam pass's offsets)."""
+    return patch + int(store.attrs["patch_offsets"][t])
+
+
 class NormalsJob(Job):
     """The steps of ``normals`` on the scaffold (see :mod:`patchcloud.stream.engine.job`)."""
 
@@ -154,12 +159,11 @@ class NormalsJob(Job):
         ctx.map_tiles(normals_tiles.finish_one_tile, tiles=todo, halo=1, label="finish", params=self.params)
 
     def columns(self, ctx: JobContext):
-        patch_offsets = np.asarray(ctx.store.attrs["patch_offsets"], dtype=np.int64)
         columns = [
             Column("normal", ("NormalX", "NormalY", "NormalZ"), np.float32),
             Column("curvature", ("Curvature",), np.float32),
             Column("method", ("NormalMethod",), np.uint8),
-            Column("patch", ("PatchId",), np.uint32, per_tile=lambda t, v: v + patch_offsets[t]),
+            Column("patch", ("PatchId",), np.uint32, per_tile=global_patch_ids),
         ]
         return columns, NORMALS_DIMS
 

@@ -19,15 +19,21 @@ import os
 import numpy as np
 
 from patchcloud.core import SegmentOptions
-from patchcloud.stream.engine.export import Column, FirstSeenIds
+from patchcloud.stream.engine.export import Column
 from patchcloud.stream.engine.job import JobContext, RunOptions, params_key, run_job, split_options
+from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import don_tiles
 from patchcloud.stream.jobs.don import DON_DIMS, DonJob, DonSummary
 
-__all__ = ["segment", "SegmentJob", "SEGMENT_DIMS"]
+__all__ = ["segment", "SegmentJob", "SEGMENT_DIMS", "segment_of"]
 
 #: Dimensions ``patchcloud segment`` adds: the DoN and PDAL's cluster id (0 = no segment).
 SEGMENT_DIMS = DON_DIMS + (("ClusterID", np.uint64, "DoN segment id, 0 = none"),)
+
+
+def segment_of(store: Store, t: int, comp: np.ndarray) -> np.ndarray:
+    """Tile ``t``'s component ids as segment ids over the whole cloud (0: no segment)."""
+    return np.r_[0, store.read(store.tiles[t], "comp_map")][comp.astype(np.int64) + 1]  # comp -1 (not kept) -> 0
 
 
 class SegmentJob(DonJob):
@@ -59,16 +65,7 @@ class SegmentJob(DonJob):
 
     def columns(self, ctx: JobContext):
         columns, _ = super().columns(ctx)
-        st = ctx.store
-        tiles = st.tiles
-        maps: dict[int, np.ndarray] = {}
-
-        def segment_of(t, comp):
-            if t not in maps:
-                maps[t] = np.r_[0, st.read(tiles[t], "comp_map")]  # comp -1 (not kept) -> 0
-            return maps[t][comp.astype(np.int64) + 1]
-
-        columns.append(Column("comp", ("ClusterID",), np.uint64, per_tile=segment_of, per_chunk=FirstSeenIds()))
+        columns.append(Column("comp", ("ClusterID",), np.uint64, per_tile=segment_of, renumber=True))
         return columns, SEGMENT_DIMS
 
     def summarise(self, ctx: JobContext) -> DonSummary:

@@ -24,7 +24,7 @@ def _exists_nonempty(url: str) -> bool:
 
 def tile(
     input: str | os.PathLike, store: str, *, tile_size: float | None = None, scheduler: str = "threads",
-    workers: int | None = None, overwrite: bool = False, quiet: bool = False, chunk: int = 1 << 20,
+    workers: int | None = None, overwrite: bool = False, quiet: bool = False, chunk: int | None = None,
 ) -> Store:
     """Ingest only: cut ``input`` into a tiled store at ``store`` (a path or fsspec URL).
 

@@ -1,0 +1,229 @@
+"""A LAS/LAZ file written in parts by independent tasks, byte for byte what laspy writes in one go.
+
+The output's point records are cut into parts of consecutive points (the
+export's parts, each a multiple of :data:`LAZ_CHUNK` points but the last).
+Every part is written by its own task, in any order, on any worker:
+
+- **LAS**: the client sizes the file (:func:`begin`); a task writes its
+  records at their place (:func:`write_las_part`);
+- **LAZ**: a task compresses its records into whole LAZ chunks (LAZ chunks
+  are independent; lazrs compresses them) and writes them to a fragment
+  file beside the output (:func:`write_laz_part`); the client then
+  concatenates the fragments and writes the one chunk table
+  (:func:`finish`), a copy of compressed bytes.
+
+Each task also returns its records' :class:`PointStats` (bounds, counts by
+return, GPS time and extra-bytes ranges), which :func:`finish` merges into
+the header as laspy's ``LasHeader.grow`` would have, so the file does not
+depend on the number of parts or on which worker wrote which.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import struct
+from copy import deepcopy
+from dataclasses import dataclass
+from pathlib import Path
+
+import laspy
+import lazrs
+import numpy as np
+from laspy.vlrs.known import LasZipVlr
+
+__all__ = ["LAZ_CHUNK", "PointStats", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "finish",
+           "fragments_dir", "remove_partial"]
+
+#: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
+LAZ_CHUNK = 50_000
+
+
+@dataclass(frozen=True)
+class PointStats:
+    """What the header records about some points: bounds (scaled), GPS time range, counts, extra-bytes ranges."""
+
+    mins: np.ndarray  # (3,) float64
+    maxs: np.ndarray  # (3,) float64
+    gps: tuple[float, float]
+    by_return: np.ndarray  # (15,) uint64
+    count: int
+    eb_min: tuple[bytes, ...]  # raw min/max of each extra-bytes struct, as laspy keeps them
+    eb_max: tuple[bytes, ...]
+
+
+def prepare_header(header: laspy.LasHeader, compressed: bool) -> laspy.LasHeader:
+    """The header as laspy's writer makes it before the first point (statistics reset, LAZ VLR added when ``compressed``)."""
+    h = deepcopy(header)
+    try:
+        h.vlrs.pop(h.vlrs.index("LasZipVlr"))
+    except ValueError:
+        pass
+    h.partial_reset()
+    h.are_points_compressed = compressed
+    if compressed:
+        pf = h.point_format
+        h.vlrs.append(LasZipVlr(lazrs.LazVlr.new_for_compression(pf.id, pf.num_extra_bytes).record_data()))
+    return h
+
+
+def _eb_structs(h: laspy.LasHeader) -> list:
+    vlrs = h.vlrs.get("ExtraBytesVlr")
+    return list(vlrs[0].extra_bytes_structs) if vlrs else []
+
+
+def _eb_range(st, points: laspy.PackedPointRecord) -> tuple[np.ndarray, np.ndarray]:
+    """Stored (unscaled) min and max of one extra-bytes dimension over ``points``, no-data and NaN values left out.
+
+    laspy's own ``grow`` takes each call's first value for the whole call,
+    so its ranges depend on how the points were cut: these are the true ones.
+    """
+    t, n = np.dtype(st._long_type()), st.num_elements()
+    info = np.finfo(t) if t.kind == "f" else np.iinfo(t)
+    lo, hi = np.full(n, info.max, dtype=t), np.full(n, info.min, dtype=t)
+    if st.data_type == 0 or len(points) == 0:
+        return lo, hi
+    v = np.asarray(points.array[st.format_name()]).reshape(len(points), n)
+    for i in range(n):
+        col = v[:, i]
+        valid = np.ones(col.shape, dtype=bool)
+        if st.no_data is not None:
+            valid &= col != st.no_data[i]
+        if col.dtype.kind == "f":
+            valid &= ~np.isnan(col)
+        if valid.any():
+            lo[i], hi[i] = col[valid].min(), col[valid].max()
+    return lo, hi
+
+
+def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord) -> PointStats:
+    """The header statistics of ``points`` alone (``header`` from :func:`prepare_header`)."""
+    structs = _eb_structs(header)
+    h = deepcopy(header)
+    try:  # laspy's grow would set wrong extra-bytes ranges (see _eb_range): they are computed here
+        h.vlrs.pop(h.vlrs.index("ExtraBytesVlr"))
+    except ValueError:
+        pass
+    h.partial_reset()
+    h.grow(points)
+    ranges = [_eb_range(st, points) for st in structs]
+    return PointStats(
+        mins=np.asarray(h.mins, dtype=np.float64), maxs=np.asarray(h.maxs, dtype=np.float64),
+        gps=(float(h.min_gps_time), float(h.max_gps_time)), by_return=np.asarray(h.number_of_points_by_return, dtype=np.uint64),
+        count=int(h.point_count), eb_min=tuple(lo.tobytes() for lo, _ in ranges), eb_max=tuple(hi.tobytes() for _, hi in ranges),
+    )
+
+
+def _merge(header: laspy.LasHeader, parts: list[PointStats]) -> laspy.LasHeader:
+    """``header`` with the statistics of all ``parts`` (what growing it by every point in turn gives)."""
+    h = deepcopy(header)
+    h.partial_reset()
+    mins, maxs = np.asarray(h.mins, dtype=np.float64), np.asarray(h.maxs, dtype=np.float64)
+    lo, hi = h.min_gps_time, h.max_gps_time
+    by_return = np.zeros(15, dtype=np.uint64)
+    count = 0
+    structs = _eb_structs(h)
+    for s in parts:
+        mins, maxs = np.minimum(mins, s.mins), np.maximum(maxs, s.maxs)
+        lo, hi = min(lo, s.gps[0]), max(hi, s.gps[1])
+        by_return += s.by_return
+        count += s.count
+        for st, a, b in zip(structs, s.eb_min, s.eb_max):
+            n, t = st.num_elements(), st._long_type()
+            if st.min_is_relevant():
+                raw = st._raw_min()
+                raw[:] = np.minimum(raw, np.frombuffer(a, dtype=t)[:n])
+            if st.max_is_relevant():
+                raw = st._raw_max()
+                raw[:] = np.maximum(raw, np.frombuffer(b, dtype=t)[:n])
+    h.mins, h.maxs = mins, maxs
+    h.min_gps_time, h.max_gps_time = lo, hi
+    h.number_of_points_by_return = by_return[: len(h.number_of_points_by_return)]
+    h.point_count = count
+    if count == 0:
+        h.maxs = [0.0, 0.0, 0.0]
+        h.mins = [0.0, 0.0, 0.0]
+    return h
+
+
+def fragments_dir(tmp: str | os.PathLike) -> Path:
+    """Where the LAZ parts of the file being written at ``tmp`` wait to be stitched."""
+    return Path(str(tmp) + ".parts")
+
+
+def begin(header: laspy.LasHeader, tmp: str | os.PathLike, point_count: int) -> int:
+    """Create ``tmp`` for ``point_count`` points; return the offset of the point data.
+
+    LAS: the file is sized for every record (tasks write into it); LAZ: an
+    empty directory of fragments is made beside it.
+    """
+    buf = io.BytesIO()
+    header.write_to(buf)
+    start = len(buf.getvalue())
+    with open(tmp, "wb") as f:
+        f.write(buf.getvalue())
+        if not header.are_points_compressed:
+            f.truncate(start + point_count * header.point_format.size)
+    if header.are_points_compressed:
+        d = fragments_dir(tmp)
+        shutil.rmtree(d, ignore_errors=True)
+        d.mkdir()
+    return start
+
+
+def write_las_part(tmp: str | os.PathLike, start: int, first: int, points: laspy.PackedPointRecord) -> None:
+    """Write the records of points ``first, first + 1, ...`` into the LAS file ``tmp`` (its point data at ``start``)."""
+    fd = os.open(tmp, os.O_WRONLY)
+    try:
+        data = memoryview(points.array).cast("B")
+        off, done = start + first * points.array.dtype.itemsize, 0
+        while done < len(data):
+            done += os.pwrite(fd, data[done:], off + done)
+    finally:
+        os.close(fd)
+
+
+def write_laz_part(tmp: str | os.PathLike, part: int, header: laspy.LasHeader, points: laspy.PackedPointRecord) -> list:
+    """Compress ``points`` as whole LAZ chunks into fragment ``part`` of ``tmp``; return their chunk-table entries."""
+    vlr = lazrs.LazVlr(header.vlrs.get("LasZipVlr")[0].record_data)
+    data = bytes(lazrs.compress_points(vlr, np.frombuffer(points.array, np.uint8), False))
+    table_at = struct.unpack("<q", data[:8])[0]
+    table = lazrs.read_chunk_table(io.BytesIO(data), vlr)
+    name = fragments_dir(tmp) / f"{part:06d}"
+    with open(str(name) + ".tmp", "wb") as f:
+        f.write(memoryview(data)[8:table_at])
+    os.replace(str(name) + ".tmp", name)
+    return [tuple(int(v) for v in e) for e in table]
+
+
+def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: list[PointStats], tables: list | None = None) -> None:
+    """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments in part order and the chunk table.
+
+    ``tables``: each LAZ part's chunk-table entries, in part order.
+    """
+    h = _merge(header, stats)
+    with open(tmp, "r+b") as f:
+        if h.are_points_compressed:
+            f.seek(start)
+            f.write(struct.pack("<q", 0))
+            d = fragments_dir(tmp)
+            for part in range(len(tables)):
+                with open(d / f"{part:06d}", "rb") as src:
+                    shutil.copyfileobj(src, f, 1 << 24)
+            table_at = f.tell()
+            vlr = lazrs.LazVlr(h.vlrs.get("LasZipVlr")[0].record_data)
+            lazrs.write_chunk_table(f, [e for t in tables for e in t], vlr)
+            f.truncate()
+            f.seek(start)
+            f.write(struct.pack("<q", table_at))
+        f.seek(0)
+        h.write_to(f, ensure_same_size=True)
+    if h.are_points_compressed:
+        shutil.rmtree(fragments_dir(tmp), ignore_errors=True)
+
+
+def remove_partial(tmp: str | os.PathLike) -> None:
+    """Remove what an unfinished output left: ``tmp`` and its fragments."""
+    Path(tmp).unlink(missing_ok=True)
+    shutil.rmtree(fragments_dir(tmp), ignore_errors=True)
