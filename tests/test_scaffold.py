@@ -70,7 +70,7 @@ def test_keyword_arguments_override_the_objects_given():
     o, r = split_options({"orient": "none", "quiet": True}, NormalsOptions(criterion="sigma3"), NormalsOptions,
                          RunOptions(workers=3))
     assert (o.criterion, o.orient) == ("sigma3", "none")
-    assert (r.workers, r.quiet, r.scheduler) == (3, True, "threads")
+    assert (r.workers, r.quiet, r.scheduler) == (3, True, "auto")
 
 
 def test_options_object_and_keywords_give_identical_normals(rng):

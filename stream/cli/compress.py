@@ -17,7 +17,7 @@ from . import options
 @options.job_options
 @options.report_option
 @options.reports_errors
-def compress_command(input, output, max_error, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, report):
+def compress_command(input, output, max_error, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, report):
     """Compress INPUT (LAS/LAZ, any size) to OUTPUT, a .pcz of quadric patch models and residual points.
 
     Smooth surfaces become quantised quadric patches (octree cell, point
@@ -35,7 +35,7 @@ def compress_command(input, output, max_error, tile_size, scheduler, workers, st
 
     options.check_report(report, overwrite, input, output)
 
-    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet)
+    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile)
     summary = compress(input, output, CompressOptions(max_error=max_error), run)
     options.finish_job(summary, quiet, report, report_compress)
 

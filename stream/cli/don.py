@@ -16,7 +16,7 @@ from . import options
 @options.job_options
 @options.report_option
 @options.reports_errors
-def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, report):
+def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, report):
     """Difference of Normals of INPUT (LAS/LAZ, any size), written to OUTPUT.
 
     DoN = (n(p, rs) - n(p, rl)) / 2, with n(p, r) the PCA normal of the
@@ -35,5 +35,5 @@ def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, sch
     options.check_report(report, overwrite, input, output)
 
     asked = DonOptions(r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None)
-    summary = don(input, output, asked, options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet))
+    summary = don(input, output, asked, options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile))
     options.finish_job(summary, quiet, report, report_don)

@@ -24,7 +24,7 @@ from . import options
 @options.reports_errors
 def normals_command(
     input, output, tile_size, criterion, threshold, orient, viewpoint, no_blend, scheduler, workers, store, keep_store, overwrite,
-    quiet, report,
+    quiet, profile, report,
 ):
     """Normals and curvature of INPUT (LAS/LAZ, any size), written to OUTPUT.
 
@@ -45,7 +45,7 @@ def normals_command(
     options.check_report(report, overwrite, input, output)
 
     asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend)
-    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet)
+    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile)
     summary = normals(input, output, asked, run)
     options.finish_job(summary, quiet, report, report_normals)
 

@@ -9,18 +9,19 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError
 
-__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
     help="Edge of the tiles, rounded down to a power of two. Default: about a million points per tile.",
 )
 scheduler = click.option(
-    "--scheduler", default="threads", show_default=True, metavar="ADDRESS",
-    help="'threads' (this machine, one task per core), 'processes', 'synchronous', or the address of a "
-    "dask.distributed scheduler, e.g. tcp://host:8786 (the store must then be reachable by the workers).",
+    "--scheduler", default="auto", show_default=True, metavar="ADDRESS",
+    help="'auto' (worker processes for files of 2 million points or more, else threads), 'threads', 'processes' "
+    "(one task per worker, each worker a core), 'synchronous', or the address of a dask.distributed scheduler, "
+    "e.g. tcp://host:8786 (the workers must then reach the input, the store and the output's directory).",
 )
-workers = click.option("--workers", type=int, default=None, help="Threads or processes on this machine. Default: the cores.")
+workers = click.option("--workers", type=int, default=None, help="Threads or processes on this machine (each uses one core). Default: the cores.")
 store = click.option(
     "--store", default=None, metavar="PATH",
     help="Where the tiles and intermediate results go (a path or an fsspec URL). Default: OUT.store beside "
@@ -29,6 +30,10 @@ store = click.option(
 keep_store = click.option("--keep-store", is_flag=True, help="Keep the default store after success.")
 overwrite = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 quiet = click.option("--quiet", "-q", is_flag=True, help="No progress bars or summary.")
+profile = click.option(
+    "--profile", type=click.Path(dir_okay=False), default=None, metavar="PATH",
+    help="Write the run's task stream there (JSON: each task's step, start, end and worker), e.g. for tools/bench_scale.py.",
+)
 report_option = click.option(
     "--report", type=click.Path(dir_okay=False), default=None, metavar="PATH",
     help="Also write an HTML report of the run (summary, views, histograms): one self-contained file, images "
@@ -54,17 +59,17 @@ def finish_job(summary, quiet: bool, report: str | None, write_report) -> None:
             click.echo(f"  report          {report}")
 
 
-def run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet):
+def run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile):
     """The :class:`patchcloud.stream.RunOptions` of the options :func:`job_options` adds (``--keep-store`` absent: the default rule)."""
     from patchcloud.stream import RunOptions
 
     return RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None,
-                      overwrite=overwrite, quiet=quiet)
+                      overwrite=overwrite, quiet=quiet, profile=profile)
 
 
 def job_options(func):
-    """The options every out-of-core job shares: --tile-size, --scheduler, --workers, --store, --keep-store, --overwrite, -q."""
-    for option in reversed([tile_size, scheduler, workers, store, keep_store, overwrite, quiet]):
+    """The options every out-of-core job shares: --tile-size, --scheduler, --workers, --store, --keep-store, --overwrite, -q, --profile."""
+    for option in reversed([tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile]):
         func = option(func)
     return func
 

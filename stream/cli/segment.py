@@ -25,7 +25,7 @@ from . import options
 @options.reports_errors
 def segment_command(
     input, output, r_small, r_large, mode, viewpoint, threshold, axis, axis_threshold, tolerance, min_points, max_points,
-    tile_size, scheduler, workers, store, keep_store, overwrite, quiet, report,
+    tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, report,
 ):
     """DoN segments of INPUT (LAS/LAZ, any size), written to OUTPUT.
 
@@ -48,5 +48,5 @@ def segment_command(
         r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, threshold=threshold, tolerance=tolerance,
         min_cluster=min_points, max_cluster=max_points, axis=axis, axis_threshold=axis_threshold,
     )
-    summary = segment(input, output, asked, options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet))
+    summary = segment(input, output, asked, options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile))
     options.finish_job(summary, quiet, report, report_don)

@@ -30,7 +30,7 @@ and its function (``jobs/normals.py`` is the model), one in
 ``stream/cli/``.
 
 >>> RunOptions(workers=2).scheduler
-'threads'
+'auto'
 >>> RunOptions(tile_size=-1)
 Traceback (most recent call last):
 ...
@@ -61,7 +61,7 @@ from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io.store import Store
 
 __all__ = [
-    "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path",
+    "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
     "time_and_memory_lines",
 ]
 
@@ -76,8 +76,9 @@ class RunOptions:
         Tile edge (metres), rounded down to a power of two; default: about a
         million points per tile over the file's footprint.
     scheduler : str
-        "threads" (default), "processes", "synchronous", or a dask scheduler
-        address such as ``tcp://host:8786``.
+        "auto" (default: worker processes for files of 2 million points or
+        more, else threads), "threads", "processes", "synchronous", or a dask
+        scheduler address such as ``tcp://host:8786``.
     workers : int, optional
         Threads or processes of the local scheduler (default: the cores).
     store : str, optional
@@ -92,6 +93,10 @@ class RunOptions:
         Replace an existing output.
     quiet : bool
         No progress bars.
+    profile : str, optional
+        Write the run's task stream there (JSON: every task's step, start,
+        end and worker; the steps' times; the workers), for
+        ``tools/bench_scale.py``'s occupancy figures or your own.
     chunk : int, optional
         Points per part of the file (what one ingest or export task reads
         and writes): a multiple of 50,000 (the LAZ chunk).  Default: about
@@ -101,12 +106,13 @@ class RunOptions:
     """
 
     tile_size: float | None = None
-    scheduler: str = "threads"
+    scheduler: str = "auto"
     workers: int | None = None
     store: str | None = None
     keep_store: bool | None = None
     overwrite: bool = False
     quiet: bool = False
+    profile: str | None = None
     chunk: int | None = None
 
     def __post_init__(self) -> None:
@@ -230,6 +236,17 @@ class Job:
         raise NotImplementedError
 
 
+def write_profile(path: str | os.PathLike, runner: Runner, seconds: dict, started: float, ready: float, ended: float) -> None:
+    """Write a run's task stream as JSON: ``tasks`` [step, start, end, worker], ``steps`` (seconds), the run's times."""
+    data = dict(
+        scheduler=runner.scheduler, slots=runner.slots, started=started, ready=ready, ended=ended, steps=seconds,
+        tasks=[list(t) for t in runner.tasks],
+    )
+    tmp = Path(str(path) + ".partial")
+    tmp.write_text(json.dumps(data))
+    tmp.replace(path)
+
+
 def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: RunOptions) -> Any:
     """Run ``job`` from ``input`` to ``output`` (see the module's docstring for the order of things); return its summary.
 
@@ -245,7 +262,9 @@ def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: 
     src = open_source(input)
     url = run.store or default_store_path(out)
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
-    with Runner(run.scheduler, run.workers, quiet=run.quiet) as runner:
+    started = time.time()
+    with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
+        ready = time.time()
         store, tile_seconds = ensure_tiled(src, url, run.tile_size, runner, run.quiet, run.chunk)
         ctx = JobContext(source=src, output=out, store=store, runner=runner, run=run, kept_store=url if keep else "")
         ctx.seconds["tile"] = tile_seconds
@@ -258,6 +277,8 @@ def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: 
         ctx.seconds[job.write_step] = time.perf_counter() - t0
         ctx.peak_memory = runner.peak_memory()
         summary = job.summarise(ctx)
+        if run.profile:
+            write_profile(run.profile, runner, ctx.seconds, started, ready, time.time())
     if not keep and "://" not in url:
         shutil.rmtree(url, ignore_errors=True)
     return summary

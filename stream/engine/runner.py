@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import os
 import resource
+import socket
+import threading
+import time
+import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -17,30 +21,53 @@ from patchcloud.core import PatchcloudValueError, single_threaded
 
 from patchcloud.stream.engine.progress import Progress
 
-__all__ = ["Runner", "SCHEDULERS"]
+__all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "resolve_scheduler"]
 
 #: Named schedulers; anything else is taken as the address of a dask.distributed scheduler.
-SCHEDULERS = ("threads", "processes", "synchronous")
+SCHEDULERS = ("auto", "threads", "processes", "synchronous")
+
+#: From this many points on, "auto" runs worker processes (below, threads: no processes to start).
+AUTO_PROCESSES_POINTS = 2_000_000
 
 
-def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> Any:
+def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> tuple[Any, tuple[float, float, str]]:
     """Run ``func`` with numba limited to ``numba_threads`` threads (the tasks themselves run in parallel).
 
     With one thread, the kernels run their sequential, GIL-free versions
     (:func:`patchcloud.core.single_threaded`): tasks on threads then compute
-    side by side.
+    side by side.  Returns the result and when and where the task ran
+    (start and end, seconds since the epoch; host:process:thread).
     """
     import numba
 
+    t0 = time.time()
     if numba_threads <= 1:
         with single_threaded():
-            return func(*args, **kwargs)
-    numba.set_num_threads(max(1, min(numba_threads, numba.config.NUMBA_NUM_THREADS)))
-    return func(*args, **kwargs)
+            out = func(*args, **kwargs)
+    else:
+        numba.set_num_threads(max(1, min(numba_threads, numba.config.NUMBA_NUM_THREADS)))
+        out = func(*args, **kwargs)
+    return out, (t0, time.time(), f"{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}")
 
 
 def _peak_rss_bytes() -> int:
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
+def resolve_scheduler(scheduler: str, points: int | None) -> str:
+    """The scheduler "auto" stands for with a file of ``points`` points; any other name as it is.
+
+    lazrs holds the GIL for a whole call and zarr and numpy parts of a task
+    hold it too, so on files of millions of points worker processes scale
+    where threads do not (measured in the README); below
+    :data:`AUTO_PROCESSES_POINTS`, starting processes costs more than it gains.
+
+    >>> resolve_scheduler("auto", 10_000_000), resolve_scheduler("auto", 60_000), resolve_scheduler("threads", 10**9)
+    ('processes', 'threads', 'threads')
+    """
+    if scheduler != "auto":
+        return scheduler
+    return "processes" if points is not None and points >= AUTO_PROCESSES_POINTS else "threads"
 
 
 class Runner:
@@ -49,19 +76,25 @@ class Runner:
     Parameters
     ----------
     scheduler : str
-        "threads" (default: an in-process dask.distributed cluster, one
-        thread per core), "processes" (a local cluster of one single-threaded
-        worker process per core), "synchronous" (inline, for debugging), or
-        the address of a running dask.distributed scheduler such as
-        ``tcp://host:8786``.
+        "auto" (default: "processes" for files of
+        :data:`AUTO_PROCESSES_POINTS` points or more, else "threads"),
+        "threads" (an in-process dask.distributed cluster, one thread per
+        worker), "processes" (a local cluster of single-threaded worker
+        processes), "synchronous" (inline, every core in each task, for
+        debugging), or the address of a running dask.distributed scheduler
+        such as ``tcp://host:8786``.
     workers : int, optional
         Threads or processes of a local cluster (default: the cores).
     quiet : bool
         No progress bars.
+    points : int, optional
+        Points of the file to process (what "auto" decides on).
     """
 
-    def __init__(self, scheduler: str = "threads", workers: int | None = None, quiet: bool = False) -> None:
-        self.scheduler = scheduler or "threads"
+    def __init__(self, scheduler: str = "auto", workers: int | None = None, quiet: bool = False, points: int | None = None) -> None:
+        self.scheduler = resolve_scheduler(scheduler or "auto", points)
+        #: Every task run: (label, start, end, host:process:thread), times in seconds since the epoch.
+        self.tasks: list[tuple[str, float, float, str]] = []
         self.quiet = quiet
         self.client = None
         self.cluster = None
@@ -95,9 +128,12 @@ class Runner:
 
     @property
     def numba_threads(self) -> int:
-        """numba threads per task: tasks run side by side, so one each when there are several slots."""
-        cores = os.cpu_count() or 1
-        return max(1, cores // self.slots) if self.scheduler in ("threads", "synchronous") else 1
+        """Threads per task: all the cores for the synchronous scheduler, else one (each worker is a core).
+
+        With one, tasks run the kernels' sequential, GIL-free versions and
+        lazrs' sequential codec, so ``workers`` N uses N cores, no more.
+        """
+        return (os.cpu_count() or 1) if self.scheduler == "synchronous" else 1
 
     def map(self, func: Callable, calls: Sequence[tuple[tuple, dict]], label: str) -> list:
         """``[func(*args, **kwargs) for args, kwargs in calls]``, run in parallel, results in call order."""
@@ -105,18 +141,22 @@ class Runner:
         results: list = [None] * len(calls)
         if self.client is None:
             for k, (args, kwargs) in enumerate(calls):
-                results[k] = _call(func, self.numba_threads, args, kwargs)
+                results[k], when = _call(func, self.numba_threads, args, kwargs)
+                self.tasks.append((label, *when))
                 bar.update()
         else:
             from dask.distributed import as_completed
 
-            futures = [
-                self.client.submit(_call, func, self.numba_threads, args, kwargs, pure=False, retries=2)
-                for args, kwargs in calls
+            step = "".join(c if c.isalnum() else "_" for c in label)
+            run = uuid.uuid4().hex[:12]
+            futures = [  # keys name the step and the call: patchcloud-<step>-<call>-<run>
+                self.client.submit(_call, func, self.numba_threads, args, kwargs, key=f"patchcloud-{step}-{k}-{run}", retries=2)
+                for k, (args, kwargs) in enumerate(calls)
             ]
             index = {f.key: k for k, f in enumerate(futures)}
             for f in as_completed(futures):
-                results[index[f.key]] = f.result()
+                results[index[f.key]], when = f.result()
+                self.tasks.append((label, *when))
                 bar.update()
         bar.close()
         return results

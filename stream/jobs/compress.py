@@ -197,7 +197,7 @@ class CompressJob(Job):
             cells=counts["cells"], residual=counts["residual"], max_error=self.options.max_error,
             input_bytes=ctx.source.size, output_bytes=ctx.output.stat().st_size,
             mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=ctx.seconds,
-            peak_memory=ctx.peak_memory, scheduler=ctx.run.scheduler,
+            peak_memory=ctx.peak_memory, scheduler=ctx.runner.scheduler,
         )
 
 

@@ -23,7 +23,7 @@ def _exists_nonempty(url: str) -> bool:
 
 
 def tile(
-    input: str | os.PathLike, store: str, *, tile_size: float | None = None, scheduler: str = "threads",
+    input: str | os.PathLike, store: str, *, tile_size: float | None = None, scheduler: str = "auto",
     workers: int | None = None, overwrite: bool = False, quiet: bool = False, chunk: int | None = None,
 ) -> Store:
     """Ingest only: cut ``input`` into a tiled store at ``store`` (a path or fsspec URL).
@@ -44,6 +44,6 @@ def tile(
         Store.create(store, overwrite=True)
     elif not Store.exists(store) and _exists_nonempty(store):
         raise PatchcloudIOError(f"{store}: exists and is not a patchcloud store")
-    with Runner(run.scheduler, run.workers, quiet=run.quiet) as runner:
+    with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
         s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk)
     return s

@@ -1,0 +1,213 @@
+"""Scaling of ``patchcloud normals``: workers, the I/O floor, worker occupancy and the Amdahl bound; one table.
+
+    python tools/bench_scale.py [--laz-points 10000000] [--las-points 30000000] [--workers 1 2]
+                                [--scheduler processes] [--workdir DIR] [--out tools/results/bench_scale-DATE.txt]
+
+For each file (a synthetic city, ``tools/city_las.py`` seed 0: a LAZ of
+``--laz-points`` and a LAS of ``--las-points``; 0 skips one) and each
+worker count, it runs ``patchcloud normals IN OUT --workers W --scheduler S
+--profile P`` as its own process and reports:
+
+- wall time (the whole process) and points per second, the speed-up over
+  the first worker count;
+- the I/O floor measured in the same run: W processes each reading its
+  share of the file with laspy (lazrs' sequential codec) and writing it
+  back as the same format; the job's time as a multiple of it;
+- peak memory: the sum of the resident sizes of the job's processes (the
+  command and every worker it starts), sampled together every 0.1 s;
+- from the task stream (``--profile``): ``idle`` the share of the wall
+  time during which fewer tasks run than there are workers (start-up and
+  the client's own work included), ``client`` the share during which no
+  task runs, the longest task, and the Amdahl bound: with ``c`` the time
+  no task runs and ``w`` the summed task time, ``(c + w) / (c + w / N)`` is
+  the most N workers can speed the run up (tasks assumed to split evenly).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import platform
+import subprocess
+import sys
+import threading
+import time
+from datetime import date
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+
+
+def _tree_rss(root: int) -> int:
+    """Resident bytes of ``root`` and all its descendants (from /proc)."""
+    parent, rss = {}, {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                parts = f.read().rsplit(")", 1)[1].split()
+            parent[int(d)] = int(parts[1])
+            with open(f"/proc/{d}/status") as f:
+                for line in f:
+                    if line.startswith("VmRSS:"):
+                        rss[int(d)] = int(line.split()[1]) * 1024
+                        break
+        except (OSError, IndexError, ValueError):
+            continue
+    keep, total = {root}, 0
+    changed = True
+    while changed:
+        changed = False
+        for pid, pp in parent.items():
+            if pp in keep and pid not in keep:
+                keep.add(pid)
+                changed = True
+    return sum(rss.get(p, 0) for p in keep)
+
+
+def run_measured(cmd: list[str]) -> tuple[float, int, str]:
+    """Run ``cmd``; return its wall time (s), the peak of its process tree's summed RSS (bytes), its stderr."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    peak = [0]
+
+    def sample():
+        while p.poll() is None:
+            peak[0] = max(peak[0], _tree_rss(p.pid))
+            time.sleep(0.1)
+
+    th = threading.Thread(target=sample, daemon=True)
+    th.start()
+    out, err = p.communicate()
+    wall = time.perf_counter() - t0
+    th.join()
+    if p.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{err[-2000:]}")
+    return wall, peak[0], out + err
+
+
+def _copy_share(path: str, out: str, first: int, count: int) -> None:
+    """Read points ``first .. first + count`` of ``path`` and write them to ``out`` (one I/O floor worker)."""
+    with laspy.open(path, laz_backend=laspy.LazBackend.Lazrs) as r:
+        header = r.header
+        r.seek(first)
+        with laspy.open(out, mode="w", header=header, laz_backend=laspy.LazBackend.Lazrs, do_compress=out.endswith(".laz")) as w:
+            done = 0
+            while done < count:
+                pts = r.read_points(min(1_000_000, count - done))
+                w.write_points(pts)
+                done += len(pts)
+
+
+def io_floor(path: Path, workers: int, workdir: Path) -> float:
+    """Seconds for ``workers`` processes to read and write their shares of ``path`` (same format)."""
+    with laspy.open(str(path)) as r:
+        n = r.header.point_count
+    share = -(-n // workers)
+    args = [(str(path), str(workdir / f"floor{k}{path.suffix}"), k * share, min(share, n - k * share)) for k in range(workers)]
+    t0 = time.perf_counter()
+    with mp.get_context("spawn").Pool(workers) as pool:
+        pool.starmap(_copy_share, args)
+    t = time.perf_counter() - t0
+    for a in args:
+        Path(a[1]).unlink(missing_ok=True)
+    return t
+
+
+def occupancy(profile: dict) -> dict:
+    """Idle and client shares of the wall time, longest task, summed task time, from a ``--profile`` file."""
+    slots = int(profile["slots"])
+    t0, t1 = float(profile["started"]), float(profile["ended"])
+    tasks = np.asarray([[s, e] for _, s, e, _ in profile["tasks"]], dtype=np.float64).reshape(-1, 2)
+    tasks = np.clip(tasks, t0, t1)
+    events = np.r_[tasks[:, 0], tasks[:, 1], t0, t1]
+    delta = np.r_[np.ones(len(tasks)), -np.ones(len(tasks)), 0, 0]
+    o = np.lexsort((delta, events))
+    events, delta = events[o], delta[o]
+    running = np.cumsum(delta)[:-1]
+    span = np.diff(events)
+    wall = t1 - t0
+    idle = float(span[running < slots].sum())
+    client = float(span[running <= 0].sum())
+    durations = tasks[:, 1] - tasks[:, 0]
+    return dict(
+        wall=wall, idle=idle / wall, client=client / wall, client_s=client, longest=float(durations.max(initial=0.0)),
+        work=float(durations.sum()), slots=slots,
+    )
+
+
+def amdahl(client_s: float, work: float, n: int) -> float:
+    """The speed-up bound for ``n`` workers over one: (c + w) / (c + w / n)."""
+    return (client_s + work) / (client_s + work / n)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--laz-points", type=int, default=10_000_000)
+    ap.add_argument("--las-points", type=int, default=30_000_000)
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--scheduler", default="processes")
+    ap.add_argument("--workdir", default="/tmp/bench_scale")
+    ap.add_argument("--out", default=None, help="also write the table there")
+    a = ap.parse_args(argv)
+    work = Path(a.workdir)
+    work.mkdir(parents=True, exist_ok=True)
+    exe = [sys.executable, "-m", "patchcloud.stream.cli"]
+    files = []
+    for n, suffix in ((a.laz_points, ".laz"), (a.las_points, ".las")):
+        if n:
+            path = work / f"city-{n}{suffix}"
+            if not path.exists():
+                subprocess.run([sys.executable, str(HERE / "city_las.py"), str(path), "--points", str(n)], check=True)
+            files.append((path, n))
+    # warm the numba cache so that no run pays for compiling
+    subprocess.run(exe + ["normals", str(HERE.parent / "data" / "test_data_77055_627760_LA93_IGN69.laz"), str(work / "warm.laz"),
+                          "--overwrite", "-q", "--scheduler", a.scheduler, "--workers", "1"], check=True)
+    lines = [
+        f"# bench_scale {date.today()} on {platform.node()}: {os.cpu_count()} cores, {platform.processor() or platform.machine()}; "
+        f"scheduler {a.scheduler}; python {platform.python_version()}",
+        f"# command: python tools/bench_scale.py --laz-points {a.laz_points} --las-points {a.las_points} "
+        f"--workers {' '.join(map(str, a.workers))} --scheduler {a.scheduler}",
+        "",
+        f"{'file':<22} {'workers':>7} {'wall s':>8} {'Mpts/s':>7} {'speed-up':>8} {'floor s':>8} {'x floor':>7} {'peak MiB':>9} "
+        f"{'idle':>6} {'client':>7} {'longest s':>9} {'Amdahl 16':>9} {'Amdahl 64':>9}",
+    ]
+    print("\n".join(lines), flush=True)
+    for path, n in files:
+        base = None
+        for w in a.workers:
+            floor = io_floor(path, w, work)
+            out = work / f"out{path.suffix}"
+            prof = work / "profile.json"
+            wall, peak, _ = run_measured(exe + ["normals", str(path), str(out), "--overwrite", "-q", "--workers", str(w),
+                                                "--scheduler", a.scheduler, "--profile", str(prof)])
+            occ = occupancy(json.loads(prof.read_text()))
+            if w == a.workers[0]:
+                base = wall
+            line = (
+                f"{path.name:<22} {w:>7} {wall:>8.1f} {n / wall / 1e6:>7.2f} {base / wall:>7.2f}x {floor:>8.1f} {wall / floor:>6.1f}x "
+                f"{peak / 2**20:>9,.0f} {occ['idle']:>6.1%} {occ['client']:>7.1%} {occ['longest']:>9.2f} "
+                f"{amdahl(occ['client_s'], occ['work'], 16):>8.1f}x {amdahl(occ['client_s'], occ['work'], 64):>8.1f}x"
+            )
+            print(line, flush=True)
+            lines.append(line)
+    lines += [
+        "",
+        "# wall: the whole `patchcloud normals` process (start-up and export included); floor: W processes reading and writing",
+        "# their shares of the file with laspy + lazrs' sequential codec; peak: RSS summed over the job's processes, sampled",
+        "# together every 0.1 s; idle: share of the wall time with fewer tasks running than workers; client: with none;",
+        "# Amdahl N: (c + w) / (c + w / N), c the time no task runs, w the summed task time (speed-up bound over one worker).",
+    ]
+    if a.out:
+        Path(a.out).write_text("\n".join(lines) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
