@@ -1,7 +1,7 @@
 """Benchmark of ``patchcloud normals`` (or ``don``, ``segment``, ``compress``) on synthetic city scans of growing size, against the I/O floor.
 
     python tools/bench_stream.py [--sizes 5e6 20e6 100e6] [--workdir /tmp/bench_stream] [--ext laz]
-                                 [--scheduler threads] [--job normals|don|segment|compress] [--options "--rs 0.2 --rl 2"]
+                                 [--scheduler auto] [--job normals|don|segment|compress] [--options "--rs 0.2 --rl 2"]
 
 For every size: a synthetic city (tools/city_las.py, streamed to disk) is
 made once; then, each in its own process,
@@ -75,7 +75,7 @@ def main() -> None:
     ap.add_argument("--sizes", type=float, nargs="+", default=[5e6, 20e6, 100e6])
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/bench_stream"))
     ap.add_argument("--ext", choices=["las", "laz"], default="laz")
-    ap.add_argument("--scheduler", default="threads")
+    ap.add_argument("--scheduler", default="auto")
     ap.add_argument("--job", choices=["normals", "don", "segment", "compress"], default="normals")
     ap.add_argument("--options", default="", help="more options of the job, as one string")
     a = ap.parse_args()
