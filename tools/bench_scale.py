@@ -60,7 +60,7 @@ def _tree_rss(root: int) -> int:
                         break
         except (OSError, IndexError, ValueError):
             continue
-    keep, total = {root}, 0
+    keep = {root}
     changed = True
     while changed:
         changed = False

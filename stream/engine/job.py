@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any
 
 
-from patchcloud.core import PatchcloudIOError, PatchcloudValueError, options_with
+from patchcloud.core import PatchcloudValueError, options_with
 from patchcloud.stream.engine.export import Column, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner
