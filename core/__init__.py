@@ -25,7 +25,19 @@ from .codes import Method, PatchKind
 from .normals import NormalsParameters, NormalsResult, estimate_normals
 from .options import CompressOptions, DonOptions, NormalsOptions, SegmentOptions, options_with
 from .octree import FLOOR_FACTOR, NOISE_FACTOR, max_level_for, point_keys, sort_points
-from .orient import LeafSet, cross_face_pairs, link_agreements
+from .forest import (
+    Expansion,
+    ForestLinks,
+    ForestNodes,
+    concat_links,
+    expand_signs,
+    forest_links,
+    forest_nodes,
+    lookup,
+    merge_nodes,
+    reduce_forest,
+)
+from .orient import MIN_RELIABILITY, LeafSet, cross_face_pairs, link_agreements
 from .patches import PatchTable
 from .patchmodel import (
     MASK_SIDE,
@@ -85,6 +97,7 @@ __all__ = [
     "fit_nodes",
     "surface_normals",
     # .orient
+    "MIN_RELIABILITY",
     "LeafSet",
     "cross_face_pairs",
     "link_agreements",
@@ -93,6 +106,17 @@ __all__ = [
     "fit_tile",
     "finish_tile",
     "patch_signs",
+    # .forest (the seam pass, block by block)
+    "ForestNodes",
+    "ForestLinks",
+    "Expansion",
+    "forest_nodes",
+    "forest_links",
+    "concat_links",
+    "merge_nodes",
+    "reduce_forest",
+    "expand_signs",
+    "lookup",
     # .radius
     "MODES",
     "check_points",

@@ -24,7 +24,6 @@ from typing import Sequence
 import numpy as np
 
 from . import _kernels
-from .codes import Method
 from .errors import PatchcloudValueError
 from .octree import estimate_spacing, sort_points
 from .options import NormalsOptions, options_with

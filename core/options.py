@@ -29,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-import numpy as np
 
 from .cluster import check_cluster_sizes
 from .errors import PatchcloudValueError

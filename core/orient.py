@@ -15,8 +15,9 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.sparse.csgraph import connected_components
 
+from .forest import forest_links, kruskal, link_order
 from .morton import MAX_DEPTH, containing, encode, key_range
 from .codes import PatchKind
 from .octree import Octree
@@ -246,6 +247,9 @@ def spanning_forest(
     """Maximum spanning forest of an agreement graph, most reliable links first.
 
     Links whose ``|agreement|`` is below ``min_reliability`` are dropped.
+    Ties are broken by the ends' ids (:func:`patchcloud.core.forest.link_order`),
+    so the forest is unique: the one the stream computes block by block
+    (:mod:`patchcloud.core.forest`).
     Because a link left out of the forest of a subgraph is the least
     reliable on a cycle, it is left out of the forest of any larger graph
     too: the forest of a whole cloud is the forest of the union of its
@@ -255,21 +259,10 @@ def spanning_forest(
     -------
     fi, fj, fa : (F,) the forest's links and their agreements.
     """
-    keep = np.abs(agreement) >= min_reliability
-    i, j, a = np.asarray(i)[keep], np.asarray(j)[keep], np.asarray(agreement, dtype=np.float64)[keep]
-    if i.size == 0:
-        e = np.zeros(0, dtype=np.int64)
-        return e, e.copy(), np.zeros(0)
-    w = 2.0 - np.abs(a)  # positive: csgraph treats zeros as missing edges
-    g = coo_matrix((w, (i, j)), shape=(nodes, nodes)).tocsr()
-    forest = minimum_spanning_tree(g).tocoo()
-    fi, fj = forest.row.astype(np.int64), forest.col.astype(np.int64)
-    # the agreement of each forest link (the forest may store it as (j, i))
-    key = np.minimum(i, j).astype(np.int64) * nodes + np.maximum(i, j)
-    order = np.argsort(key, kind="stable")
-    fkey = np.minimum(fi, fj) * nodes + np.maximum(fi, fj)
-    fa = a[order[np.searchsorted(key[order], fkey)]]
-    srt = np.argsort(fkey, kind="stable")  # a canonical order
+    links = forest_links(i, j, agreement, min_reliability)
+    keep = kruskal(nodes, links.i, links.j, link_order(links))
+    fi, fj, fa = links.i[keep], links.j[keep], links.agreement[keep]
+    srt = np.argsort(np.minimum(fi, fj) * nodes + np.maximum(fi, fj), kind="stable")  # a canonical order
     return fi[srt], fj[srt], fa[srt]
 
 

@@ -11,6 +11,7 @@ Layout (zarr format 3; a local path or any fsspec URL the workers can reach)::
         links, agreement, score  the tile's orientation forest (see patchcloud.core.tiles.TileFit)
         skin, skin_patch         points near the tile's faces and their patch rows
         sign                     (P,) int8    orientation of every patch after the seam pass
+      seams/                     the seam pass's working blobs (see patchcloud.stream.jobs.seams), removed after it
         normal, curvature,       results in the tile's input order
         method, patch
 
@@ -28,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import zarr
+from zarr.core.buffer import default_buffer_prototype
+from zarr.core.sync import sync
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, PatchTable
 
@@ -317,6 +320,23 @@ class Store:
         """Remove the group or array at ``path`` if there."""
         if path in self.group:
             del self.group[path]
+
+    # -- blobs: small working arrays as raw float64 bytes under one key, no zarr metadata --
+    def put_blob(self, key: str, values: np.ndarray) -> None:
+        """Write ``values`` (any shape, kept as flat float64) under ``key``: one store write, for the many small arrays of a pass."""
+        data = np.ascontiguousarray(values, dtype="<f8").tobytes()
+        sync((self.group.store_path / key).set(default_buffer_prototype().buffer.from_bytes(data)))
+
+    def get_blob(self, key: str) -> np.ndarray:
+        """The flat float64 array written under ``key`` by :meth:`put_blob`."""
+        buf = sync((self.group.store_path / key).get(prototype=default_buffer_prototype()))
+        if buf is None:
+            raise PatchcloudValueError(f"{self.url}: no blob {key!r} (step not run?)")
+        return np.frombuffer(buf.to_bytes(), dtype="<f8").astype(np.float64)
+
+    def remove_blobs(self, prefix: str) -> None:
+        """Remove every blob (and array) whose key starts with ``prefix/``."""
+        sync((self.group.store_path / prefix).delete_dir())
 
     def patch_table(self, ijk) -> PatchTable:
         grid = self.grid

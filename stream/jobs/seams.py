@@ -1,30 +1,59 @@
-"""The seam pass: one orientation for the patches of all tiles.
+"""The seam pass: one orientation for the patches of all tiles, computed in blocks of tiles on the workers.
 
 Each tile's fit kept its orientation forest (the most reliable face
-agreements inside the tile, and links to the global rule).  Here the
-leaves on either side of every tile face are linked the same way, by face
-sampling of the two patch models (:func:`.normals_tiles.seam_links`, one task per
-pair of tiles); the union of the tiles' forests and these links holds the
-forest of the whole cloud's graph, so one maximum spanning forest over it
-(:func:`patchcloud.core.tiles.patch_signs`) orients every patch as a
-single in-memory run would.  Blending across tile faces happens when each
-tile is finished, from its neighbours' oriented patch models.
+agreements inside the tile, and links to the global rule).  The seam
+pass adds the links between the leaves on either side of every tile face
+and takes the maximum spanning forest of it all, which orients every
+patch as a single in-memory run would (:func:`patchcloud.core.tiles.patch_signs`).
+No process holds that whole graph:
 
-Memory: a few tens of bytes per patch (the forests, links and signs), not
-per point.
+1. **faces**: one task per pair of face neighbours links their leaves by
+   face sampling of the two patch models
+   (:func:`.normals_tiles.seam_links`) and writes the links to the store;
+2. **up**: one task per tile reduces the tile's forest to what its faces
+   can see (:func:`patchcloud.core.forest.reduce_forest`: the patches
+   linked across a face, the branch points between them, one link per
+   path); then one task per block of ``2**BLOCK_BITS`` tiles a side
+   reduces its children's reduced forests and the face links between
+   them, and so on up to one block, whose only terminal is the rule;
+3. **down**: from the top, each block's task gives its nodes their final
+   signs (:func:`patchcloud.core.forest.expand_signs`) and writes those of
+   its children's key nodes; the tiles' tasks write each patch's ``sign``.
+
+Each task holds one block: its children's reduced forests, whose size is
+set by the block's faces, not its contents.  The client holds the list of
+tiles and blocks only.  Store layout: blobs (:meth:`patchcloud.stream.io.store.Store.put_blob`, one
+write each, no zarr metadata), removed when the pass ends::
+
+    seams/faces/<tile>_<axis>   (E, 3) float64  rows in the tile and in its +axis neighbour, agreement
+    seams/L<level>/<block>       (3 + 5K + 6M + 3N,) float64  the block's reduced forest: K, M, N, then
+                                 its K key nodes (id, score, low, low_sign, faces), its M reduced links
+                                 (i, j, agreement, tie (3)) and its N nodes' expansion (id, anchor, sign)
+    seams/L<level>/<block>_key   (K, 2) float64  final sign and ruled flag of the key nodes (down pass)
+
+Ids are patch ids over the whole cloud (the tile's offset plus its row),
+the rule's node is the number of patches; all below 2**53, exact in float64.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from patchcloud.core import patch_signs
+from patchcloud.core import (
+    MIN_RELIABILITY, ForestLinks, ForestNodes, Expansion, concat_links, expand_signs, forest_links, forest_nodes, lookup,
+    merge_nodes, reduce_forest,
+)
 
-from patchcloud.stream.jobs import normals_tiles
 from patchcloud.stream.engine.runner import Runner
-from patchcloud.stream.io.store import Store
+from patchcloud.stream.io.store import Store, tile_name
+from patchcloud.stream.jobs import normals_tiles
 
-__all__ = ["orient_tiles", "tile_pairs"]
+__all__ = ["orient_tiles", "tile_pairs", "BLOCK_BITS", "face_links", "reduce_tile", "reduce_block", "expand_block"]
+
+#: Blocks of the seam pass are 2**BLOCK_BITS tiles a side (4 x 4 x 4 tiles, 64 children at most).
+BLOCK_BITS = 2
+
+_AXES = np.eye(3, dtype=np.int64)
 
 
 def tile_pairs(tiles: list[tuple]) -> list[tuple[tuple, tuple, int]]:
@@ -41,33 +70,184 @@ def tile_pairs(tiles: list[tuple]) -> list[tuple[tuple, tuple, int]]:
     return pairs
 
 
-def orient_tiles(store: Store, runner: Runner, orient: str, quiet: bool = False) -> dict:
-    """Orient every patch of the store consistently; write each tile's ``sign``; return counts."""
+def _face_path(a: tuple, axis: int) -> str:
+    return f"seams/faces/{tile_name(a)}_{axis}"
+
+
+def _block_path(level: int, block: tuple) -> str:
+    return f"seams/L{level}/{tile_name(block)}"
+
+
+def _block_of(t, level: int, bits: int) -> tuple:
+    return tuple(int(v) >> (bits * level) for v in t)
+
+
+# -- tasks -------------------------------------------------------------------
+def face_links(url: str, a: tuple, b: tuple, axis: int) -> int:
+    """Link the leaves of tiles ``a`` and ``b`` (``b`` next to ``a`` on +``axis``); write the links; return their number."""
+    ra, rb, ag = normals_tiles.seam_links(url, a, b, axis)
+    Store.open(url).put_blob(_face_path(a, axis), np.column_stack([ra, rb, ag]))
+    return int(ra.size)
+
+
+def _write_reduced(store: Store, path: str, nodes: ForestNodes, links: ForestLinks, exp: Expansion) -> None:
+    """One array for the block: its sizes, then its key nodes, reduced links and expansion, row by row."""
+    parts = [
+        np.array([len(nodes), len(links), exp.id.size], dtype=np.float64),
+        np.column_stack([nodes.id, nodes.score, nodes.low, nodes.low_sign, nodes.faces]).ravel(),
+        np.column_stack([links.i, links.j, links.agreement, links.tie]).ravel(),
+        np.column_stack([exp.id, exp.anchor, exp.sign]).ravel(),
+    ]
+    store.put_blob(path, np.concatenate([p.astype(np.float64) for p in parts]))
+
+
+def _read_reduced(store: Store, path: str) -> tuple[ForestNodes, ForestLinks, Expansion]:
+    a = store.get_blob(path)
+    k, m, n = (int(v) for v in a[:3])
+    nd = a[3 : 3 + 5 * k].reshape(k, 5)
+    lk = a[3 + 5 * k : 3 + 5 * k + 6 * m].reshape(m, 6)
+    ex = a[3 + 5 * k + 6 * m :].reshape(n, 3)
+    nodes = ForestNodes(
+        id=nd[:, 0].astype(np.int64), score=nd[:, 1].copy(), low=nd[:, 2].astype(np.int64), low_sign=nd[:, 3].copy(),
+        faces=nd[:, 4].astype(np.uint8),
+    )
+    links = ForestLinks(i=lk[:, 0].astype(np.int64), j=lk[:, 1].astype(np.int64), agreement=lk[:, 2].copy(), tie=lk[:, 3:6].astype(np.int64))
+    return nodes, links, Expansion(id=ex[:, 0].astype(np.int64), anchor=ex[:, 1].astype(np.int64), sign=ex[:, 2].copy())
+
+
+def reduce_tile(url: str, ijk: tuple, offset: int, rule: int, faces: list[tuple[str, int, int]], flip: bool) -> int:
+    """Reduce tile ``ijk``'s orientation forest to its key nodes (level 0 of the up pass); return their number.
+
+    ``faces``: ``(path, column, face)`` of the face links of the tile: the
+    array's path, the column holding the tile's rows (0 or 1) and the face
+    (0..5: -x, +x, -y, +y, -z, +z).
+    """
+    store = Store.open(url)
+    P = int(store.tile_attrs(ijk)["fit"]["patches"])
+    lk = store.read(ijk, "links").reshape(-1, 2)
+    ids = np.where(lk == P, rule, lk + offset)
+    links = forest_links(ids[:, 0], ids[:, 1], store.read(ijk, "agreement"), MIN_RELIABILITY)
+    bits = np.zeros(P + 1, dtype=np.uint8)
+    for path, column, face in faces:
+        f = store.get_blob(path).reshape(-1, 3)
+        rows = f[np.abs(f[:, 2]) >= MIN_RELIABILITY, column].astype(np.int64)
+        bits[rows] |= np.uint8(1 << face)
+    nodes = forest_nodes(np.r_[np.arange(P) + offset, rule], np.r_[store.read(ijk, "score"), 0.0], bits)
+    terminal = (nodes.faces > 0) | (nodes.id == rule)
+    reduced, exp = reduce_forest(nodes, links, terminal, flip=flip)
+    _write_reduced(store, _block_path(0, ijk), reduced.nodes, reduced.links, exp)
+    return len(reduced.nodes)
+
+
+def reduce_block(
+    url: str, level: int, block: tuple, children: list[tuple], pairs: list[tuple[str, int, int]],
+    tiles: list[tuple], offsets: list[int], rule: int, bits: int, flip: bool,
+) -> int:
+    """Reduce a block of level ``level`` from its children's reduced forests and the face links between them.
+
+    ``pairs``: ``(path, offset_a, offset_b)`` of the face links joined at
+    this level; ``tiles``, ``offsets``: the block's tiles in store order and
+    their first patch ids (to know which face of which tile a node is on).
+    Returns the number of key nodes kept.
+    """
+    store = Store.open(url)
+    parts = [_read_reduced(store, _block_path(level - 1, c))[:2] for c in children]
+    nodes = merge_nodes([p[0] for p in parts])
+    cross = []
+    for path, oa, ob in pairs:
+        f = store.get_blob(path).reshape(-1, 3)
+        cross.append(forest_links(f[:, 0].astype(np.int64) + oa, f[:, 1].astype(np.int64) + ob, f[:, 2], MIN_RELIABILITY))
+    links = concat_links([p[1] for p in parts] + cross)
+    # a node is a terminal when one of its faces with links leads out of the block
+    tiles_arr = np.asarray(tiles, dtype=np.int64).reshape(-1, 3)
+    row = np.searchsorted(np.asarray(offsets, dtype=np.int64), nodes.id, side="right") - 1
+    patch = nodes.id != rule
+    terminal = ~patch
+    block_arr = np.asarray(block, dtype=np.int64)
+    for face in range(6):
+        has = patch & ((nodes.faces >> face) & 1).astype(bool)
+        if not has.any():
+            continue
+        step = _AXES[face // 2] * (1 if face % 2 else -1)
+        across = (tiles_arr[row[has]] + step) >> (bits * level)
+        terminal[np.flatnonzero(has)[np.any(across != block_arr, axis=1)]] = True
+    reduced, exp = reduce_forest(nodes, links, terminal, flip=flip)
+    _write_reduced(store, _block_path(level, block), reduced.nodes, reduced.links, exp)
+    return len(reduced.nodes)
+
+
+def expand_block(url: str, level: int, block: tuple, children: list[tuple], top: bool = False) -> int:
+    """Give the nodes of a block their final signs; write those of its children's key nodes (a tile: its patches' ``sign``).
+
+    Returns the number of the tile's patches whose sign came through the rule (level 0), else 0.
+    """
+    store = Store.open(url)
+    path = _block_path(level, block)
+    _, _, exp = _read_reduced(store, path)
+    if top:  # the only key node is the rule's: +1
+        key = np.array([[1.0, 1.0]])
+    else:
+        key = store.get_blob(f"{path}_key").reshape(-1, 2)
+    sign, ruled = expand_signs(exp, key[:, 0], key[:, 1] > 0)
+    if level == 0:
+        patch = slice(0, exp.id.size - 1)  # the rule's node is the last (the largest id)
+        store.write(block, "sign", sign[patch].astype(np.int8))
+        return int(ruled[patch].sum())
+    for c in children:
+        nodes, _, _ = _read_reduced(store, _block_path(level - 1, c))
+        s, r = lookup(exp.id, sign, ruled, nodes.id)
+        store.put_blob(f"{_block_path(level - 1, c)}_key", np.column_stack([s, r]))
+    return 0
+
+
+# -- the pass ----------------------------------------------------------------
+def orient_tiles(store: Store, runner: Runner, orient: str, quiet: bool = False, bits: int = BLOCK_BITS) -> dict:
+    """Orient every patch of the store consistently; write each tile's ``sign``; return counts.
+
+    ``bits``: blocks are ``2**bits`` tiles a side.
+    """
     tiles = store.tiles
-    index = {t: k for k, t in enumerate(tiles)}
     sizes = np.array([int(store.tile_attrs(t)["fit"]["patches"]) for t in tiles], dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
-    total = int(offsets[-1])
-    rule = total
-    links, agreement, score = [], [], []
-    for k, t in enumerate(tiles):
-        lk = store.read(t, "links").reshape(-1, 2)
-        links.append(np.where(lk == sizes[k], rule, lk + offsets[k]))
-        agreement.append(store.read(t, "agreement"))
-        score.append(store.read(t, "score"))
+    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    rule = int(offsets[-1])
+    offset_of = {t: int(offsets[k]) for k, t in enumerate(tiles)}
+    flip = orient != "none"
+    store.remove_blobs("seams")
+    url = store.url
+    # 1. face links
     pairs = tile_pairs(tiles)
-    calls = [((store.url, a, b, axis), {}) for a, b, axis in pairs]
-    results = runner.map(normals_tiles.seam_links, calls, "seams") if calls else []
-    cross = 0
-    for (a, b, _), (ra, rb, ag) in zip(pairs, results):
-        links.append(np.column_stack([ra + offsets[index[a]], rb + offsets[index[b]]]))
-        agreement.append(ag)
-        cross += ra.size
-    L = np.concatenate(links) if links else np.zeros((0, 2), dtype=np.int64)
-    A = np.concatenate(agreement) if agreement else np.zeros(0)
-    S = np.concatenate(score) if score else np.zeros(0)
-    sign, ruled = patch_signs(total, L, A, S, orient)
-    for k, t in enumerate(tiles):
-        store.write(t, "sign", sign[offsets[k] : offsets[k + 1]].astype(np.int8))
+    counts = runner.map(face_links, [((url, a, b, axis), {}) for a, b, axis in pairs], "seams: faces") if pairs else []
+    # 2. up: tiles, then blocks of 2**bits a side, until one block holds every tile
+    top = 0
+    while len({_block_of(t, top, bits) for t in tiles}) > 1:
+        top += 1
+    faces: dict[tuple, list] = {t: [] for t in tiles}
+    for a, b, axis in pairs:
+        faces[a].append((_face_path(a, axis), 0, 2 * axis + 1))
+        faces[b].append((_face_path(a, axis), 1, 2 * axis))
+    calls = [((url, t, offset_of[t], rule, faces[t], flip), {}) for t in tiles]
+    runner.map(reduce_tile, calls, "seams: tiles")
+    members: dict = {}  # level -> block -> children
+    for level in range(1, top + 1):
+        blocks: dict[tuple, dict] = {}
+        for t in tiles:
+            b = blocks.setdefault(_block_of(t, level, bits), dict(children=set(), pairs=[], tiles=[]))
+            b["children"].add(_block_of(t, level - 1, bits))
+            b["tiles"].append(t)
+        for a, b_, axis in pairs:
+            if _block_of(a, level - 1, bits) != _block_of(b_, level - 1, bits) and _block_of(a, level, bits) == _block_of(b_, level, bits):
+                blocks[_block_of(a, level, bits)]["pairs"].append((_face_path(a, axis), offset_of[a], offset_of[b_]))
+        members[level] = {k: sorted(v["children"]) for k, v in blocks.items()}
+        calls = [
+            ((url, level, k, sorted(v["children"]), v["pairs"], v["tiles"], [offset_of[t] for t in v["tiles"]], rule, bits, flip), {})
+            for k, v in sorted(blocks.items())
+        ]
+        runner.map(reduce_block, calls, f"seams: level {level}")
+    # 3. down
+    for level in range(top, 0, -1):
+        calls = [((url, level, k, ch), dict(top=level == top)) for k, ch in sorted(members[level].items())]
+        runner.map(expand_block, calls, f"seams: down {level}")
+    ruled = runner.map(expand_block, [((url, 0, t, []), dict(top=top == 0)) for t in tiles], "seams: signs")
+    store.remove_blobs("seams")
     store.update(patch_offsets=offsets[:-1].tolist())
-    return dict(patches=total, cross_links=cross, ruled=int(ruled.sum()))
+    return dict(patches=rule, cross_links=int(sum(counts)), ruled=int(sum(ruled)), levels=top + 1)
