@@ -15,44 +15,31 @@ The stream imports from ``patchcloud.core`` only, and only names of
 ((5000, 3), dtype('float32'))
 """
 
+import importlib
+
 from . import _numba_cache  # noqa: F401  (first, before numba is imported: see its docstring)
-from .cluster import components, euclidean_clusters, number_by_first
-from .don import difference_of_normals, don_magnitude, don_mask, segment_don
-from .errors import PatchcloudError, PatchcloudIOError, PatchcloudValueError
-from .moments import cell_moments
-from .morton import MAX_DEPTH, decode
-from .codes import Method, PatchKind
-from .normals import NormalsParameters, NormalsResult, estimate_normals
-from .options import CompressOptions, DonOptions, NormalsOptions, SegmentOptions, options_with
-from .octree import FLOOR_FACTOR, NOISE_FACTOR, max_level_for, point_keys, sort_points
-from .forest import (
-    Expansion,
-    ForestLinks,
-    ForestNodes,
-    concat_links,
-    expand_signs,
-    forest_links,
-    forest_nodes,
-    lookup,
-    merge_nodes,
-    reduce_forest,
-)
-from .orient import MIN_RELIABILITY, LeafSet, cross_face_pairs, link_agreements
-from .patches import PatchTable
-from .patchmodel import (
-    MASK_SIDE,
-    ModelFit,
-    PatchModels,
-    QuantisedModels,
-    dequantise_models,
-    fit_models,
-    quantise_models,
-    sample_models,
-)
-from .quadric import fit_nodes, surface_normals
-from .radius import MODES, check_points, default_viewpoint, halo_width, radius_normals
-from .threads import single_threaded
-from .tiles import Skin, finish_tile, fit_tile, patch_signs
+
+_SOURCES = {  # where each public name lives: imported on first use (PEP 562), so importing the package is quick
+    '.cluster': ('components', 'euclidean_clusters', 'number_by_first'),
+    '.don': ('difference_of_normals', 'don_magnitude', 'don_mask', 'segment_don'),
+    '.errors': ('PatchcloudError', 'PatchcloudIOError', 'PatchcloudValueError'),
+    '.moments': ('cell_moments',),
+    '.morton': ('MAX_DEPTH', 'decode'),
+    '.codes': ('Method', 'PatchKind'),
+    '.normals': ('NormalsParameters', 'NormalsResult', 'estimate_normals'),
+    '.options': ('CompressOptions', 'DonOptions', 'NormalsOptions', 'SegmentOptions', 'options_with'),
+    '.octree': ('FLOOR_FACTOR', 'NOISE_FACTOR', 'max_level_for', 'point_keys', 'sort_points'),
+    '.forest': ('Expansion', 'ForestLinks', 'ForestNodes', 'concat_links', 'expand_signs', 'forest_links', 'forest_nodes', 'lookup', 'merge_nodes', 'reduce_forest'),
+    '.orient': ('MIN_RELIABILITY', 'LeafSet', 'cross_face_pairs', 'link_agreements'),
+    '.patches': ('PatchTable',),
+    '.patchmodel': ('MASK_SIDE', 'ModelFit', 'PatchModels', 'QuantisedModels', 'dequantise_models', 'fit_models', 'quantise_models', 'sample_models'),
+    '.quadric': ('fit_nodes', 'surface_normals'),
+    '.checks': ('MODES',),
+    '.radius': ('check_points', 'default_viewpoint', 'halo_width', 'radius_normals'),
+    '.threads': ('single_threaded',),
+    '.tiles': ('Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
+}
+_WHERE = {name: module for module, names in _SOURCES.items() for name in names}
 
 __all__ = [
     # the user API
@@ -132,3 +119,17 @@ __all__ = [
     # .threads
     "single_threaded",
 ]
+
+
+def __getattr__(name: str):
+    """Import the public name ``name`` from its module on first use."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

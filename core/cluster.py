@@ -13,11 +13,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import _radius_kernels as _rk
-from .errors import PatchcloudValueError
 from .grid import CellGrid
-from .radius import check_points, check_radius
+from .checks import check_cluster_sizes, check_radius
+from .radius import check_points
 
-__all__ = ["euclidean_clusters", "components", "number_by_first", "check_cluster_sizes"]
+__all__ = ["euclidean_clusters", "components", "number_by_first"]
 
 
 def _half_offsets(reach: int, edge: float, tol: float) -> np.ndarray:
@@ -70,15 +70,6 @@ def number_by_first(labels: np.ndarray) -> np.ndarray:
     rank = np.empty(uniq.size, dtype=np.int64)
     rank[np.argsort(first, kind="stable")] = np.arange(uniq.size)
     return rank[inv.reshape(-1)]
-
-
-def check_cluster_sizes(min_points, max_points) -> tuple[int, int | None]:
-    """Validated ``min_points`` (>= 1) and ``max_points`` (None or >= min_points)."""
-    if not isinstance(min_points, (int, np.integer)) or min_points < 1:
-        raise PatchcloudValueError(f"min_points must be a whole number of points, at least 1; got {min_points!r}")
-    if max_points is not None and (not isinstance(max_points, (int, np.integer)) or max_points < min_points):
-        raise PatchcloudValueError(f"max_points must be a whole number no smaller than min_points ({min_points}), or None; got {max_points!r}")
-    return int(min_points), None if max_points is None else int(max_points)
 
 
 def euclidean_clusters(

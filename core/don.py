@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cluster import check_cluster_sizes, euclidean_clusters
+from .checks import check_cluster_sizes, check_radius
+from .cluster import euclidean_clusters
 from .errors import PatchcloudValueError
 from .options import AXES, DonOptions, check_threshold
-from .radius import check_points, check_radius, default_viewpoint, radius_normals
+from .radius import check_points, default_viewpoint, radius_normals
 
 __all__ = ["difference_of_normals", "don_magnitude", "don_mask", "segment_don"]
 

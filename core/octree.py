@@ -21,10 +21,7 @@ from .morton import MAX_DEPTH, containing, decode, key_range
 from .moments import EXPONENTS, shift_entries
 from .quadric import NodeFit, fit_nodes
 
-__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "CRITERIA", "max_level_for", "point_keys", "NOISE_FACTOR", "FLOOR_FACTOR"]
-
-#: Subdivision criteria: "rmse" (quadric fit error, metres) and "sigma3" (surface variation).
-CRITERIA = ("rmse", "sigma3")
+__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "max_level_for", "point_keys", "NOISE_FACTOR", "FLOOR_FACTOR"]
 
 #: Leaf kinds: a smooth patch modelled by its quadric, a sharp feature or 3D curve, too few points.
 

@@ -29,14 +29,10 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-
-from .cluster import check_cluster_sizes
+from .checks import (
+    CRITERIA, ORIENT_RULES, check_budget, check_cluster_sizes, check_mode, check_positive, check_radius, check_viewpoint,
+)
 from .errors import PatchcloudValueError
-from .octree import CRITERIA
-from .orient import ORIENT_RULES
-from .patchmodel import check_budget
-from .points import check_positive
-from .radius import check_mode, check_radius, check_viewpoint
 
 __all__ = [
     "NormalsOptions", "DonOptions", "SegmentOptions", "CompressOptions", "options_with", "check_scales", "check_threshold", "AXES",

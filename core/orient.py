@@ -24,13 +24,10 @@ from .octree import Octree
 from .quadric import implicit_value, surface_normals
 
 __all__ = [
-    "ORIENT_RULES", "DOT_MIN", "MIN_RELIABILITY", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
+    "DOT_MIN", "MIN_RELIABILITY", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
     "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "rule_scores",
     "component_rule_signs", "point_rule_signs",
 ]
-
-#: Global orientation rules: towards +Z, towards a viewpoint, away from the centre, none.
-ORIENT_RULES = ("up", "viewpoint", "outward", "none")
 
 #: Smallest |cos| between the PCA normals of an edge or sparse leaf and a neighbour for them to link.
 DOT_MIN = 0.9

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._kernels import cell_moments
+from .checks import check_budget
 from .errors import PatchcloudValueError
 from .merge import leaf_neighbours, merge_leaves, moment_scale, sum_moments
 from .octree import estimate_spacing, sort_points
@@ -34,7 +35,7 @@ from .points import root_cube, validate_points
 from .quadric import fit_nodes, implicit_value
 from .tiles import fit_tile
 
-__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "check_budget", "close_masks", "MASK_SIDE"]
+__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "close_masks", "MASK_SIDE"]
 
 #: The occupancy mask of a cell is MASK_SIDE x MASK_SIDE cells over its (u, v) box (one uint64).
 MASK_SIDE = 8
@@ -164,17 +165,6 @@ class ModelFit:
 def _cell_edge(root_edge: float, level: np.ndarray) -> np.ndarray:
     """Edge (metres) of octree cells at ``level`` below a root cube of edge ``root_edge``."""
     return root_edge / 2.0 ** level.astype(np.float64)
-
-
-def check_budget(max_error) -> float:
-    """The error budget as a positive float (metres), or a PatchcloudValueError."""
-    try:
-        budget = float(max_error)
-    except (TypeError, ValueError):
-        budget = float("nan")
-    if not np.isfinite(budget) or budget <= 0:
-        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
-    return budget
 
 
 def _quadric(c: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

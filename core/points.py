@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from . import _kernels
+from .checks import check_positive
 from .errors import PatchcloudValueError
 
-__all__ = ["validate_points", "root_cube", "check_positive"]
+__all__ = ["validate_points", "root_cube"]
 
 
 def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -57,27 +58,6 @@ def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             f"points contain {int(bad.sum())} rows with NaN or infinite coordinates (first at row {first})"
         )
     return arr, lo, hi
-
-
-def check_positive(name: str, value, integer: bool = False):
-    """``value`` as a positive float (or int with ``integer``), None kept; else a PatchcloudValueError naming ``name``.
-
-    >>> check_positive("d_min", 0.5), check_positive("n_min", 12.0, integer=True), check_positive("x", None)
-    (0.5, 12, None)
-    >>> check_positive("k", 2.5, integer=True)
-    Traceback (most recent call last):
-    ...
-    patchcloud.core.errors.PatchcloudValueError: k must be a positive integer, got 2.5
-    """
-    if value is None:
-        return None
-    if integer:
-        if isinstance(value, bool) or int(value) != value or value < 1:
-            raise PatchcloudValueError(f"{name} must be a positive integer, got {value!r}")
-        return int(value)
-    if not np.isfinite(value) or value <= 0:
-        raise PatchcloudValueError(f"{name} must be a positive finite number, got {value!r}")
-    return float(value)
 
 
 def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:

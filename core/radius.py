@@ -30,14 +30,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import _radius_kernels as _rk
+from .checks import check_mode, check_radius, check_viewpoint
 from .errors import PatchcloudValueError
 from .grid import CellGrid
 
-__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "MODES", "check_points", "check_radius", "check_mode", "check_viewpoint"]
-
-#: Valid values of ``mode``.
-MODES = ("exact", "fast")
-
+__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "check_points"]
 
 def check_points(points, name: str = "points") -> np.ndarray:
     """``points`` as a C-contiguous (N, 3) float64 array of finite values, or a PatchcloudValueError."""
@@ -50,35 +47,6 @@ def check_points(points, name: str = "points") -> np.ndarray:
     if not np.isfinite(p).all():
         raise PatchcloudValueError(f"{name} holds NaN or infinite coordinates")
     return p
-
-
-def check_radius(name: str, value) -> float:
-    """A finite, positive radius (metres), or a PatchcloudValueError."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise PatchcloudValueError(f"{name} must be a positive number of metres, got {value!r}") from None
-    if not np.isfinite(v) or v <= 0:
-        raise PatchcloudValueError(f"{name} must be a positive number of metres, got {value!r}")
-    return v
-
-
-def check_viewpoint(viewpoint) -> np.ndarray:
-    """``viewpoint`` as a (3,) float64 array of finite coordinates, or a PatchcloudValueError."""
-    vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
-    if vp.shape != (3,) or not np.isfinite(vp).all():
-        raise PatchcloudValueError(f"viewpoint must be three finite coordinates (x, y, z), got {viewpoint!r}")
-    return vp
-
-
-def check_mode(mode: str, resolution: int = 4, min_points: int = 3) -> None:
-    """Validated ``mode`` (one of :data:`MODES`), ``resolution`` (>= 1) and ``min_points`` (>= 3)."""
-    if mode not in MODES:
-        raise PatchcloudValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
-    if not isinstance(resolution, (int, np.integer)) or resolution < 1:
-        raise PatchcloudValueError(f"resolution must be a whole number of voxels per radius, at least 1; got {resolution!r}")
-    if not isinstance(min_points, (int, np.integer)) or min_points < 3:
-        raise PatchcloudValueError(f"min_points must be a whole number, at least 3 (a plane needs three points); got {min_points!r}")
 
 
 def default_viewpoint(points: np.ndarray) -> np.ndarray:

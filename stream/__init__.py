@@ -19,20 +19,26 @@ way (files -> store -> tiles -> patch models -> results -> files):
 ...
 """
 
-from patchcloud.stream.engine.job import RunOptions
-from patchcloud.stream.engine.runner import Runner
-from patchcloud.stream.engine.tasks import map_tiles
-from patchcloud.stream.io.store import Store
-from patchcloud.stream.jobs.compress import CompressSummary, compress
-from patchcloud.stream.jobs.decompress import DecompressSummary, decompress
-from patchcloud.stream.jobs.don import DonSummary, don
-from patchcloud.stream.jobs.info import format_info, info
-from patchcloud.stream.jobs.normals import NormalsSummary, normals
-from patchcloud.stream.jobs.segment import segment
-from patchcloud.stream.jobs.tile import tile
-from patchcloud.stream.views.render import RenderImage, RenderSummary, render, render_array, render_arrays
-from patchcloud.stream.views.render_tiles import TilesSummary, render_tiles
-from patchcloud.stream.views.report import report_compress, report_don, report_normals, write_report
+import importlib
+
+
+_SOURCES = {  # where each public name lives: imported on first use (PEP 562), so importing the package is quick
+    'patchcloud.stream.engine.job': ('RunOptions',),
+    'patchcloud.stream.engine.runner': ('Runner',),
+    'patchcloud.stream.engine.tasks': ('map_tiles',),
+    'patchcloud.stream.io.store': ('Store',),
+    'patchcloud.stream.jobs.compress': ('CompressSummary', 'compress'),
+    'patchcloud.stream.jobs.decompress': ('DecompressSummary', 'decompress'),
+    'patchcloud.stream.jobs.don': ('DonSummary', 'don'),
+    'patchcloud.stream.jobs.info': ('format_info', 'info'),
+    'patchcloud.stream.jobs.normals': ('NormalsSummary', 'normals'),
+    'patchcloud.stream.jobs.segment': ('segment',),
+    'patchcloud.stream.jobs.tile': ('tile',),
+    'patchcloud.stream.views.render': ('RenderImage', 'RenderSummary', 'render', 'render_array', 'render_arrays'),
+    'patchcloud.stream.views.render_tiles': ('TilesSummary', 'render_tiles'),
+    'patchcloud.stream.views.report': ('report_compress', 'report_don', 'report_normals', 'write_report'),
+}
+_WHERE = {name: module for module, names in _SOURCES.items() for name in names}
 
 __all__ = [
     # jobs: file in, file out
@@ -44,3 +50,17 @@ __all__ = [
     "render", "render_array", "render_arrays", "RenderImage", "RenderSummary", "render_tiles", "TilesSummary",
     "write_report", "report_normals", "report_don", "report_compress",
 ]
+
+
+def __getattr__(name: str):
+    """Import the public name ``name`` from its module on first use."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -1,0 +1,93 @@
+"""Validation of the options and arguments of the core's functions: the valid values and the checks.
+
+Light on purpose (numpy only): :mod:`patchcloud.core.options` and the
+command line import it without loading the compiled kernels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import PatchcloudValueError
+
+__all__ = [
+    "CRITERIA", "ORIENT_RULES", "MODES", "check_positive", "check_radius", "check_viewpoint", "check_mode",
+    "check_cluster_sizes", "check_budget",
+]
+
+#: Octree split criteria: quadric fit RMSE (metres) or surface variation.
+CRITERIA = ("rmse", "sigma3")
+#: Global orientation rules: towards +Z, towards a viewpoint, away from the centre, none.
+ORIENT_RULES = ("up", "viewpoint", "outward", "none")
+#: Valid values of ``mode`` (radius neighbourhoods).
+MODES = ("exact", "fast")
+
+
+def check_positive(name: str, value, integer: bool = False):
+    """``value`` as a positive float (or int with ``integer``), None kept; else a PatchcloudValueError naming ``name``.
+
+    >>> check_positive("d_min", 0.5), check_positive("n_min", 12.0, integer=True), check_positive("x", None)
+    (0.5, 12, None)
+    >>> check_positive("k", 2.5, integer=True)
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: k must be a positive integer, got 2.5
+    """
+    if value is None:
+        return None
+    if integer:
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise PatchcloudValueError(f"{name} must be a positive integer, got {value!r}")
+        return int(value)
+    if not np.isfinite(value) or value <= 0:
+        raise PatchcloudValueError(f"{name} must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+def check_radius(name: str, value) -> float:
+    """A finite, positive radius (metres), or a PatchcloudValueError."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise PatchcloudValueError(f"{name} must be a positive number of metres, got {value!r}") from None
+    if not np.isfinite(v) or v <= 0:
+        raise PatchcloudValueError(f"{name} must be a positive number of metres, got {value!r}")
+    return v
+
+
+def check_viewpoint(viewpoint) -> np.ndarray:
+    """``viewpoint`` as a (3,) float64 array of finite coordinates, or a PatchcloudValueError."""
+    vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
+    if vp.shape != (3,) or not np.isfinite(vp).all():
+        raise PatchcloudValueError(f"viewpoint must be three finite coordinates (x, y, z), got {viewpoint!r}")
+    return vp
+
+
+def check_mode(mode: str, resolution: int = 4, min_points: int = 3) -> None:
+    """Validated ``mode`` (one of :data:`MODES`), ``resolution`` (>= 1) and ``min_points`` (>= 3)."""
+    if mode not in MODES:
+        raise PatchcloudValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+    if not isinstance(resolution, (int, np.integer)) or resolution < 1:
+        raise PatchcloudValueError(f"resolution must be a whole number of voxels per radius, at least 1; got {resolution!r}")
+    if not isinstance(min_points, (int, np.integer)) or min_points < 3:
+        raise PatchcloudValueError(f"min_points must be a whole number, at least 3 (a plane needs three points); got {min_points!r}")
+
+
+def check_cluster_sizes(min_points, max_points) -> tuple[int, int | None]:
+    """Validated ``min_points`` (>= 1) and ``max_points`` (None or >= min_points)."""
+    if not isinstance(min_points, (int, np.integer)) or min_points < 1:
+        raise PatchcloudValueError(f"min_points must be a whole number of points, at least 1; got {min_points!r}")
+    if max_points is not None and (not isinstance(max_points, (int, np.integer)) or max_points < min_points):
+        raise PatchcloudValueError(f"max_points must be a whole number no smaller than min_points ({min_points}), or None; got {max_points!r}")
+    return int(min_points), None if max_points is None else int(max_points)
+
+
+def check_budget(max_error) -> float:
+    """The error budget as a positive float (metres), or a PatchcloudValueError."""
+    try:
+        budget = float(max_error)
+    except (TypeError, ValueError):
+        budget = float("nan")
+    if not np.isfinite(budget) or budget <= 0:
+        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
+    return budget
