@@ -264,7 +264,6 @@ def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: 
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
     started = time.time()
     with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
-        ready = time.time()
         store, tile_seconds = ensure_tiled(src, url, run.tile_size, runner, run.quiet, run.chunk)
         ctx = JobContext(source=src, output=out, store=store, runner=runner, run=run, kept_store=url if keep else "")
         ctx.seconds["tile"] = tile_seconds
@@ -278,7 +277,7 @@ def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: 
         ctx.peak_memory = runner.peak_memory()
         summary = job.summarise(ctx)
         if run.profile:
-            write_profile(run.profile, runner, ctx.seconds, started, ready, time.time())
+            write_profile(run.profile, runner, ctx.seconds, started, runner.ready_at, time.time())
     if not keep and "://" not in url:
         shutil.rmtree(url, ignore_errors=True)
     return summary

@@ -96,8 +96,12 @@ class Runner:
         #: Every task run: (label, start, end, host:process:thread), times in seconds since the epoch.
         self.tasks: list[tuple[str, float, float, str]] = []
         self.quiet = quiet
-        self.client = None
+        self._client = None
         self.cluster = None
+        self._starting: threading.Thread | None = None
+        self._start_error: BaseException | None = None
+        #: When the workers were ready to take tasks (seconds since the epoch).
+        self.ready_at = time.time()
         cores = os.cpu_count() or 1
         n = int(workers) if workers else cores
         if n < 1:
@@ -106,25 +110,47 @@ class Runner:
         if self.scheduler == "synchronous":
             self.slots = 1
             return
-        from dask.distributed import Client, LocalCluster
+        if "://" in self.scheduler or (":" in self.scheduler and self.scheduler not in SCHEDULERS):
+            from dask.distributed import Client
 
-        if self.scheduler == "threads":
-            self.cluster = LocalCluster(processes=False, n_workers=1, threads_per_worker=n, dashboard_address=":0")
-        elif self.scheduler == "processes":
-            self.cluster = LocalCluster(processes=True, n_workers=n, threads_per_worker=1, dashboard_address=":0")
-        elif "://" in self.scheduler or ":" in self.scheduler:
             try:
-                self.client = Client(self.scheduler, timeout="20s")
+                self._client = Client(self.scheduler, timeout="20s")
             except Exception as exc:
                 raise PatchcloudValueError(f"cannot reach the dask scheduler at {self.scheduler} ({exc})") from exc
-            info = self.client.scheduler_info()
+            info = self._client.scheduler_info()
             self.slots = max(1, sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()))
+            self.ready_at = time.time()
             return
-        else:
+        if self.scheduler not in ("threads", "processes"):
             raise PatchcloudValueError(
                 f"scheduler must be one of {', '.join(SCHEDULERS)} or a dask scheduler address such as tcp://host:8786; got {scheduler!r}"
             )
-        self.client = Client(self.cluster)
+        # the local cluster starts in the background while the caller gets on (opening the input, making the store)
+        self._starting = threading.Thread(target=self._start_local, args=(n,), name="patchcloud-start-cluster", daemon=True)
+        self._starting.start()
+
+    def _start_local(self, n: int) -> None:
+        try:
+            from dask.distributed import Client, LocalCluster
+
+            processes = self.scheduler == "processes"
+            self.cluster = LocalCluster(
+                processes=processes, n_workers=n if processes else 1, threads_per_worker=1 if processes else n, dashboard_address=":0",
+            )
+            self._client = Client(self.cluster)
+            self.ready_at = time.time()
+        except BaseException as exc:  # handed to the first caller of .client
+            self._start_error = exc
+
+    @property
+    def client(self):
+        """The dask client (None for the synchronous scheduler); waits for the local cluster to be up."""
+        if self._starting is not None:
+            self._starting.join()
+            self._starting = None
+            if self._start_error is not None:
+                raise PatchcloudValueError(f"cannot start a local dask cluster ({self._start_error})") from self._start_error
+        return self._client
 
     @property
     def numba_threads(self) -> int:
@@ -172,8 +198,11 @@ class Runner:
         return total
 
     def close(self) -> None:
-        if self.client is not None:
-            self.client.close()
+        if self._starting is not None:
+            self._starting.join()
+            self._starting = None
+        if self._client is not None:
+            self._client.close()
         if self.cluster is not None:
             self.cluster.close()
 

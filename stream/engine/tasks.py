@@ -66,7 +66,9 @@ def map_tiles(
 
     Returns
     -------
-    dict from tile index to ``func``'s result, in the order of ``tiles``.
+    dict from tile index to ``func``'s result, in the order of ``tiles``
+    (the tasks are submitted largest tile first, so a step does not end
+    waiting on one big tile).
 
     Examples
     --------
@@ -97,5 +99,9 @@ def map_tiles(
                 if (a, b, c) != (0, 0, 0) and (ijk[0] + a, ijk[1] + b, ijk[2] + c) in present
             ]
         calls.append(((func, store.url, ijk), kw))
-    results = runner.map(tile_task, calls, label or getattr(func, "__name__", "tiles"))
-    return dict(zip(todo, results))
+    # largest tiles first, so the last tasks of the step are small ones and no worker waits long for them
+    counts = dict(zip(all_tiles, store.tile_counts.tolist()))
+    order = sorted(range(len(todo)), key=lambda k: (-counts.get(todo[k], 0), k))
+    results = runner.map(tile_task, [calls[k] for k in order], label or getattr(func, "__name__", "tiles"))
+    by_tile = dict(zip([todo[k] for k in order], results))
+    return {ijk: by_tile[ijk] for ijk in todo}
