@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._kernels import eigh3
+from .forest import find_root
 from .threads import parallel_kernel
 
 __all__ = ["ball_moments", "build_row_table", "voxel_moments", "pca_normals", "union_cells"]
@@ -227,18 +228,6 @@ def pca_normals(moments, query, viewpoint, min_points, normals, variation):
 
 
 @njit(cache=True, nogil=True)
-def _find(parent, a):
-    root = a
-    while parent[root] != root:
-        root = parent[root]
-    while parent[a] != root:  # path compression
-        nxt = parent[a]
-        parent[a] = root
-        a = nxt
-    return root
-
-
-@njit(cache=True, nogil=True)
 def union_cells(points, cell_keys, cell_start, cells, dims, offsets, tol2, parent):
     """Union-find over occupied cells: cells joined when any two of their points are within sqrt(tol2).
 
@@ -258,8 +247,8 @@ def union_cells(points, cell_keys, cell_start, cells, dims, offsets, tol2, paren
             g = _lookup(cell_keys, (i * dims[1] + j) * dims[2] + k)
             if g < 0:
                 continue
-            ra = _find(parent, h)
-            rb = _find(parent, g)
+            ra = find_root(parent, h)
+            rb = find_root(parent, g)
             if ra == rb:
                 continue
             joined = False

@@ -69,6 +69,7 @@ __all__ = [
     "merge_nodes",
     "link_order",
     "kruskal",
+    "find_root",
     "reduce_forest",
     "expand_signs",
     "lookup",
@@ -215,7 +216,8 @@ def link_order(links: ForestLinks) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _find(parent: np.ndarray, x: int) -> int:
+def find_root(parent: np.ndarray, x: int) -> int:
+    """Root of ``x`` in a union-find forest ``parent`` (compressing the path on the way)."""
     root = x
     while parent[root] != root:
         root = parent[root]
@@ -237,8 +239,8 @@ def kruskal(n: int, i: np.ndarray, j: np.ndarray, order: np.ndarray) -> np.ndarr
     size = np.ones(n, dtype=np.int64)
     keep = np.zeros(i.size, dtype=np.bool_)
     for e in order:
-        a = _find(parent, i[e])
-        b = _find(parent, j[e])
+        a = find_root(parent, i[e])
+        b = find_root(parent, j[e])
         if a == b:
             continue
         if size[a] < size[b]:
