@@ -150,7 +150,7 @@ class NormalsJob(Job):
 
     def seams(self, ctx: JobContext) -> None:
         if ctx.store.step_done("seams") != self.key:
-            orient_tiles(ctx.store, ctx.runner, self.options.orient, quiet=ctx.run.quiet)
+            orient_tiles(ctx.store, ctx.runner, self.options.orient)
             ctx.store.clear_tile_steps(["finish"])
             ctx.store.mark_step("seams", self.key)
 

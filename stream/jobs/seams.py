@@ -16,20 +16,24 @@ No process holds that whole graph:
    path); then one task per block of ``2**BLOCK_BITS`` tiles a side
    reduces its children's reduced forests and the face links between
    them, and so on up to one block, whose only terminal is the rule;
-3. **down**: from the top, each block's task gives its nodes their final
-   signs (:func:`patchcloud.core.forest.expand_signs`) and writes those of
-   its children's key nodes; the tiles' tasks write each patch's ``sign``.
+3. **down**: from the top, each block's task reads its parent's final
+   signs, takes those of its key nodes, gives all its nodes their final
+   signs (:func:`patchcloud.core.forest.expand_signs`) and writes them for
+   its children; the tiles' tasks write each patch's ``sign``.
 
 Each task holds one block: its children's reduced forests, whose size is
 set by the block's faces, not its contents.  The client holds the list of
 tiles and blocks only.  Store layout: blobs (:meth:`patchcloud.stream.io.store.Store.put_blob`, one
 write each, no zarr metadata), removed when the pass ends::
 
-    seams/faces/<tile>_<axis>   (E, 3) float64  rows in the tile and in its +axis neighbour, agreement
-    seams/L<level>/<block>       (3 + 5K + 6M + 3N,) float64  the block's reduced forest: K, M, N, then
-                                 its K key nodes (id, score, low, low_sign, faces), its M reduced links
-                                 (i, j, agreement, tie (3)) and its N nodes' expansion (id, anchor, sign)
-    seams/L<level>/<block>_key   (K, 2) float64  final sign and ruled flag of the key nodes (down pass)
+    seams/faces/<tile>_<axis>          (E, 3)  rows in the tile and in its +axis neighbour, agreement
+    seams/L<level>/<block>_reduced     (2 + 5K + 6M,)  the block's reduced forest, what its parent reads: K, M,
+                                       its K key nodes (id, score, low, low_sign, faces) and M reduced links
+                                       (i, j, agreement, tie (3))
+    seams/L<level>/<block>_expansion   (2 + K + 3N,)  what the block's down task reads: K, N, its key
+                                       nodes' ids and its N nodes' expansion (id, anchor, sign)
+    seams/L<level>/<block>_signs       (3N,)  final sign and ruled flag of the block's N nodes (id, sign, ruled),
+                                       what its children read
 
 Ids are patch ids over the whole cloud (the tile's offset plus its row),
 the rule's node is the number of patches; all below 2**53, exact in float64.
@@ -91,28 +95,36 @@ def face_links(url: str, a: tuple, b: tuple, axis: int) -> int:
 
 
 def _write_reduced(store: Store, path: str, nodes: ForestNodes, links: ForestLinks, exp: Expansion) -> None:
-    """One array for the block: its sizes, then its key nodes, reduced links and expansion, row by row."""
-    parts = [
-        np.array([len(nodes), len(links), exp.id.size], dtype=np.float64),
+    """Two blobs for the block: its reduced forest (for its parent) and its expansion (for its own down task)."""
+    reduced = [
+        np.array([len(nodes), len(links)], dtype=np.float64),
         np.column_stack([nodes.id, nodes.score, nodes.low, nodes.low_sign, nodes.faces]).ravel(),
         np.column_stack([links.i, links.j, links.agreement, links.tie]).ravel(),
-        np.column_stack([exp.id, exp.anchor, exp.sign]).ravel(),
     ]
-    store.put_blob(path, np.concatenate([p.astype(np.float64) for p in parts]))
+    store.put_blob(f"{path}_reduced", np.concatenate([p.astype(np.float64) for p in reduced]))
+    expansion = [np.array([len(nodes), exp.id.size], dtype=np.float64), nodes.id, np.column_stack([exp.id, exp.anchor, exp.sign]).ravel()]
+    store.put_blob(f"{path}_expansion", np.concatenate([p.astype(np.float64) for p in expansion]))
 
 
-def _read_reduced(store: Store, path: str) -> tuple[ForestNodes, ForestLinks, Expansion]:
-    a = store.get_blob(path)
-    k, m, n = (int(v) for v in a[:3])
-    nd = a[3 : 3 + 5 * k].reshape(k, 5)
-    lk = a[3 + 5 * k : 3 + 5 * k + 6 * m].reshape(m, 6)
-    ex = a[3 + 5 * k + 6 * m :].reshape(n, 3)
+def _read_reduced(store: Store, path: str) -> tuple[ForestNodes, ForestLinks]:
+    a = store.get_blob(f"{path}_reduced")
+    k, m = (int(v) for v in a[:2])
+    nd = a[2 : 2 + 5 * k].reshape(k, 5)
+    lk = a[2 + 5 * k :].reshape(m, 6)
     nodes = ForestNodes(
         id=nd[:, 0].astype(np.int64), score=nd[:, 1].copy(), low=nd[:, 2].astype(np.int64), low_sign=nd[:, 3].copy(),
         faces=nd[:, 4].astype(np.uint8),
     )
     links = ForestLinks(i=lk[:, 0].astype(np.int64), j=lk[:, 1].astype(np.int64), agreement=lk[:, 2].copy(), tie=lk[:, 3:6].astype(np.int64))
-    return nodes, links, Expansion(id=ex[:, 0].astype(np.int64), anchor=ex[:, 1].astype(np.int64), sign=ex[:, 2].copy())
+    return nodes, links
+
+
+def _read_expansion(store: Store, path: str) -> tuple[np.ndarray, Expansion]:
+    """The block's key nodes' ids and its expansion."""
+    a = store.get_blob(f"{path}_expansion")
+    k, n = (int(v) for v in a[:2])
+    ex = a[2 + k :].reshape(n, 3)
+    return a[2 : 2 + k].astype(np.int64), Expansion(id=ex[:, 0].astype(np.int64), anchor=ex[:, 1].astype(np.int64), sign=ex[:, 2].copy())
 
 
 def reduce_tile(url: str, ijk: tuple, offset: int, rule: int, faces: list[tuple[str, int, int]], flip: bool) -> int:
@@ -151,7 +163,7 @@ def reduce_block(
     Returns the number of key nodes kept.
     """
     store = Store.open(url)
-    parts = [_read_reduced(store, _block_path(level - 1, c))[:2] for c in children]
+    parts = [_read_reduced(store, _block_path(level - 1, c)) for c in children]
     nodes = merge_nodes([p[0] for p in parts])
     cross = []
     for path, oa, ob in pairs:
@@ -176,32 +188,32 @@ def reduce_block(
     return len(reduced.nodes)
 
 
-def expand_block(url: str, level: int, block: tuple, children: list[tuple], top: bool = False) -> int:
-    """Give the nodes of a block their final signs; write those of its children's key nodes (a tile: its patches' ``sign``).
+def expand_block(url: str, level: int, block: tuple, parent: tuple | None) -> int:
+    """Final signs of a block's nodes from its parent's (a tile: its patches' ``sign``); written for its children.
 
-    Returns the number of the tile's patches whose sign came through the rule (level 0), else 0.
+    ``parent``: the block above it, None for the top block (whose only key
+    node is the rule's, +1).  Returns the number of the tile's patches whose
+    sign came through the rule (level 0), else 0.
     """
     store = Store.open(url)
     path = _block_path(level, block)
-    _, _, exp = _read_reduced(store, path)
-    if top:  # the only key node is the rule's: +1
-        key = np.array([[1.0, 1.0]])
+    key_ids, exp = _read_expansion(store, path)
+    if parent is None:
+        key_sign, key_ruled = np.ones(key_ids.size), np.ones(key_ids.size, dtype=bool)
     else:
-        key = store.get_blob(f"{path}_key").reshape(-1, 2)
-    sign, ruled = expand_signs(exp, key[:, 0], key[:, 1] > 0)
+        above = store.get_blob(f"{_block_path(level + 1, parent)}_signs").reshape(-1, 3)
+        key_sign, key_ruled = lookup(above[:, 0].astype(np.int64), above[:, 1], above[:, 2] > 0, key_ids)
+    sign, ruled = expand_signs(exp, key_sign, key_ruled)
     if level == 0:
         patch = slice(0, exp.id.size - 1)  # the rule's node is the last (the largest id)
         store.write(block, "sign", sign[patch].astype(np.int8))
         return int(ruled[patch].sum())
-    for c in children:
-        nodes, _, _ = _read_reduced(store, _block_path(level - 1, c))
-        s, r = lookup(exp.id, sign, ruled, nodes.id)
-        store.put_blob(f"{_block_path(level - 1, c)}_key", np.column_stack([s, r]))
+    store.put_blob(f"{path}_signs", np.column_stack([exp.id, sign, ruled]))
     return 0
 
 
 # -- the pass ----------------------------------------------------------------
-def orient_tiles(store: Store, runner: Runner, orient: str, quiet: bool = False, bits: int = BLOCK_BITS) -> dict:
+def orient_tiles(store: Store, runner: Runner, orient: str, bits: int = BLOCK_BITS) -> dict:
     """Orient every patch of the store consistently; write each tile's ``sign``; return counts.
 
     ``bits``: blocks are ``2**bits`` tiles a side.
@@ -227,7 +239,6 @@ def orient_tiles(store: Store, runner: Runner, orient: str, quiet: bool = False,
         faces[b].append((_face_path(a, axis), 1, 2 * axis))
     calls = [((url, t, offset_of[t], rule, faces[t], flip), {}) for t in tiles]
     runner.map(reduce_tile, calls, "seams: tiles")
-    members: dict = {}  # level -> block -> children
     for level in range(1, top + 1):
         blocks: dict[tuple, dict] = {}
         for t in tiles:
@@ -237,17 +248,19 @@ def orient_tiles(store: Store, runner: Runner, orient: str, quiet: bool = False,
         for a, b_, axis in pairs:
             if _block_of(a, level - 1, bits) != _block_of(b_, level - 1, bits) and _block_of(a, level, bits) == _block_of(b_, level, bits):
                 blocks[_block_of(a, level, bits)]["pairs"].append((_face_path(a, axis), offset_of[a], offset_of[b_]))
-        members[level] = {k: sorted(v["children"]) for k, v in blocks.items()}
         calls = [
             ((url, level, k, sorted(v["children"]), v["pairs"], v["tiles"], [offset_of[t] for t in v["tiles"]], rule, bits, flip), {})
             for k, v in sorted(blocks.items())
         ]
         runner.map(reduce_block, calls, f"seams: level {level}")
-    # 3. down
+    # 3. down: each block reads its parent's signs
+    def parent(b: tuple, level: int) -> tuple | None:
+        return None if level == top else tuple(v >> bits for v in b)
+
     for level in range(top, 0, -1):
-        calls = [((url, level, k, ch), dict(top=level == top)) for k, ch in sorted(members[level].items())]
+        calls = [((url, level, b, parent(b, level)), {}) for b in sorted({_block_of(t, level, bits) for t in tiles})]
         runner.map(expand_block, calls, f"seams: down {level}")
-    ruled = runner.map(expand_block, [((url, 0, t, []), dict(top=top == 0)) for t in tiles], "seams: signs")
+    ruled = runner.map(expand_block, [((url, 0, t, parent(t, 0)), {}) for t in tiles], "seams: signs")
     store.remove_blobs("seams")
     store.update(patch_offsets=offsets[:-1].tolist())
     return dict(patches=rule, cross_links=int(sum(counts)), ruled=int(sum(ruled)), levels=top + 1)
