@@ -107,18 +107,19 @@ def _route(grid: Grid, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 def part_size(point_count: int, slots: int, chunk: int | None = None) -> int:
     """Points per part of the input (what one ingest or export task reads): ``chunk``, or a default for ``slots`` workers.
 
-    The default gives every worker about four parts, in multiples of
-    :data:`~patchcloud.stream.io.las_output.LAZ_CHUNK` (so that every part
-    but the last is whole LAZ chunks of the output), between 2 and 20 LAZ
-    chunks.  Results do not depend on it.
+    The default gives every worker about eight parts (so that the last
+    parts, which may leave some workers waiting, are short), in multiples
+    of :data:`~patchcloud.stream.io.las_output.LAZ_CHUNK` (so that every
+    part but the last is whole LAZ chunks of the output), between 2 and 10
+    LAZ chunks.  Results do not depend on it.
 
     >>> part_size(60_653, 2), part_size(10_000_000, 2), part_size(20_000_000, 16)
-    (100000, 1000000, 350000)
+    (100000, 500000, 200000)
     """
     if chunk:
         return int(chunk)
-    per = -(-point_count // (4 * max(1, slots)))
-    return int(np.clip(-(-per // LAZ_CHUNK) * LAZ_CHUNK, 2 * LAZ_CHUNK, 20 * LAZ_CHUNK))
+    per = -(-point_count // (8 * max(1, slots)))
+    return int(np.clip(-(-per // LAZ_CHUNK) * LAZ_CHUNK, 2 * LAZ_CHUNK, 10 * LAZ_CHUNK))
 
 
 def part_ranges(point_count: int, size: int) -> list[tuple[int, int]]:

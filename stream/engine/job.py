@@ -100,7 +100,7 @@ class RunOptions:
     chunk : int, optional
         Points per part of the file (what one ingest or export task reads
         and writes): a multiple of 50,000 (the LAZ chunk).  Default: about
-        four parts per worker, 100,000 to 1,000,000 points each
+        eight parts per worker, 100,000 to 500,000 points each
         (:func:`patchcloud.stream.engine.ingest.part_size`).  Results do not
         depend on it.
     """

@@ -197,6 +197,29 @@ def write_laz_part(tmp: str | os.PathLike, part: int, header: laspy.LasHeader, p
     return [tuple(int(v) for v in e) for e in table]
 
 
+def _append(src, dst) -> None:
+    """Copy the file ``src`` to the end of ``dst`` (both open, ``dst`` flushed): in the kernel where it can."""
+    size = os.fstat(src.fileno()).st_size
+    copy = getattr(os, "copy_file_range", None)
+    at = dst.tell()
+    if copy is not None:
+        try:
+            done = 0
+            while done < size:
+                n = copy(src.fileno(), dst.fileno(), size - done, done, at + done)
+                if n == 0:
+                    break
+                done += n
+            if done == size:
+                dst.seek(at + size)
+                return
+            dst.seek(at)
+        except OSError:  # e.g. across file systems on old kernels: copy through user space
+            dst.seek(at)
+    src.seek(0)
+    shutil.copyfileobj(src, dst, 1 << 24)
+
+
 def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: list[PointStats], tables: list | None = None) -> None:
     """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments in part order and the chunk table.
 
@@ -208,9 +231,10 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
             f.seek(start)
             f.write(struct.pack("<q", 0))
             d = fragments_dir(tmp)
+            f.flush()
             for part in range(len(tables)):
                 with open(d / f"{part:06d}", "rb") as src:
-                    shutil.copyfileobj(src, f, 1 << 24)
+                    _append(src, f)
             table_at = f.tell()
             vlr = lazrs.LazVlr(h.vlrs.get("LasZipVlr")[0].record_data)
             lazrs.write_chunk_table(f, [e for t in tables for e in t], vlr)
