@@ -56,7 +56,7 @@ from patchcloud.stream.engine.export import Column, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.engine.tasks import map_tiles
-from patchcloud.stream.io.las import LasSource, check_writable, open_source
+from patchcloud.stream.io.las import LasSource, check_las_output, check_writable, open_source
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io.store import Store
 
@@ -258,6 +258,7 @@ def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: 
     PatchcloudValueError (a ValueError)
         An invalid option (the scheduler's, say).
     """
+    check_las_output(output)
     out = check_writable(output, run.overwrite)
     src = open_source(input)
     url = run.store or default_store_path(out)

@@ -22,8 +22,8 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "atomic_output", "is_laz_name", "laz_backend",
+    "is_copc_name", "without_copc", "check_las_output",
 ]
-
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,45 @@ class LasSource:
 
 def is_laz_name(path: str | os.PathLike) -> bool:
     return str(path).lower().endswith(".laz")
+
+
+def is_copc_name(path: str | os.PathLike) -> bool:
+    """True for a name that PDAL and QGIS take for COPC (``*.copc.laz``).
+
+    >>> is_copc_name("a/x.copc.laz"), is_copc_name("x.laz")
+    (True, False)
+    """
+    return str(path).lower().endswith(".copc.laz")
+
+
+def check_las_output(path: str | os.PathLike) -> None:
+    """A PatchcloudValueError for a LAS/LAZ output named like COPC: patchcloud writes plain LAS/LAZ, not COPC.
+
+    >>> check_las_output("x.copc.laz")
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: x.copc.laz: patchcloud writes LAS/LAZ, not COPC; name the output x.laz (a .copc.laz name is taken for COPC by PDAL and QGIS)
+    """
+    p = Path(path)
+    if is_copc_name(p):
+        plain = p.name[: -len(".copc.laz")] + ".laz"
+        raise PatchcloudValueError(
+            f"{path}: patchcloud writes LAS/LAZ, not COPC; name the output {plain} (a .copc.laz name is taken for COPC by PDAL and QGIS)"
+        )
+
+
+def without_copc(header: laspy.LasHeader) -> laspy.LasHeader:
+    """``header`` without the COPC records (the info VLR, the hierarchy EVLR, user id "copc"), changed in place and returned.
+
+    A COPC file read in input order is a plain LAZ 1.4 file; what is written
+    from it is LAS/LAZ, whose points are no longer in COPC's octree order,
+    so its COPC records would lie (and laspy refuses to write them).  Every
+    other VLR and EVLR (the CRS among them) is kept.
+    """
+    header.vlrs = [v for v in header.vlrs if v.user_id != "copc"]
+    if header.evlrs is not None:
+        header.evlrs = type(header.evlrs)([v for v in header.evlrs if v.user_id != "copc"])
+    return header
 
 
 def open_source(path: str | os.PathLike) -> LasSource:
@@ -198,7 +237,9 @@ def laz_backend(parallel: bool = True):
 
 
 def output_header(src: LasSource, dims) -> laspy.LasHeader:
-    """The input's header (point format, version, scales, offsets, VLRs, CRS) with ``dims`` added.
+    """The input's header (point format, version, scales, offsets, VLRs and EVLRs, CRS) with ``dims`` added.
+
+    COPC records are left out (:func:`without_copc`).
 
     ``dims``: (name, numpy type, description[, no-data value]) of every
     dimension to add (each job declares its own, e.g.
@@ -209,7 +250,7 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
     another type is an error.
     """
     with laspy.open(src.path) as reader:
-        header = reader.header
+        header = without_copc(reader.header)
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
     for name, dtype, desc, *no_data in dims:

@@ -221,11 +221,13 @@ def _append(src, dst) -> None:
 
 
 def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: list[PointStats], tables: list | None = None) -> None:
-    """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments in part order and the chunk table.
+    """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments in part order and the chunk table;
+    then the header's EVLRs (LAS 1.4: a CRS WKT is often one), after the point data.
 
     ``tables``: each LAZ part's chunk-table entries, in part order.
     """
     h = _merge(header, stats)
+    evlrs = header.evlrs if header.version.minor >= 4 and header.evlrs else None
     with open(tmp, "r+b") as f:
         if h.are_points_compressed:
             f.seek(start)
@@ -241,6 +243,10 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
             f.truncate()
             f.seek(start)
             f.write(struct.pack("<q", table_at))
+        if evlrs:
+            f.seek(0, os.SEEK_END)
+            h.start_of_first_evlr, h.number_of_evlrs = f.tell(), len(evlrs)
+            evlrs.write_to(f, as_extended=True)
         f.seek(0)
         h.write_to(f, ensure_same_size=True)
     if h.are_points_compressed:

@@ -20,7 +20,7 @@ import numpy as np
 
 from patchcloud.core import MASK_SIDE, PatchcloudValueError, dequantise_models, sample_models
 from patchcloud.stream.io import pcz
-from patchcloud.stream.io.las import atomic_output, check_writable, is_laz_name, laz_backend
+from patchcloud.stream.io.las import atomic_output, check_las_output, check_writable, is_laz_name, laz_backend
 
 __all__ = ["decompress", "DecompressSummary"]
 
@@ -100,12 +100,15 @@ def decompress(
         box = np.asarray(bbox, dtype=np.float64).reshape(-1)
         if box.shape != (6,) or not np.isfinite(box).all() or np.any(box[:3] > box[3:]):
             raise PatchcloudValueError(f"bbox must be xmin ymin zmin xmax ymax zmax with each min <= max; got {bbox!r}")
+    check_las_output(output)
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
         header = laspy.LasHeader.read_from(io.BytesIO(f.header_bytes), read_evlrs=False)
         evlrs = f.evlrs(header.number_of_evlrs if header.version.minor >= 4 else 0)
-        header.vlrs = [v for v in header.vlrs if v.user_id != "laszip encoded"]
+        header.vlrs = [v for v in header.vlrs if v.user_id not in ("laszip encoded", "copc")]  # LAS/LAZ out, not COPC
+        if evlrs:
+            evlrs = type(evlrs)([v for v in evlrs if v.user_id != "copc"])
         header.add_extra_dims([laspy.ExtraBytesParams(name="Reconstructed", type=np.uint8, description="1 from a patch, 0 residual")])
         g = f.attrs["grid"]
         origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
