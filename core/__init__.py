@@ -22,7 +22,7 @@ from . import _numba_cache  # noqa: F401  (first, before numba is imported: see 
 _SOURCES = {  # where each public name lives: imported on first use (PEP 562), so importing the package is quick
     '.cluster': ('components', 'euclidean_clusters', 'number_by_first'),
     '.don': ('difference_of_normals', 'don_magnitude', 'don_mask', 'segment_don'),
-    '.errors': ('PatchcloudError', 'PatchcloudIOError', 'PatchcloudValueError'),
+    '.errors': ('PatchcloudError', 'PatchcloudIOError', 'PatchcloudNotImplementedError', 'PatchcloudValueError'),
     '.moments': ('cell_moments',),
     '.morton': ('MAX_DEPTH', 'decode'),
     '.codes': ('Method', 'PatchKind'),
@@ -68,6 +68,7 @@ __all__ = [
     "PatchcloudError",
     "PatchcloudValueError",
     "PatchcloudIOError",
+    "PatchcloudNotImplementedError",
     # the tile interface: what patchcloud.stream uses (besides names of the user API above)
     # .morton
     "MAX_DEPTH",

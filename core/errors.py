@@ -7,7 +7,7 @@ working for callers who do not know patchcloud.
 
 from __future__ import annotations
 
-__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError"]
+__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError", "PatchcloudNotImplementedError"]
 
 
 class PatchcloudError(Exception):
@@ -20,3 +20,7 @@ class PatchcloudValueError(PatchcloudError, ValueError):
 
 class PatchcloudIOError(PatchcloudError, OSError):
     """A file or store cannot be read or written; the message names it."""
+
+
+class PatchcloudNotImplementedError(PatchcloudError, NotImplementedError):
+    """A combination patchcloud does not handle yet (e.g. a catalog for ``compress``); the message names it."""

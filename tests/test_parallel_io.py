@@ -71,7 +71,7 @@ def _export(src_path, out, store_url, chunk, runner):
         back[rank] = rec
         st.write(t, "twice_x", (back[:, 0] * 2).astype(np.float64))
     cols = [Column("twice_x", ("TwiceX",), np.float64)]
-    export_columns(st, src, str(out), cols, (("TwiceX", np.float64, "2 X"),), runner=runner)
+    export_columns(st, str(out), cols, (("TwiceX", np.float64, "2 X"),), runner=runner)
 
 
 def test_parallel_laz_reads_back_with_laspy_and_the_sequential_lazrs_decoder(scene, tmp_path):

@@ -10,14 +10,18 @@ from . import options
 
 
 @click.command("don")
-@click.argument("input", type=click.Path(dir_okay=False))
-@click.argument("output", type=click.Path(dir_okay=False))
+@options.paths_argument
 @options.don_options
 @options.job_options
+@options.catalog_options
 @options.report_option
 @options.reports_errors
-def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, report):
-    """Difference of Normals of INPUT (LAS/LAZ, any size), written to OUTPUT.
+def don_command(paths, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile,
+                out_dir, assume_crs, report):
+    """Difference of Normals of INPUT (LAS/LAZ/COPC, any size), written to OUTPUT.
+
+    With --out-dir DIR every argument is an input, the files are taken as
+    one cloud, and each gets its output in DIR.
 
     DoN = (n(p, rs) - n(p, rl)) / 2, with n(p, r) the PCA normal of the
     points within r of p, both facing the viewpoint.  OUTPUT (LAZ when its
@@ -32,8 +36,12 @@ def don_command(input, output, r_small, r_large, mode, viewpoint, tile_size, sch
     """
     from patchcloud.stream import don, report_don
 
-    options.check_report(report, overwrite, input, output)
+    input, output = options.input_and_output(paths, out_dir)
+    options.check_catalog_report(report, out_dir)
+    if output is not None:
+        options.check_report(report, overwrite, input, output)
 
     asked = DonOptions(r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None)
-    summary = don(input, output, asked, options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile))
+    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs)
+    summary = don(input, output, asked, run)
     options.finish_job(summary, quiet, report, report_don)

@@ -10,8 +10,7 @@ from . import options
 
 
 @click.command("normals")
-@click.argument("input", type=click.Path(dir_okay=False))
-@click.argument("output", type=click.Path(dir_okay=False))
+@options.paths_argument
 @click.option("--criterion", type=click.Choice(["rmse", "sigma3"]), default=NormalsOptions.criterion, show_default=True,
               help="When an octree node is one smooth patch: quadric fit RMSE below the threshold (metres), or surface variation.")
 @click.option("--threshold", type=float, default=None, help="Threshold of the criterion. Default: from the scanner noise (rmse), 0.005 (sigma3).")
@@ -20,13 +19,19 @@ from . import options
 @click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z", help="With --orient viewpoint, in the file's coordinates.")
 @click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
 @options.job_options
+@options.catalog_options
 @options.report_option
 @options.reports_errors
 def normals_command(
-    input, output, tile_size, criterion, threshold, orient, viewpoint, no_blend, scheduler, workers, store, keep_store, overwrite,
-    quiet, profile, report,
+    paths, tile_size, criterion, threshold, orient, viewpoint, no_blend, scheduler, workers, store, keep_store, overwrite,
+    quiet, profile, out_dir, assume_crs, report,
 ):
-    """Normals and curvature of INPUT (LAS/LAZ, any size), written to OUTPUT.
+    """Normals and curvature of INPUT (LAS/LAZ/COPC, any size), written to OUTPUT.
+
+    With --out-dir DIR every argument is an input (files, directories,
+    quoted globs): the files are taken as one cloud (normals and
+    orientation across their boundaries are those of the merged file) and
+    each gets its output in DIR.
 
     OUTPUT (LAZ when its name ends in .laz) holds every input point once, in
     input order, with every original dimension unchanged, plus NormalX,
@@ -39,13 +44,17 @@ def normals_command(
       patchcloud normals city.laz city_normals.laz
       patchcloud normals city.laz out.laz --store /data/city.zarr --scheduler tcp://head:8786
       patchcloud normals city.laz city_normals.laz --report city_normals.html
+      patchcloud normals tiles/ --out-dir tiles_normals/
     """
     from patchcloud.stream import normals, report_normals
 
-    options.check_report(report, overwrite, input, output)
+    input, output = options.input_and_output(paths, out_dir)
+    options.check_catalog_report(report, out_dir)
+    if output is not None:
+        options.check_report(report, overwrite, input, output)
 
     asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend)
-    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile)
+    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs)
     summary = normals(input, output, asked, run)
     options.finish_job(summary, quiet, report, report_normals)
 

@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError
 
-__all__ = ["tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["paths_argument", "catalog_options", "input_and_output", "tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "profile", "reports_errors", "check_catalog_report", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -41,6 +41,37 @@ report_option = click.option(
 )
 
 
+#: INPUT OUTPUT, or INPUT... with --out-dir (a catalog): see :func:`input_and_output`.
+paths_argument = click.argument("paths", nargs=-1, required=True, metavar="INPUT... [OUTPUT]", type=click.Path())
+
+
+def catalog_options(func):
+    """--out-dir and --assume-crs: the options of a job that takes a catalog of files."""
+    for option in reversed([
+        click.option("--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
+                     help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), taken as one cloud; "
+                     "each file's output goes to DIR under its name (.copc.laz becomes .laz)."),
+        click.option("--assume-crs", default=None, metavar="CRS",
+                     help="With --out-dir: the CRS of files that have none (e.g. EPSG:2154); without it such a file among files "
+                     "with a CRS is an error."),
+    ]):
+        func = option(func)
+    return func
+
+
+def input_and_output(paths: tuple[str, ...], out_dir: str | None):
+    """The job function's ``input`` and ``output`` from the command's arguments: ``IN OUT``, or inputs and ``--out-dir``."""
+    from patchcloud.core import PatchcloudValueError
+
+    if out_dir is not None:
+        return list(paths), None
+    if len(paths) == 2:
+        return paths[0], paths[1]
+    if len(paths) == 1:
+        raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT file after it, or --out-dir DIR")
+    raise PatchcloudValueError(f"{len(paths)} paths given: for a catalog of files give --out-dir DIR (every argument is then an input)")
+
+
 def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:
     """Before a job runs: the ``--report`` path can be written (a PatchcloudIOError, hence one error line, if not)."""
     if report is not None:
@@ -59,12 +90,21 @@ def finish_job(summary, quiet: bool, report: str | None, write_report) -> None:
             click.echo(f"  report          {report}")
 
 
-def run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile):
-    """The :class:`patchcloud.stream.RunOptions` of the options :func:`job_options` adds (``--keep-store`` absent: the default rule)."""
+def run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir=None, assume_crs=None):
+    """The :class:`patchcloud.stream.RunOptions` of the options :func:`job_options` (and :func:`catalog_options`) add
+    (``--keep-store`` absent: the default rule)."""
     from patchcloud.stream import RunOptions
 
     return RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None,
-                      overwrite=overwrite, quiet=quiet, profile=profile)
+                      overwrite=overwrite, quiet=quiet, profile=profile, out_dir=out_dir, assume_crs=assume_crs)
+
+
+def check_catalog_report(report: str | None, out_dir: str | None) -> None:
+    """``--report`` with ``--out-dir``: not built yet (one clear error before anything runs)."""
+    if report is not None and out_dir is not None:
+        from patchcloud.core import PatchcloudNotImplementedError
+
+        raise PatchcloudNotImplementedError("--report covers one file: a report of a catalog (--out-dir) is not built yet")
 
 
 def job_options(func):

@@ -10,8 +10,7 @@ from . import options
 
 
 @click.command("segment")
-@click.argument("input", type=click.Path(dir_okay=False))
-@click.argument("output", type=click.Path(dir_okay=False))
+@options.paths_argument
 @options.don_options
 @click.option("--threshold", type=float, default=SegmentOptions.threshold, show_default=True, help="Smallest DoN magnitude (0 to 1) of a point kept.")
 @click.option("--axis", type=click.Choice(["x", "y", "z"]), default=None,
@@ -21,13 +20,18 @@ from . import options
 @click.option("--min-points", type=int, default=SegmentOptions.min_cluster, show_default=True, help="Smaller segments are dropped (ClusterID 0).")
 @click.option("--max-points", type=int, default=None, help="Larger segments are dropped (ClusterID 0). Default: no limit.")
 @options.job_options
+@options.catalog_options
 @options.report_option
 @options.reports_errors
 def segment_command(
-    input, output, r_small, r_large, mode, viewpoint, threshold, axis, axis_threshold, tolerance, min_points, max_points,
-    tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, report,
+    paths, r_small, r_large, mode, viewpoint, threshold, axis, axis_threshold, tolerance, min_points, max_points,
+    tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs, report,
 ):
-    """DoN segments of INPUT (LAS/LAZ, any size), written to OUTPUT.
+    """DoN segments of INPUT (LAS/LAZ/COPC, any size), written to OUTPUT.
+
+    With --out-dir DIR every argument is an input, the files are taken as
+    one cloud (a segment crossing two files has one ClusterID, ids unique
+    across the catalog), and each gets its output in DIR.
 
     Points whose DoN magnitude is at least --threshold are kept, and kept
     points closer than --tolerance are joined into segments (Euclidean
@@ -42,11 +46,15 @@ def segment_command(
     """
     from patchcloud.stream import report_don, segment
 
-    options.check_report(report, overwrite, input, output)
+    input, output = options.input_and_output(paths, out_dir)
+    options.check_catalog_report(report, out_dir)
+    if output is not None:
+        options.check_report(report, overwrite, input, output)
 
     asked = SegmentOptions(
         r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, threshold=threshold, tolerance=tolerance,
         min_cluster=min_points, max_cluster=max_points, axis=axis, axis_threshold=axis_threshold,
     )
-    summary = segment(input, output, asked, options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile))
+    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs)
+    summary = segment(input, output, asked, run)
     options.finish_job(summary, quiet, report, report_don)

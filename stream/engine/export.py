@@ -1,6 +1,8 @@
-"""Export: the input file again, every point once and in input order, with the results as extra dimensions.
+"""Export: each input file again, every point once and in input order, with the results as extra dimensions.
 
-Writing runs as tasks, one per part of the file (the ingest's parts, each
+The store's input is a catalog (one file, or several taken as one cloud):
+there is one output per file.  Writing runs as tasks, one per part of a
+file (the ingest's parts, each
 a whole number of LAZ chunks): a task (:func:`export_part`) reads its part
 of the input again; the store's index says how many of its points went
 to each tile and from which row of the tile's results they start (a
@@ -9,18 +11,19 @@ points' results, appends them to the records (every byte of every
 original record, extra bytes included, copied as it is) and writes them:
 LAS at their place in the pre-sized output, LAZ as compressed chunks
 that the client stitches with one chunk table
-(:mod:`patchcloud.stream.io.las_output`).  The file is byte-identical
+(:mod:`patchcloud.stream.io.las_output`).  The files are byte-identical
 whatever the number of workers, the scheduler or the part size.
 
 A job declares what it adds as :class:`Column` s (see
 :meth:`patchcloud.stream.engine.job.Job.columns`).  Ids that are renumbered
-in order of first appearance in the file (``renumber``, e.g. ClusterID)
+in order of first appearance in the catalog (``renumber``, e.g. ClusterID)
 take one more pass over the parts first: each part's ids in the order they
 first appear (:func:`first_seen_part`), numbered by the client in part order.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,12 +31,12 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import PatchcloudIOError
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.ingest import pack_tile_keys, part_ranges, tile_keys
+from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, tile_keys
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io import las_output
-from patchcloud.stream.io.las import LasSource, check_writable, is_laz_name, output_header, read_range
+from patchcloud.stream.io.las import check_writable, is_laz_name, output_header, read_range
 from patchcloud.stream.io.store import Store, tile_name
 
 __all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds"]
@@ -95,9 +98,10 @@ class FirstSeenIds:
         return out
 
 
-def _part_values(store: Store, p: int, first: int, count: int, columns: list[Column], laz_parallel: bool):
-    """Part ``p``'s input records and, for each column, its points' values in input order."""
-    src = LasSource.from_json(store.attrs["source"])
+def _part_values(store: Store, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool):
+    """Part ``p``'s input records (points ``first:first + count`` of file ``f``) and, for each column, their values."""
+    cat = store.catalog
+    src = cat.sources[f]
     tiles = store.tiles
     index = store.get("index/part_tile")
     lo, hi = np.searchsorted(index[:, 0], [p, p + 1])
@@ -105,7 +109,7 @@ def _part_values(store: Store, p: int, first: int, count: int, columns: list[Col
     starts = store.get("index/tile_start", slice(int(lo), int(hi)))
     pts = read_range(src, first, count, parallel=laz_parallel)
     n = len(pts)
-    xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]])
+    xyz = cat.common(f, pts.array["X"], pts.array["Y"], pts.array["Z"])
     tid = np.searchsorted(pack_tile_keys(np.asarray(tiles, dtype=np.int64)), tile_keys(store.grid, xyz))
     counts = np.bincount(tid, minlength=len(tiles))
     if not np.array_equal(counts[rows[:, 1]], rows[:, 2]) or counts.sum() != rows[:, 2].sum():
@@ -123,9 +127,9 @@ def _part_values(store: Store, p: int, first: int, count: int, columns: list[Col
     return pts, values
 
 
-def first_seen_part(url: str, p: int, first: int, count: int, columns: list[Column], laz_parallel: bool = False) -> list:
+def first_seen_part(url: str, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool = False) -> list:
     """Task: for each column to renumber, its ids in part ``p`` in the order they first appear (0 left out)."""
-    _, values = _part_values(Store.open(url), p, first, count, columns, laz_parallel)
+    _, values = _part_values(Store.open(url), p, f, first, count, columns, laz_parallel)
     out = []
     for v in values:
         v = np.asarray(v, dtype=np.int64).reshape(-1)
@@ -134,16 +138,16 @@ def first_seen_part(url: str, p: int, first: int, count: int, columns: list[Colu
     return out
 
 
-def export_part(url: str, p: int, first: int, count: int, columns: list[Column], dims, tmp: str, start: int,
-                compressed: bool, laz_parallel: bool = False):
-    """Task: part ``p`` of the output: its input records plus the columns, written into ``tmp``.
+def export_part(url: str, p: int, f: int, local: int, first: int, count: int, columns: list[Column], dims, tmp: str,
+                start: int, compressed: bool, laz_parallel: bool = False):
+    """Task: part ``p`` of the catalog (part ``local`` of file ``f``): its records plus the columns, written into ``tmp``.
 
     Returns the part's header statistics and, for LAZ, its chunk-table entries.
     """
     store = Store.open(url)
-    src = LasSource.from_json(store.attrs["source"])
+    src = store.catalog.sources[f]
     header = las_output.prepare_header(output_header(src, dims), compressed)
-    pts, values = _part_values(store, p, first, count, columns, laz_parallel)
+    pts, values = _part_values(store, p, f, first, count, columns, laz_parallel)
     n = len(pts)
     out = laspy.PackedPointRecord.zeros(n, header.point_format)
     old = pts.array.dtype.itemsize
@@ -160,46 +164,59 @@ def export_part(url: str, p: int, first: int, count: int, columns: list[Column],
                 out[name] = v[:, k]
     stats = las_output.point_stats(header, out)
     if compressed:
-        return stats, las_output.write_laz_part(tmp, p, header, out)
+        return stats, las_output.write_laz_part(tmp, local, header, out)
     las_output.write_las_part(tmp, start, first, out)
     return stats, None
 
 
 def export_columns(
-    store: Store, src: LasSource, output: str, columns: list[Column], dims, runner: Runner | None = None,
-    overwrite: bool = False, quiet: bool = False,
+    store: Store, outputs, columns: list[Column], dims, runner: Runner | None = None, overwrite: bool = False,
+    quiet: bool = False,
 ) -> None:
-    """Write ``output`` (LAS, or LAZ when the name ends in .laz): ``src`` plus ``columns`` as dimensions ``dims``.
+    """Write every file of the store's catalog again, plus ``columns`` as dimensions ``dims``: one output per file.
 
-    ``dims`` are (name, numpy type, description[, no-data]) of the dimensions
-    added, as :func:`patchcloud.stream.io.las.output_header` takes them.
-    The tasks write ``OUTPUT.partial`` (the workers must reach the output's
-    directory), renamed to ``output`` when complete.
+    ``outputs``: the output of each file of ``store.catalog`` (one path for
+    a store of one file), LAZ when the name ends in .laz.  ``dims`` are
+    (name, numpy type, description[, no-data]) of the dimensions added, as
+    :func:`patchcloud.stream.io.las.output_header` takes them.  Each output
+    holds its file's records in its file's order; ids renumbered in order
+    of first appearance (``renumber``) are numbered over the whole catalog,
+    files in catalog order.  The tasks write ``OUTPUT.partial`` (the
+    workers must reach the outputs' directory), each renamed to its output
+    when complete.
     """
     runner = runner or Runner("synchronous", quiet=quiet)
-    out = check_writable(output, overwrite)
-    compressed = is_laz_name(out)
-    header = las_output.prepare_header(output_header(src, dims), compressed)
-    ranges = part_ranges(src.point_count, int(store.attrs["part_points"]))
+    cat = store.catalog
+    outputs = [outputs] if isinstance(outputs, (str, os.PathLike)) else list(outputs)
+    if len(outputs) != len(cat.sources):
+        raise PatchcloudValueError(f"{len(cat.sources)} files in the store {store.url}, {len(outputs)} outputs given")
+    outs = [check_writable(o, overwrite) for o in outputs]
+    compressed = [is_laz_name(o) for o in outs]
+    headers = [las_output.prepare_header(output_header(src, dims), c) for src, c in zip(cat.sources, compressed)]
+    parts = catalog_parts(cat, int(store.attrs["part_points"]))
+    local = [sum(1 for g, _, _ in parts[:p] if g == f) for p, (f, _, _) in enumerate(parts)]
     laz_parallel = runner.numba_threads > 1
-    tmp = str(out.with_name(out.name + ".partial"))
+    tmps = [str(o.with_name(o.name + ".partial")) for o in outs]
     try:
         renumbered = [col for col in columns if col.renumber]
         if renumbered:
-            calls = [((store.url, p, first, count, renumbered), {"laz_parallel": laz_parallel}) for p, (first, count) in enumerate(ranges)]
+            calls = [((store.url, p, f, first, count, renumbered), {"laz_parallel": laz_parallel}) for p, (f, first, count) in enumerate(parts)]
             seen = runner.map(first_seen_part, calls, "export: ids")
             for k, col in enumerate(renumbered):
-                f = FirstSeenIds()
+                ids = FirstSeenIds()
                 for part in seen:
-                    f(part[k])
-                store.put(f"export/{col.array}_ids", f.known)
-                store.put(f"export/{col.array}_numbers", f.number)
-        start = las_output.begin(header, tmp, src.point_count)
-        calls = [((store.url, p, first, count, columns, dims, tmp, start, compressed), {"laz_parallel": laz_parallel})
-                 for p, (first, count) in enumerate(ranges)]
+                    ids(part[k])
+                store.put(f"export/{col.array}_ids", ids.known)
+                store.put(f"export/{col.array}_numbers", ids.number)
+        starts = [las_output.begin(h, tmp, src.point_count) for h, tmp, src in zip(headers, tmps, cat.sources)]
+        calls = [((store.url, p, f, local[p], first, count, columns, dims, tmps[f], starts[f], compressed[f]), {"laz_parallel": laz_parallel})
+                 for p, (f, first, count) in enumerate(parts)]
         results = runner.map(export_part, calls, "export")
-        las_output.finish(header, tmp, start, [r[0] for r in results], [r[1] for r in results] if compressed else None)
-        Path(tmp).replace(out)
+        for f, (h, tmp, out) in enumerate(zip(headers, tmps, outs)):
+            mine = [r for r, (g, _, _) in zip(results, parts) if g == f]
+            las_output.finish(h, tmp, starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None)
+            Path(tmp).replace(out)
     finally:
-        las_output.remove_partial(tmp)
+        for tmp in tmps:
+            las_output.remove_partial(tmp)
         store.remove("export")

@@ -1,9 +1,12 @@
 """Ingest: cut a LAS/LAZ file into the store's tiles, in parallel tasks; no point passes through the client.
 
-The file is cut into parts of consecutive points (:func:`part_ranges`).
-One task per part (:func:`scatter_part`) reads and decodes its part (a
-range of LAZ chunks, or of LAS records), groups its points by tile in
-input order and writes them to the store as one fragment, with the part's
+The input is a :class:`~patchcloud.stream.io.catalog.Catalog`: one file,
+or several taken as one cloud (their points in the order of the sorted
+paths, their integer coordinates on one grid).  Each file is cut into
+parts of consecutive points (:func:`catalog_parts`).  One task per part
+(:func:`scatter_part`) reads and decodes its part (a range of LAZ chunks,
+or of LAS records), groups its points by tile in input order and writes
+them to the store as one fragment, with the part's
 table of tiles and counts; a part done is not read again when a run
 resumes.  The client adds up these small tables into the store's index
 (which part sent how many points to which tile: how results find their
@@ -22,6 +25,7 @@ import numpy as np
 
 from patchcloud.core import MAX_DEPTH, PatchcloudValueError, sort_points
 
+from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.las import LasSource, read_range
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.engine.runner import Runner
@@ -29,7 +33,8 @@ from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
-    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "part_size", "part_ranges", "part_path", "scatter_part",
+    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "part_size", "part_ranges", "catalog_parts", "part_path",
+    "scatter_part",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
@@ -39,8 +44,8 @@ TARGET_TILE_POINTS = 1_000_000
 _BIAS = 1 << 20
 
 
-def auto_tile_size(src: LasSource, target: int = TARGET_TILE_POINTS) -> float:
-    """A power-of-two tile size (metres) giving about ``target`` points per tile over the header's extent."""
+def auto_tile_size(src: LasSource | Catalog, target: int = TARGET_TILE_POINTS) -> float:
+    """A power-of-two tile size (metres) giving about ``target`` points per tile over the headers' extent."""
     dx = max(src.maxs[0] - src.mins[0], 1e-3)
     dy = max(src.maxs[1] - src.mins[1], 1e-3)
     density = src.point_count / (dx * dy)  # points per square metre of the footprint
@@ -67,8 +72,8 @@ def check_tile_size(tile_size) -> float | None:
     return float(tile_size)
 
 
-def make_grid(src: LasSource, tile_size: float | None) -> Grid:
-    """The tile grid of a file: ``tile_size`` rounded down to a power of two (metres), or the default."""
+def make_grid(src: LasSource | Catalog, tile_size: float | None) -> Grid:
+    """The tile grid of a file or catalog: ``tile_size`` rounded down to a power of two (metres), or the default."""
     tile_size = check_tile_size(tile_size)
     if tile_size is None:
         t = auto_tile_size(src)
@@ -131,6 +136,14 @@ def part_ranges(point_count: int, size: int) -> list[tuple[int, int]]:
     return [(first, min(size, point_count - first)) for first in range(0, point_count, size)]
 
 
+def catalog_parts(catalog: Catalog, size: int) -> list[tuple[int, int, int]]:
+    """(file, first point in the file, points) of every part of a catalog: each file cut every ``size`` points.
+
+    Parts are numbered in this order (files in catalog order); no part spans two files.
+    """
+    return [(f, first, count) for f, s in enumerate(catalog.sources) for first, count in part_ranges(s.point_count, size)]
+
+
 def part_path(p: int) -> str:
     """Where part ``p``'s fragments are in the store.
 
@@ -140,8 +153,10 @@ def part_path(p: int) -> str:
     return f"parts/{p:06d}"
 
 
-def scatter_part(url: str, p: int, first: int, count: int, field: str = "xyz", laz_parallel: bool = False) -> None:
-    """Ingest task: read part ``p`` of the input and store its points grouped by tile (a fragment of each tile).
+def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = "xyz", laz_parallel: bool = False) -> None:
+    """Ingest task: read part ``p`` (points ``first:first + count`` of file ``f``) and store its points grouped by tile.
+
+    Coordinates are put on the catalog's grid (:meth:`Catalog.common`).
 
     ``field`` "xyz": the LAS integer coordinates, with the part's tiles, their
     counts and the coordinates' sums in the part's attributes; "record":
@@ -154,10 +169,10 @@ def scatter_part(url: str, p: int, first: int, count: int, field: str = "xyz", l
     path = part_path(p)
     if store.group_attrs(path).get(f"done_{field}"):
         return
-    src = LasSource.from_json(store.attrs["source"])
+    cat = store.catalog
     grid = store.grid
-    pts = read_range(src, first, count, parallel=laz_parallel)
-    xyz = np.column_stack([pts.array["X"], pts.array["Y"], pts.array["Z"]]).astype(np.int32, copy=False)
+    pts = read_range(cat.sources[f], first, count, parallel=laz_parallel)
+    xyz = cat.common(f, pts.array["X"], pts.array["Y"], pts.array["Z"])
     order, sk, starts, ends = _route(grid, grid.local(xyz))
     if field == "xyz":
         store.put(f"{path}/xyz", xyz[order])
@@ -169,12 +184,12 @@ def scatter_part(url: str, p: int, first: int, count: int, field: str = "xyz", l
         store.set_group_attrs(path, done_record=True)
 
 
-def _scatter(store: Store, src: LasSource, runner: Runner, field: str, label: str) -> None:
+def _scatter(store: Store, runner: Runner, field: str, label: str) -> None:
     """Run :func:`scatter_part` on every part not yet done."""
-    ranges = part_ranges(src.point_count, int(store.attrs["part_points"]))
-    todo = [p for p in range(len(ranges)) if not store.group_attrs(part_path(p)).get(f"done_{field}")]
+    parts = catalog_parts(store.catalog, int(store.attrs["part_points"]))
+    todo = [p for p in range(len(parts)) if not store.group_attrs(part_path(p)).get(f"done_{field}")]
     laz_parallel = runner.numba_threads > 1  # one task at a time: lazrs may use the cores
-    runner.map(scatter_part, [((store.url, p, *ranges[p]), {"field": field, "laz_parallel": laz_parallel}) for p in todo], label)
+    runner.map(scatter_part, [((store.url, p, *parts[p]), {"field": field, "laz_parallel": laz_parallel}) for p in todo], label)
 
 
 def _starts(group: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -188,7 +203,7 @@ def _starts(group: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return c - c[np.maximum.accumulate(np.where(first, np.arange(group.size), 0))]
 
 
-def _index_parts(store: Store, src: LasSource) -> None:
+def _index_parts(store: Store) -> None:
     """From the parts' attributes: the tiles, their counts, the centroid, and the index of parts and tiles.
 
     ``index/part_tile`` (K, 3) int64: part, tile (position in the store's
@@ -197,7 +212,8 @@ def _index_parts(store: Store, src: LasSource) -> None:
     among the tile's points (in input order).
     """
     rows, sums = [], [0, 0, 0]
-    for p in range(len(part_ranges(src.point_count, int(store.attrs["part_points"])))):
+    cat = store.catalog
+    for p in range(len(catalog_parts(cat, int(store.attrs["part_points"])))):
         a = store.group_attrs(part_path(p))
         keys, counts = np.asarray(a["keys"], dtype=np.int64), np.asarray(a["counts"], dtype=np.int64)
         rows.append(np.column_stack([np.full(keys.size, p), keys, counts]))
@@ -214,7 +230,7 @@ def _index_parts(store: Store, src: LasSource) -> None:
     store.put("index/part_start", _starts(index[:, 0], index[:, 2]))
     store.put("index/tile_start", tile_start)
     g = store.grid
-    mean = np.asarray([s / src.point_count for s in sums])  # exact integer sums: whatever the parts
+    mean = np.asarray([s / cat.point_count for s in sums])  # exact integer sums: whatever the parts
     centroid = mean * np.asarray(g.scale) + (np.asarray(g.offset) - np.asarray(g.origin))
     store.update(tiles=unpack_tile_keys(keys_sorted).tolist(), tile_counts=counts.tolist(), centroid_local=centroid.tolist())
 
@@ -261,14 +277,14 @@ def gather_records(url: str, ijk: tuple) -> None:
     store.mark_tile(ijk, "records")
 
 
-def bucket_records(store: Store, src: LasSource, runner: Runner) -> None:
+def bucket_records(store: Store, runner: Runner) -> None:
     """Every point's whole record (its bytes) in its tile's array ``record``, in the tile's input order.
 
     Row ``r`` of a tile's ``record`` belongs to the tile's point of ``rank``
     r, as the coordinates do: the same parts are read again, scattered by
     :func:`scatter_part` tasks and gathered by :func:`gather_records` tasks.
     """
-    _scatter(store, src, runner, "record", "records: read")
+    _scatter(store, runner, "record", "records: read")
     map_tiles(gather_records, store, runner=runner, label="records: gather")
     store.remove("parts")
 
@@ -291,11 +307,11 @@ def occupancy_spacing(occupancy: dict[int, int], n: int, target: float = 16.0) -
     return float(2.0**e / np.sqrt(max(n / occupancy[e], 1.0)))
 
 
-def ensure_tiled(src: LasSource, url: str, tile_size: float | None, runner: Runner, quiet: bool,
+def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, runner: Runner, quiet: bool,
                  chunk: int | None = None) -> tuple[Store, float]:
-    """The store at ``url`` holding ``src`` tiled at ``tile_size``, and the seconds this took.
+    """The store at ``url`` holding ``src`` (a file or a catalog) tiled at ``tile_size``, and the seconds this took.
 
-    A store made from the same file on the same grid is reused: as it is
+    A store made from the same files on the same grid is reused: as it is
     when complete, else resuming from the parts and tiles done; anything
     else there is replaced.  Steps, all of them tasks on the workers: one
     :func:`scatter_part` per part of the file (``chunk`` points, default
@@ -304,12 +320,13 @@ def ensure_tiled(src: LasSource, url: str, tile_size: float | None, runner: Runn
     (:func:`_index_parts`).  The store then records the cloud's occupancy
     per cell size.
     """
-    grid = make_grid(src, tile_size)
+    cat = src if isinstance(src, Catalog) else Catalog.of(src)
+    grid = make_grid(cat, tile_size)
     t0 = time.perf_counter()
     if Store.exists(url):
         store = Store.open(url)
         a = store.attrs
-        same = a.get("source") and src.same_file(a["source"]) and a.get("grid") == grid.to_json() and "part_points" in a
+        same = a.get("catalog") and cat.same_files(a["catalog"]) and a.get("grid") == grid.to_json() and "part_points" in a
         if same and store.step_done("tile"):
             return store, 0.0
         if not same:  # else resume from the parts and tiles done
@@ -317,10 +334,11 @@ def ensure_tiled(src: LasSource, url: str, tile_size: float | None, runner: Runn
     else:
         store = Store.create(url)
     if "part_points" not in store.attrs:
-        store.update(source=src.to_json(), grid=grid.to_json(), part_points=part_size(src.point_count, runner.slots, chunk))
+        store.update(source=cat.sources[0].to_json(), catalog=cat.to_json(), grid=grid.to_json(),
+                     part_points=part_size(cat.point_count, runner.slots, chunk))
     if not store.step_done("bucket"):
-        _scatter(store, src, runner, "xyz", "tile: read")
-        _index_parts(store, src)
+        _scatter(store, runner, "xyz", "tile: read")
+        _index_parts(store)
         store.mark_step("bucket", {"part_points": int(store.attrs["part_points"])})
     occ = map_tiles(sort_tile, store, runner=runner, label="tile: sort")
     store.remove("parts")

@@ -51,18 +51,19 @@ from pathlib import Path
 from typing import Any
 
 
-from patchcloud.core import PatchcloudValueError, options_with
+from patchcloud.core import PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with
 from patchcloud.stream.engine.export import Column, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.engine.tasks import map_tiles
+from patchcloud.stream.io.catalog import Catalog, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import LasSource, check_las_output, check_writable, open_source
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io.store import Store
 
 __all__ = [
     "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
-    "time_and_memory_lines",
+    "time_and_memory_lines", "file_lines",
 ]
 
 
@@ -103,6 +104,16 @@ class RunOptions:
         eight parts per worker, 100,000 to 500,000 points each
         (:func:`patchcloud.stream.engine.ingest.part_size`).  Results do not
         depend on it.
+    out_dir : str, optional
+        A catalog run: the input is several files (paths, a directory, a
+        glob; :func:`patchcloud.stream.io.catalog.expand_inputs`) taken as
+        one cloud, and each file's output goes here under the file's name
+        (``.copc.laz`` becoming ``.laz``).  Made if absent.  The default
+        store is then ``OUT_DIR/patchcloud.store``.
+    assume_crs : str, optional
+        In a catalog, the CRS of the files that have none (``"EPSG:2154"``,
+        WKT: what pyproj takes); without it a file without a CRS among
+        files with one is an error.
     """
 
     tile_size: float | None = None
@@ -114,6 +125,8 @@ class RunOptions:
     quiet: bool = False
     profile: str | None = None
     chunk: int | None = None
+    out_dir: str | None = None
+    assume_crs: str | None = None
 
     def __post_init__(self) -> None:
         check_tile_size(self.tile_size)
@@ -184,10 +197,29 @@ def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: i
     ]
 
 
+def file_lines(files: list[tuple[str, str, int]]) -> list[str]:
+    """A catalog summary's rows, one per file: (input, output, points); nothing for one file.
+
+    >>> print("\\n".join(file_lines([("a/t1.laz", "o/t1.laz", 1200), ("a/t2.laz", "o/t2.laz", 35)])))
+      files           2
+        t1.laz        1,200 points -> o/t1.laz
+        t2.laz           35 points -> o/t2.laz
+    """
+    if len(files) < 2:
+        return []
+    width = max(len(Path(i).name) for i, _, _ in files)
+    return [f"  files           {len(files)}"] + [
+        f"    {Path(i).name:<{width}} {n:>12,} points -> {o}" for i, o, n in files
+    ]
+
+
 @dataclass
 class JobContext:
     """What a job's steps work with: the input, the tiled store, the scheduler, the run's options.
 
+    ``catalog`` is the input files taken as one cloud (one file: a catalog
+    of one), ``source`` its first file, ``outputs`` one output per file and
+    ``output`` the output (one file) or the output directory (a catalog).
     ``seconds`` gets each step's wall time; ``peak_memory`` (bytes, all
     processes) is set before the summary is made; ``kept_store`` is the
     store's URL when it is kept after the job, else "".
@@ -198,9 +230,27 @@ class JobContext:
     store: Store
     runner: Runner
     run: RunOptions
+    catalog: Catalog | None = None
+    outputs: list[Path] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
     kept_store: str = ""
+
+    def __post_init__(self) -> None:
+        if self.catalog is None:
+            self.catalog = Catalog.of(self.source)
+        if not self.outputs:
+            self.outputs = [self.output]
+
+    @property
+    def input_name(self) -> str:
+        """The input as summaries name it: the file, or the catalog's first file and how many follow."""
+        return self.catalog.path
+
+    @property
+    def files(self) -> list[tuple[str, str, int]]:
+        """(input, output, points) of every file, for a summary's per-file rows (:func:`file_lines`)."""
+        return [(s.path, str(o), s.point_count) for s, o in zip(self.catalog.sources, self.outputs)]
 
     def map_tiles(self, func: Callable, **kwargs) -> dict:
         """:func:`patchcloud.stream.engine.tasks.map_tiles` on this job's store and runner."""
@@ -216,6 +266,8 @@ class Job:
 
     #: Name of the writing step in the summary's times.
     write_step = "export"
+    #: Whether the job takes a catalog of several files (``RunOptions.out_dir``).
+    catalogs = True
 
     def steps(self) -> Sequence[tuple[str, Callable[[JobContext], None]]]:
         """The job's steps after ``tile``, in order: (name in the summary's times, function of the context)."""
@@ -228,8 +280,7 @@ class Job:
     def write(self, ctx: JobContext) -> None:
         """Write the output: by default the input's records plus :meth:`columns`, under a temporary name."""
         columns, dims = self.columns(ctx)
-        export_columns(ctx.store, ctx.source, str(ctx.output), columns, dims, runner=ctx.runner, overwrite=ctx.run.overwrite,
-                       quiet=ctx.run.quiet)
+        export_columns(ctx.store, ctx.outputs, columns, dims, runner=ctx.runner, overwrite=ctx.run.overwrite, quiet=ctx.run.quiet)
 
     def summarise(self, ctx: JobContext):
         """The job's summary (a dataclass with ``format()``), made after the output is written."""
@@ -247,8 +298,44 @@ def write_profile(path: str | os.PathLike, runner: Runner, seconds: dict, starte
     tmp.replace(path)
 
 
-def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: RunOptions) -> Any:
+def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catalog, list[Path], Path, str]:
+    """Check what a run reads and writes before anything runs: (catalog, outputs, output or output directory, default store)."""
+    if run.out_dir is None:
+        if output is None:
+            raise PatchcloudValueError("give an output file, or out_dir (--out-dir) for a catalog of files")
+        if not isinstance(input, (str, os.PathLike)):
+            raise PatchcloudValueError("several inputs make a catalog: give out_dir (--out-dir) instead of one output file")
+        if Path(input).is_dir():
+            raise PatchcloudIOError(f"{input}: is a directory; for a catalog of its files give --out-dir OUT (out_dir)")
+        check_las_output(output)
+        out = check_writable(output, run.overwrite)
+        return Catalog.of(open_source(input)), [out], out, default_store_path(out)
+    if output is not None:
+        raise PatchcloudValueError(f"{output}: with out_dir (--out-dir) every argument is an input; the outputs go to {run.out_dir}")
+    paths = expand_inputs(input)
+    if len(paths) > 1 and not job.catalogs:
+        raise PatchcloudNotImplementedError(f"{type(job).__name__.removesuffix('Job').lower()} takes one file at a time: "
+                                            f"catalogs of files are not supported yet ({len(paths)} files given)")
+    out_dir = Path(run.out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise PatchcloudIOError(f"{out_dir}: exists and is not a directory")
+    if not out_dir.parent.exists():
+        raise PatchcloudIOError(f"{out_dir}: the directory {out_dir.parent} does not exist")
+    outs = output_paths(paths, out_dir, input)
+    for o in outs:
+        if o.exists() and not run.overwrite:
+            raise PatchcloudIOError(f"{o}: exists (use --overwrite to replace it)")
+    catalog = open_catalog(paths, run.assume_crs)
+    out_dir.mkdir(exist_ok=True)
+    return catalog, outs, out_dir, str(out_dir / "patchcloud.store")
+
+
+def run_job(job: Job, input, output, run: RunOptions) -> Any:
     """Run ``job`` from ``input`` to ``output`` (see the module's docstring for the order of things); return its summary.
+
+    ``input``: one file (then ``output`` is the output file), or, with
+    ``run.out_dir``, one or several paths, directories or globs taken as one
+    cloud (then ``output`` is None and each file's output goes to ``out_dir``).
 
     Raises
     ------
@@ -256,17 +343,17 @@ def run_job(job: Job, input: str | os.PathLike, output: str | os.PathLike, run: 
         An input that is not a readable, complete LAS/LAZ file, an existing
         output without ``overwrite``, an unusable store.
     PatchcloudValueError (a ValueError)
-        An invalid option (the scheduler's, say).
+        An invalid option (the scheduler's, say), or a catalog whose files
+        are not one cloud (CRSs, grids).
     """
-    check_las_output(output)
-    out = check_writable(output, run.overwrite)
-    src = open_source(input)
-    url = run.store or default_store_path(out)
+    catalog, outs, out, default_store = _inputs_and_outputs(job, input, output, run)
+    url = run.store or default_store
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
     started = time.time()
-    with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
-        store, tile_seconds = ensure_tiled(src, url, run.tile_size, runner, run.quiet, run.chunk)
-        ctx = JobContext(source=src, output=out, store=store, runner=runner, run=run, kept_store=url if keep else "")
+    with Runner(run.scheduler, run.workers, quiet=run.quiet, points=catalog.point_count) as runner:
+        store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk)
+        ctx = JobContext(source=catalog.sources[0], output=out, store=store, runner=runner, run=run, catalog=catalog, outputs=outs,
+                         kept_store=url if keep else "")
         ctx.seconds["tile"] = tile_seconds
         for name, step in job.steps():
             t0 = time.perf_counter()

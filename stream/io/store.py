@@ -2,7 +2,7 @@
 
 Layout (zarr format 3; a local path or any fsspec URL the workers can reach)::
 
-    store/                       attrs: format, version, source (the input file), grid, steps done
+    store/                       attrs: format, version, catalog (the input files), source (the first), grid, steps done
       index/chunk_tile           (K, 3) int64: input chunk, tile, points of the chunk in the tile
       tiles/<name>/              attrs: ijk, count, done (per step)
         xyz                      (n, 3) int32  LAS integer coordinates, sorted by octree key
@@ -33,6 +33,8 @@ from zarr.core.buffer import default_buffer_prototype
 from zarr.core.sync import sync
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, PatchTable
+
+from .catalog import Catalog
 
 __all__ = ["Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name"]
 
@@ -187,6 +189,11 @@ class Store:
     @property
     def grid(self) -> Grid:
         return Grid.from_json(self.attrs["grid"])
+
+    @property
+    def catalog(self) -> Catalog:
+        """The files the store was made from, taken as one cloud (one file: a catalog of one)."""
+        return Catalog.from_json(self.attrs["catalog"])
 
     @property
     def tiles(self) -> list[tuple[int, int, int]]:

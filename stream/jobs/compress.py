@@ -149,6 +149,7 @@ class CompressJob(Job):
     """The steps of ``compress`` on the scaffold; its write packs the ``.pcz``."""
 
     write_step = "pack"
+    catalogs = False  # one .pcz per file of a catalog: not built yet
 
     def __init__(self, options: CompressOptions) -> None:
         self.options = options
@@ -163,7 +164,7 @@ class CompressJob(Job):
     def records(self, ctx: JobContext) -> None:
         st = ctx.store
         if not st.step_done("records"):
-            bucket_records(st, ctx.source, ctx.runner)
+            bucket_records(st, ctx.runner)
             st.mark_step("records", {"part_points": int(st.attrs["part_points"])})
 
     def fit(self, ctx: JobContext) -> None:
@@ -202,7 +203,7 @@ class CompressJob(Job):
 
 
 def compress(
-    input: str | os.PathLike, output: str | os.PathLike, options: CompressOptions | None = None, run: RunOptions | None = None,
+    input, output: str | os.PathLike | None = None, options: CompressOptions | None = None, run: RunOptions | None = None,
     **kwargs,
 ) -> CompressSummary:
     """Compress a LAS/LAZ file of any size to a ``.pcz`` of quadric patch models and residual points.
@@ -210,7 +211,8 @@ def compress(
     Parameters
     ----------
     input : path
-        LAS or LAZ.
+        LAS, LAZ or COPC (one file: a catalog of several, with ``out_dir``,
+        raises PatchcloudNotImplementedError).
     output : path
         The ``.pcz`` (see :mod:`patchcloud.stream.io.pcz`).
     options : CompressOptions, optional

@@ -23,7 +23,8 @@ import numpy as np
 
 from patchcloud.core import DonOptions, halo_width
 from patchcloud.stream.engine.export import Column
-from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
+from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines
+from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.las import LasSource
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import don_tiles
@@ -58,6 +59,7 @@ class DonSummary:
     peak_memory: int = 0
     scheduler: str = "threads"
     store: str = ""
+    files: list = field(default_factory=list)  # (input, output, points) of each file of a catalog
 
     def median_magnitude(self) -> float:
         """Median DoN magnitude of the points where it is defined (from the histogram: to 1/50)."""
@@ -87,11 +89,12 @@ class DonSummary:
                 f"{'' if mx is None else f'-{mx}'}{'+' if mx is None else ''} points)"
             )
         lines += time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler)
+        lines += file_lines(self.files)
         return "\n".join(lines)
 
 
-def default_viewpoint_of(src: LasSource) -> np.ndarray:
-    """The default viewpoint of a file (its coordinates): as :func:`patchcloud.core.default_viewpoint`, from the header's bounds."""
+def default_viewpoint_of(src: LasSource | Catalog) -> np.ndarray:
+    """The default viewpoint of a file or catalog (file coordinates): as :func:`patchcloud.core.default_viewpoint`, from the headers' bounds."""
     lo, hi = np.asarray(src.mins, dtype=np.float64), np.asarray(src.maxs, dtype=np.float64)
     ext = float(max((hi - lo).max(), 1.0))
     return np.array([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, hi[2] + ext])
@@ -136,7 +139,7 @@ class DonJob(Job):
         """The resolved parameters (viewpoint in the store's frame, densities, halo) and their key."""
         o, st = self.options, ctx.store
         origin = np.asarray(st.grid.origin)
-        vp = default_viewpoint_of(ctx.source) if o.viewpoint is None else np.asarray(o.viewpoint, dtype=np.float64)
+        vp = default_viewpoint_of(ctx.catalog) if o.viewpoint is None else np.asarray(o.viewpoint, dtype=np.float64)
         self.params = dict(
             r_small=o.r_small, r_large=o.r_large, mode=o.mode, resolution=o.resolution, min_points=o.min_points,
             viewpoint_local=(vp - origin).tolist(), **self.selection(),
@@ -168,15 +171,15 @@ class DonJob(Job):
     def summarise(self, ctx: JobContext) -> DonSummary:
         v = list(self.infos.values())
         return DonSummary(
-            input=ctx.source.path, output=str(ctx.output), points=ctx.source.point_count, tiles=len(ctx.store.tiles),
+            input=ctx.input_name, output=str(ctx.output), points=ctx.catalog.point_count, tiles=len(ctx.store.tiles),
             tile_size=ctx.store.grid.tile_size, parameters={k: self.params[k] for k in self.params if not k.endswith("_key")},
             defined=sum(i["defined"] for i in v), histogram=np.sum([i["hist"] for i in v], axis=0).astype(int).tolist() if v else [],
-            seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.runner.scheduler, store=ctx.kept_store,
+            seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.runner.scheduler, store=ctx.kept_store, files=ctx.files,
         )
 
 
 def don(
-    input: str | os.PathLike, output: str | os.PathLike, options: DonOptions | None = None, run: RunOptions | None = None,
+    input, output: str | os.PathLike | None = None, options: DonOptions | None = None, run: RunOptions | None = None,
     **kwargs,
 ) -> DonSummary:
     """Difference of Normals of every point of a LAS/LAZ file of any size.

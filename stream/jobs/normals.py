@@ -24,7 +24,7 @@ import numpy as np
 
 from patchcloud.core import MAX_DEPTH, Method, NormalsOptions, PatchKind
 from patchcloud.stream.engine.export import Column
-from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
+from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines
 from patchcloud.stream.engine.ingest import occupancy_spacing
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import Store
@@ -60,6 +60,7 @@ class NormalsSummary:
     peak_memory: int = 0
     scheduler: str = "threads"
     store: str = ""
+    files: list = field(default_factory=list)  # (input, output, points) of each file of a catalog
 
     def format(self) -> str:
         n = max(self.points, 1)
@@ -74,6 +75,7 @@ class NormalsSummary:
             f"  parameters      {self.parameters['criterion']} threshold {self.parameters['threshold']:.4g}, "
             f"d_min {self.parameters['d_min']:.3g} m, spacing {self.parameters['spacing']:.3g} m, orient {self.parameters['orient']}",
             *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler),
+            *file_lines(self.files),
         ]
         return "\n".join(lines)
 
@@ -176,29 +178,32 @@ class NormalsJob(Job):
             kinds += np.asarray(a["fit"]["kinds"], dtype=np.int64)
             methods += np.asarray(a["finish"]["methods"], dtype=np.int64)
         return NormalsSummary(
-            input=ctx.source.path, output=str(ctx.output), points=ctx.source.point_count, tiles=len(st.tiles),
+            input=ctx.input_name, output=str(ctx.output), points=ctx.catalog.point_count, tiles=len(st.tiles),
             tile_size=st.grid.tile_size,
             patches_by_kind={k.name.lower(): int(kinds[k]) for k in PatchKind},
             normals_by_method={m.name.lower(): int(methods[m]) for m in Method},
             parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.runner.scheduler,
-            store=ctx.kept_store,
+            store=ctx.kept_store, files=ctx.files,
         )
 
 
 def normals(
-    input: str | os.PathLike, output: str | os.PathLike, options: NormalsOptions | None = None, run: RunOptions | None = None,
+    input, output: str | os.PathLike | None = None, options: NormalsOptions | None = None, run: RunOptions | None = None,
     **kwargs,
 ) -> NormalsSummary:
-    """Normals and curvature of a LAS/LAZ file of any size, written as a copy of it with extra dimensions.
+    """Normals and curvature of a LAS/LAZ/COPC file (or a catalog of them) of any size, written as a copy with extra dimensions.
 
     Parameters
     ----------
     input, output : path
-        LAS or LAZ in; LAS or LAZ out (LAZ when ``output`` ends in .laz), every
-        input point once, in input order, every original dimension unchanged,
-        plus :data:`NORMALS_DIMS`: NormalX, NormalY, NormalZ, Curvature
-        (float32), NormalMethod (uint8, :class:`patchcloud.core.Method`:
-        1 quadric, 2 blended, 3 k-NN) and PatchId (uint32).
+        LAS, LAZ or COPC in; LAS or LAZ out (LAZ when ``output`` ends in .laz),
+        every input point once, in input order, every original dimension
+        unchanged, plus :data:`NORMALS_DIMS`: NormalX, NormalY, NormalZ,
+        Curvature (float32), NormalMethod (uint8, :class:`patchcloud.core.Method`:
+        1 quadric, 2 blended, 3 k-NN) and PatchId (uint32).  A catalog:
+        ``input`` several paths, a directory or a glob, ``output`` None and
+        ``out_dir`` given (see :class:`patchcloud.stream.RunOptions`): the
+        files are one cloud, and each gets its output in ``out_dir``.
     options : NormalsOptions, optional
         What to compute (:class:`patchcloud.core.NormalsOptions`, the
         ``viewpoint`` in the file's coordinates); the defaults come from the

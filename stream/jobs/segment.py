@@ -76,7 +76,7 @@ class SegmentJob(DonJob):
 
 
 def segment(
-    input: str | os.PathLike, output: str | os.PathLike, options: SegmentOptions | None = None, run: RunOptions | None = None,
+    input, output: str | os.PathLike | None = None, options: SegmentOptions | None = None, run: RunOptions | None = None,
     **kwargs,
 ) -> DonSummary:
     """DoN segments of a LAS/LAZ file of any size: threshold the DoN magnitude, cluster the points kept.

@@ -1,0 +1,201 @@
+"""Catalogs: several files taken as one cloud give, per point, what the merged file gives; bad catalogs give one clear error."""
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from pyproj import CRS
+from test_stream import write_scene
+
+from patchcloud.core import PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError
+from patchcloud.stream import compress, don, normals, segment
+from patchcloud.stream.cli import main
+from patchcloud.stream.io.catalog import open_catalog
+
+N = 40_000
+TILE = 16.0  # the 40 m scene in several tiles: file boundaries and tile faces both cut it
+
+
+def _split(las, idx, path, point_format=None, scale=None, offset=None, crs=None):
+    """Points ``idx`` of ``las`` as a new file (optionally another point format, scale, offset, CRS)."""
+    h = laspy.LasHeader(point_format=point_format or las.header.point_format.id, version="1.4")
+    h.scales = las.header.scales if scale is None else np.asarray(scale)
+    h.offsets = las.header.offsets if offset is None else np.asarray(offset)
+    for dim in las.point_format.extra_dimensions:
+        h.add_extra_dims([laspy.ExtraBytesParams(dim.name, dim.dtype)])
+    if crs is not None:
+        h.add_crs(CRS.from_user_input(crs))
+    out = laspy.LasData(h)
+    out.x, out.y, out.z = np.asarray(las.x)[idx], np.asarray(las.y)[idx], np.asarray(las.z)[idx]
+    out.intensity = np.asarray(las.intensity)[idx]
+    out.write(str(path))
+
+
+@pytest.fixture(scope="module")
+def cut(tmp_path_factory):
+    """The scene cut into 4 files by x and y (spatial boundaries, as tiles of a survey), and the merged file of them."""
+    d = tmp_path_factory.mktemp("catalog")
+    whole = d / "whole.las"
+    write_scene(whole, n=N, seed=11)
+    las = laspy.read(str(whole))
+    x, y = np.asarray(las.x), np.asarray(las.y)
+    q = (x > np.median(x)).astype(int) + 2 * (y > np.median(y))
+    (d / "in").mkdir()
+    parts = [np.flatnonzero(q == k) for k in range(4)]
+    for k, idx in enumerate(parts):
+        _split(las, idx, d / "in" / f"tile_{k}.las", crs="EPSG:2154")
+    merged = d / "merged.las"
+    _split(las, np.concatenate(parts), merged, crs="EPSG:2154")
+    return d, merged
+
+
+def _concat(paths):
+    return np.concatenate([laspy.read(str(p)).points.array for p in paths])
+
+
+def _same_records(a, b, names):
+    for n in names:
+        assert np.array_equal(a[n], b[n], equal_nan=a[n].dtype.kind == "f"), n
+
+
+def test_catalog_normals_are_those_of_the_merged_file(cut, tmp_path):
+    d, merged = cut
+    s = normals(d / "in", out_dir=str(tmp_path / "out"), tile_size=TILE, quiet=True)
+    assert s.points == laspy.open(str(merged)).header.point_count
+    assert [f[0].rsplit("/", 1)[-1] for f in s.files] == [f"tile_{k}.las" for k in range(4)]
+    ref = tmp_path / "merged_out.las"
+    normals(merged, ref, tile_size=TILE, quiet=True)
+    got = _concat(sorted((tmp_path / "out").iterdir()))
+    want = laspy.read(str(ref)).points.array
+    _same_records(got, want, ["X", "Y", "Z", "intensity", "NormalX", "NormalY", "NormalZ", "Curvature", "NormalMethod", "PatchId"])
+    for k in range(4):  # each output: exactly its input's records, in input order
+        a = laspy.read(str(d / "in" / f"tile_{k}.las")).points.array
+        b = laspy.read(str(tmp_path / "out" / f"tile_{k}.las")).points.array
+        _same_records(b, a, a.dtype.names)
+        assert CRS.from_user_input(laspy.read(str(tmp_path / "out" / f"tile_{k}.las")).header.parse_crs()).to_epsg() == 2154
+
+
+def test_catalog_don_and_segments_are_those_of_the_merged_file(cut, tmp_path):
+    d, merged = cut
+    kw = dict(r_small=0.5, r_large=2.0, tile_size=TILE, quiet=True)
+    don(sorted((d / "in").glob("*.las"))[::-1], out_dir=str(tmp_path / "don"), **kw)  # any order: the catalog sorts
+    don(merged, tmp_path / "don.las", **kw)
+    _same_records(_concat(sorted((tmp_path / "don").iterdir())), laspy.read(str(tmp_path / "don.las")).points.array,
+                  ["DoN", "DoNX", "DoNY", "DoNZ"])
+    kw.update(threshold=0.1, tolerance=0.6, min_cluster=5)
+    segment(str(d / "in" / "*.las"), out_dir=str(tmp_path / "seg"), **kw)
+    segment(merged, tmp_path / "seg.las", **kw)
+    got = _concat(sorted((tmp_path / "seg").iterdir()))
+    want = laspy.read(str(tmp_path / "seg.las")).points.array
+    _same_records(got, want, ["ClusterID"])
+    ids = got["ClusterID"]
+    assert ids.max() > 1
+    # ids are one numbering over the catalog: 1, 2, ... in order of first appearance across the files
+    first = ids[ids > 0][np.sort(np.unique(ids[ids > 0], return_index=True)[1])]
+    assert np.array_equal(first, np.arange(1, ids.max() + 1))
+
+
+def test_files_with_other_scales_offsets_and_point_formats(cut, tmp_path):
+    """A file in cm with RGB (format 7) beside files in mm (format 6): one common mm grid, each output keeps its format."""
+    d, _ = cut
+    las = laspy.read(str(d / "whole.las"))
+    x = np.asarray(las.x)
+    a, b = np.flatnonzero(x <= np.median(x)), np.flatnonzero(x > np.median(x))
+    # on the cm grid, offset 10 m away: exactly representable on the mm grid of the first file
+    cm = np.round(np.column_stack([np.asarray(las.x)[b], np.asarray(las.y)[b], np.asarray(las.z)[b]]), 2)
+    (tmp_path / "in").mkdir()
+    _split(las, a, tmp_path / "in" / "a.las", crs="EPSG:2154")
+    h = laspy.LasHeader(point_format=7, version="1.4")
+    h.scales = np.array([0.01, 0.01, 0.01])
+    h.offsets = np.asarray(las.header.offsets) + np.array([10.0, -20.0, 0.0])
+    h.add_crs(CRS.from_epsg(2154))
+    fb = laspy.LasData(h)
+    fb.x, fb.y, fb.z = cm[:, 0], cm[:, 1], cm[:, 2]
+    fb.red = np.arange(b.size) % 65535
+    fb.write(str(tmp_path / "in" / "b.las"))
+    cat = open_catalog(tmp_path / "in")
+    assert cat.scale == (0.001, 0.001, 0.001) and cat.factor[1] == (10, 10, 10) and cat.shift[1] == (10_000, -20_000, 0)
+    normals(tmp_path / "in", out_dir=str(tmp_path / "out"), tile_size=TILE, quiet=True)
+    # the merged file, on the common grid
+    merged = tmp_path / "merged.las"
+    hm = laspy.LasHeader(point_format=6, version="1.4")
+    hm.scales, hm.offsets = las.header.scales, las.header.offsets
+    m = laspy.LasData(hm)
+    xyz = np.vstack([np.column_stack([np.asarray(las.x)[a], np.asarray(las.y)[a], np.asarray(las.z)[a]]), cm])
+    m.x, m.y, m.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    m.write(str(merged))
+    normals(merged, tmp_path / "merged_out.las", tile_size=TILE, quiet=True)
+    out_a, out_b = laspy.read(str(tmp_path / "out" / "a.las")), laspy.read(str(tmp_path / "out" / "b.las"))
+    want = laspy.read(str(tmp_path / "merged_out.las"))
+    for name in ("NormalX", "NormalY", "NormalZ", "Curvature", "NormalMethod", "PatchId"):
+        assert np.array_equal(np.r_[out_a[name], out_b[name]], want[name]), name
+    assert out_b.header.point_format.id == 7 and np.array_equal(out_b.red, fb.red)
+    assert np.array_equal(out_b.X, fb.X) and tuple(out_b.header.scales) == (0.01, 0.01, 0.01)
+
+
+def test_grids_that_cannot_be_merged_exactly_are_refused(cut, tmp_path):
+    d, _ = cut
+    las = laspy.read(str(d / "in" / "tile_0.las"))
+    (tmp_path / "in").mkdir()
+    _split(las, np.arange(100), tmp_path / "in" / "a.las", scale=[0.003, 0.003, 0.003], crs="EPSG:2154")
+    _split(las, np.arange(100, 200), tmp_path / "in" / "b.las", scale=[0.002, 0.002, 0.002], crs="EPSG:2154")
+    with pytest.raises(PatchcloudValueError, match="b.las and .*a.las: .*cannot be put on one integer grid"):
+        normals(tmp_path / "in", out_dir=str(tmp_path / "out"), quiet=True)
+    assert not (tmp_path / "out").exists()
+
+
+def test_crs_are_compared_as_crs(cut, tmp_path):
+    d, _ = cut
+    las = laspy.read(str(d / "in" / "tile_0.las"))
+    (tmp_path / "in").mkdir()
+    _split(las, np.arange(3000), tmp_path / "in" / "a.las", crs="EPSG:2154")
+    _split(las, np.arange(3000, 6000), tmp_path / "in" / "b.las", crs=CRS.from_epsg(2154).to_wkt("WKT1_GDAL"))
+    assert open_catalog(tmp_path / "in").crs is not None  # same CRS, other bytes
+    _split(las, np.arange(6000, 9000), tmp_path / "in" / "c.las", crs="EPSG:32631")
+    with pytest.raises(PatchcloudValueError, match="a.las and .*c.las: different CRSs"):
+        open_catalog(tmp_path / "in")
+    (tmp_path / "in" / "c.las").unlink()
+    _split(las, np.arange(6000, 9000), tmp_path / "in" / "c.las")
+    with pytest.raises(PatchcloudValueError, match="c.las: no CRS, while .*a.las has one; give --assume-crs"):
+        open_catalog(tmp_path / "in")
+    assert open_catalog(tmp_path / "in", assume_crs="EPSG:2154").crs is not None
+    with pytest.raises(PatchcloudValueError, match="not the assumed one"):
+        open_catalog(tmp_path / "in", assume_crs="EPSG:32631")
+
+
+def _cli_fails(args, says, tmp_path):
+    before = sorted(p for p in tmp_path.rglob("*"))
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2, r.output
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and says in lines[0], r.output
+    assert sorted(p for p in tmp_path.rglob("*")) == before  # nothing written
+
+
+def test_bad_catalogs_give_one_clear_error_and_write_nothing(cut, tmp_path):
+    d, _ = cut
+    (tmp_path / "empty").mkdir()
+    _cli_fails(["normals", str(tmp_path / "empty"), "--out-dir", str(tmp_path / "o")], "no LAS/LAZ file", tmp_path)
+    (tmp_path / "notes.las").write_text("not a point cloud")
+    _cli_fails(["normals", str(d / "in" / "tile_0.las"), str(tmp_path / "notes.las"), "--out-dir", str(tmp_path / "o")],
+               "notes.las: not a LAS/LAZ file", tmp_path)
+    for k in (1, 2):
+        (tmp_path / f"d{k}").mkdir()
+        (tmp_path / f"d{k}" / "same.las").write_bytes((d / "in" / f"tile_{k}.las").read_bytes())
+    _cli_fails(["normals", str(tmp_path / "d1"), str(tmp_path / "d2"), "--out-dir", str(tmp_path / "o")],
+               "two inputs would write the same output", tmp_path)
+    _cli_fails(["normals", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "d1" / "out")],
+               "inside the input directory", tmp_path)
+    _cli_fails(["normals", str(tmp_path / "d1"), str(tmp_path / "x.las")], "is a directory; for a catalog", tmp_path)
+    _cli_fails(["normals", str(tmp_path / "d1" / "same.las"), str(tmp_path / "d2" / "same.las"), str(tmp_path / "x.las")],
+               "give --out-dir", tmp_path)
+    _cli_fails(["normals", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "r.html")],
+               "report of a catalog", tmp_path)
+
+
+def test_compress_of_several_files_is_not_built_yet(cut, tmp_path):
+    d, _ = cut
+    with pytest.raises(PatchcloudNotImplementedError, match="compress takes one file at a time"):
+        compress(d / "in", out_dir=str(tmp_path / "o"), quiet=True)
+    with pytest.raises(PatchcloudIOError, match="is a directory"):
+        normals(d / "in", tmp_path / "x.las", quiet=True)
