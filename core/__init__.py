@@ -15,9 +15,8 @@ The stream imports from ``patchcloud.core`` only, and only names of
 ((5000, 3), dtype('float32'))
 """
 
-import importlib
-
 from . import _numba_cache  # noqa: F401  (first, before numba is imported: see its docstring)
+from .lazy import lazy_exports
 
 _SOURCES = {  # where each public name lives: imported on first use (PEP 562), so importing the package is quick
     '.cluster': ('components', 'euclidean_clusters', 'number_by_first'),
@@ -39,7 +38,6 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.threads': ('single_threaded',),
     '.tiles': ('Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
 }
-_WHERE = {name: module for module, names in _SOURCES.items() for name in names}
 
 __all__ = [
     # the user API
@@ -119,18 +117,9 @@ __all__ = [
     "dequantise_models",
     # .threads
     "single_threaded",
+    # .lazy
+    "lazy_exports",
 ]
 
 
-def __getattr__(name: str):
-    """Import the public name ``name`` from its module on first use."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _SOURCES, __all__)

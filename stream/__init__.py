@@ -19,7 +19,7 @@ way (files -> store -> tiles -> patch models -> results -> files):
 ...
 """
 
-import importlib
+from patchcloud.core import lazy_exports
 
 
 _SOURCES = {  # where each public name lives: imported on first use (PEP 562), so importing the package is quick
@@ -38,7 +38,6 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     'patchcloud.stream.views.render_tiles': ('TilesSummary', 'render_tiles'),
     'patchcloud.stream.views.report': ('report_compress', 'report_don', 'report_normals', 'write_report'),
 }
-_WHERE = {name: module for module, names in _SOURCES.items() for name in names}
 
 __all__ = [
     # jobs: file in, file out
@@ -52,15 +51,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """Import the public name ``name`` from its module on first use."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _SOURCES, __all__)

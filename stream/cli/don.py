@@ -36,10 +36,7 @@ def don_command(paths, r_small, r_large, mode, viewpoint, tile_size, scheduler, 
     """
     from patchcloud.stream import don, report_don
 
-    input, output = options.input_and_output(paths, out_dir)
-    options.check_catalog_report(report, out_dir)
-    if output is not None:
-        options.check_report(report, overwrite, input, output)
+    input, output = options.input_and_output(paths, out_dir, report, overwrite)
 
     asked = DonOptions(r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None)
     run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs)

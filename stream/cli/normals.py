@@ -48,10 +48,7 @@ def normals_command(
     """
     from patchcloud.stream import normals, report_normals
 
-    input, output = options.input_and_output(paths, out_dir)
-    options.check_catalog_report(report, out_dir)
-    if output is not None:
-        options.check_report(report, overwrite, input, output)
+    input, output = options.input_and_output(paths, out_dir, report, overwrite)
 
     asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend)
     run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs)

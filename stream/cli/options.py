@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError
 
-__all__ = ["paths_argument", "catalog_options", "input_and_output", "tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "profile", "reports_errors", "check_catalog_report", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["paths_argument", "catalog_options", "input_and_output", "tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -59,17 +59,21 @@ def catalog_options(func):
     return func
 
 
-def input_and_output(paths: tuple[str, ...], out_dir: str | None):
-    """The job function's ``input`` and ``output`` from the command's arguments: ``IN OUT``, or inputs and ``--out-dir``."""
-    from patchcloud.core import PatchcloudValueError
+def input_and_output(paths: tuple[str, ...], out_dir: str | None, report: str | None, overwrite: bool):
+    """The job function's ``input`` and ``output`` from the command's arguments (``IN OUT``, or inputs and ``--out-dir``),
+    after checking ``--report`` can be written (:func:`check_report`; not yet with ``--out-dir``)."""
+    from patchcloud.core import PatchcloudNotImplementedError, PatchcloudValueError
 
     if out_dir is not None:
+        if report is not None:
+            raise PatchcloudNotImplementedError("--report covers one file: a report of a catalog (--out-dir) is not built yet")
         return list(paths), None
-    if len(paths) == 2:
-        return paths[0], paths[1]
     if len(paths) == 1:
         raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT file after it, or --out-dir DIR")
-    raise PatchcloudValueError(f"{len(paths)} paths given: for a catalog of files give --out-dir DIR (every argument is then an input)")
+    if len(paths) > 2:
+        raise PatchcloudValueError(f"{len(paths)} paths given: for a catalog of files give --out-dir DIR (every argument is then an input)")
+    check_report(report, overwrite, *paths)
+    return paths[0], paths[1]
 
 
 def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:
@@ -98,13 +102,6 @@ def run_options(tile_size, scheduler, workers, store, keep_store, overwrite, qui
     return RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None,
                       overwrite=overwrite, quiet=quiet, profile=profile, out_dir=out_dir, assume_crs=assume_crs)
 
-
-def check_catalog_report(report: str | None, out_dir: str | None) -> None:
-    """``--report`` with ``--out-dir``: not built yet (one clear error before anything runs)."""
-    if report is not None and out_dir is not None:
-        from patchcloud.core import PatchcloudNotImplementedError
-
-        raise PatchcloudNotImplementedError("--report covers one file: a report of a catalog (--out-dir) is not built yet")
 
 
 def job_options(func):

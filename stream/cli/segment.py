@@ -46,10 +46,7 @@ def segment_command(
     """
     from patchcloud.stream import report_don, segment
 
-    input, output = options.input_and_output(paths, out_dir)
-    options.check_catalog_report(report, out_dir)
-    if output is not None:
-        options.check_report(report, overwrite, input, output)
+    input, output = options.input_and_output(paths, out_dir, report, overwrite)
 
     asked = SegmentOptions(
         r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, threshold=threshold, tolerance=tolerance,

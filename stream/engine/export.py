@@ -37,6 +37,7 @@ from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, tile_
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io import las_output
 from patchcloud.stream.io.las import check_writable, is_laz_name, output_header, read_range
+from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store, tile_name
 
 __all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds"]
@@ -98,9 +99,9 @@ class FirstSeenIds:
         return out
 
 
-def _part_values(store: Store, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool):
-    """Part ``p``'s input records (points ``first:first + count`` of file ``f``) and, for each column, their values."""
-    cat = store.catalog
+def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool):
+    """Part ``p``'s input records (points ``first:first + count`` of file ``f`` of ``cat``, the store's catalog) and,
+    for each column, their values."""
     src = cat.sources[f]
     tiles = store.tiles
     index = store.get("index/part_tile")
@@ -129,7 +130,8 @@ def _part_values(store: Store, p: int, f: int, first: int, count: int, columns: 
 
 def first_seen_part(url: str, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool = False) -> list:
     """Task: for each column to renumber, its ids in part ``p`` in the order they first appear (0 left out)."""
-    _, values = _part_values(Store.open(url), p, f, first, count, columns, laz_parallel)
+    store = Store.open(url)
+    _, values = _part_values(store, store.catalog, p, f, first, count, columns, laz_parallel)
     out = []
     for v in values:
         v = np.asarray(v, dtype=np.int64).reshape(-1)
@@ -145,9 +147,9 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     Returns the part's header statistics and, for LAZ, its chunk-table entries.
     """
     store = Store.open(url)
-    src = store.catalog.sources[f]
-    header = las_output.prepare_header(output_header(src, dims), compressed)
-    pts, values = _part_values(store, p, f, first, count, columns, laz_parallel)
+    cat = store.catalog
+    header = las_output.prepare_header(output_header(cat.sources[f], dims), compressed)
+    pts, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel)
     n = len(pts)
     out = laspy.PackedPointRecord.zeros(n, header.point_format)
     old = pts.array.dtype.itemsize
@@ -194,7 +196,7 @@ def export_columns(
     compressed = [is_laz_name(o) for o in outs]
     headers = [las_output.prepare_header(output_header(src, dims), c) for src, c in zip(cat.sources, compressed)]
     parts = catalog_parts(cat, int(store.attrs["part_points"]))
-    local = [sum(1 for g, _, _ in parts[:p] if g == f) for p, (f, _, _) in enumerate(parts)]
+    first_part = np.searchsorted([f for f, _, _ in parts], np.arange(len(cat.sources) + 1))  # a file's parts are consecutive
     laz_parallel = runner.numba_threads > 1
     tmps = [str(o.with_name(o.name + ".partial")) for o in outs]
     try:
@@ -209,11 +211,11 @@ def export_columns(
                 store.put(f"export/{col.array}_ids", ids.known)
                 store.put(f"export/{col.array}_numbers", ids.number)
         starts = [las_output.begin(h, tmp, src.point_count) for h, tmp, src in zip(headers, tmps, cat.sources)]
-        calls = [((store.url, p, f, local[p], first, count, columns, dims, tmps[f], starts[f], compressed[f]), {"laz_parallel": laz_parallel})
-                 for p, (f, first, count) in enumerate(parts)]
+        calls = [((store.url, p, f, p - int(first_part[f]), first, count, columns, dims, tmps[f], starts[f], compressed[f]),
+                  {"laz_parallel": laz_parallel}) for p, (f, first, count) in enumerate(parts)]
         results = runner.map(export_part, calls, "export")
         for f, (h, tmp, out) in enumerate(zip(headers, tmps, outs)):
-            mine = [r for r, (g, _, _) in zip(results, parts) if g == f]
+            mine = results[first_part[f] : first_part[f + 1]]
             las_output.finish(h, tmp, starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None)
             Path(tmp).replace(out)
     finally:

@@ -322,10 +322,9 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
     if not out_dir.parent.exists():
         raise PatchcloudIOError(f"{out_dir}: the directory {out_dir.parent} does not exist")
     outs = output_paths(paths, out_dir, input)
-    for o in outs:
-        if o.exists() and not run.overwrite:
-            raise PatchcloudIOError(f"{o}: exists (use --overwrite to replace it)")
     catalog = open_catalog(paths, run.assume_crs)
+    if out_dir.exists():  # else no output can be there yet: the directory is made only once everything is checked
+        outs = [check_writable(o, run.overwrite) for o in outs]
     out_dir.mkdir(exist_ok=True)
     return catalog, outs, out_dir, str(out_dir / "patchcloud.store")
 
