@@ -7,7 +7,7 @@ from click.testing import CliRunner
 from pyproj import CRS
 from test_stream import write_scene
 
-from patchcloud.core import PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import compress, don, normals, segment
 from patchcloud.stream.cli import main
 from patchcloud.stream.io.catalog import open_catalog
@@ -189,13 +189,72 @@ def test_bad_catalogs_give_one_clear_error_and_write_nothing(cut, tmp_path):
     _cli_fails(["normals", str(tmp_path / "d1"), str(tmp_path / "x.las")], "is a directory; for a catalog", tmp_path)
     _cli_fails(["normals", str(tmp_path / "d1" / "same.las"), str(tmp_path / "d2" / "same.las"), str(tmp_path / "x.las")],
                "give --out-dir", tmp_path)
-    _cli_fails(["normals", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "r.html")],
-               "report of a catalog", tmp_path)
+    _cli_fails(["normals", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "no" / "r.html")],
+               "does not exist", tmp_path)
+    _cli_fails(["compress", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "r.html")],
+               "a --report of them is not built yet", tmp_path)
 
 
-def test_compress_of_several_files_is_not_built_yet(cut, tmp_path):
+def test_compress_of_a_catalog_is_each_file_compressed_alone(cut, tmp_path):
+    from check_identical import pcz_digests
+    from patchcloud.stream import decompress
+
     d, _ = cut
-    with pytest.raises(PatchcloudNotImplementedError, match="compress takes one file at a time"):
-        compress(d / "in", out_dir=str(tmp_path / "o"), quiet=True)
+    r = CliRunner().invoke(main, ["compress", str(d / "in"), "--out-dir", str(tmp_path / "o"), "-q"])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [f"tile_{k}.pcz" for k in range(4)]
+    alone = tmp_path / "alone.pcz"
+    compress(d / "in" / "tile_2.las", alone, quiet=True)
+    assert pcz_digests(alone) == pcz_digests(tmp_path / "o" / "tile_2.pcz")
+    back = decompress(tmp_path / "o" / "tile_1.pcz", tmp_path / "back.las")
+    assert back.residual > 0 and back.reconstructed > 0
+    _cli_fails(["compress", str(d / "in"), "--out-dir", str(tmp_path / "o"), "-q"], "exists", tmp_path)  # no --overwrite
     with pytest.raises(PatchcloudIOError, match="is a directory"):
         normals(d / "in", tmp_path / "x.las", quiet=True)
+
+
+def test_render_of_a_catalog_is_the_picture_of_the_merged_file(cut, tmp_path):
+    from patchcloud.stream import render_array
+
+    d, merged = cut
+    whole = render_array(merged, color="elevation", width=300, heights="all")
+    cat = render_array(d / "in", color="elevation", width=300, heights="all")
+    assert cat.point_count == whole.point_count and cat.points_drawn == whole.points_drawn
+    np.testing.assert_array_equal(cat.filled, whole.filled)
+    np.testing.assert_array_equal(cat.rgb, whole.rgb)  # same frame, same point kept per pixel (ties: the first in the catalog)
+    assert cat.source.endswith("tile_0.las and 3 more files")
+
+
+def test_render_cli_draws_a_catalog_in_one_picture_or_one_per_file(cut, tmp_path):
+    d, _ = cut
+    r = CliRunner().invoke(main, ["render", str(d / "in" / "tile_0.las"), str(d / "in" / "tile_3.las"), str(tmp_path / "two.png"),
+                                  "--color", "intensity", "--width", "200"])
+    assert r.exit_code == 0, r.output
+    assert "tile_0.las and 1 more file -> " in r.output and (tmp_path / "two.png").read_bytes()[:4] == b"\x89PNG"
+    r = CliRunner().invoke(main, ["render", str(d / "in"), "--out-dir", str(tmp_path / "each"), "--color", "elevation",
+                                  "--width", "200", "-q"])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (tmp_path / "each").iterdir()) == [f"tile_{k}.png" for k in range(4)]
+    _cli_fails(["render", str(d / "in"), "--out-dir", str(tmp_path / "n"), "--color", "normals"],
+               "needs the dimensions NormalX", tmp_path)
+
+
+def test_a_catalog_report_has_a_row_per_file_one_map_and_the_merged_run_histograms(cut, tmp_path):
+    import re
+
+    from patchcloud.stream.views.report import segment_sizes
+
+    d, merged = cut
+    opts = ["--rs", "0.3", "--rl", "1.5", "--threshold", "0.1", "--min-points", "10", "-q"]
+    r = CliRunner().invoke(main, ["segment", str(d / "in"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "c.html"), *opts])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["segment", str(merged), str(tmp_path / "m.las"), "--report", str(tmp_path / "m.html"), *opts])
+    assert r.exit_code == 0, r.output
+    cat, whole = (tmp_path / "c.html").read_text(), (tmp_path / "m.html").read_text()
+    for k in range(4):
+        assert f"file: tile_{k}.las" in cat
+    sizes = segment_sizes([tmp_path / "o" / f"tile_{k}.las" for k in range(4)])
+    np.testing.assert_array_equal(sizes, segment_sizes(tmp_path / "m.las"))  # ids span the files: sizes of the merged run
+    row = r"segment size: smallest, median, largest</t[hd]><td>([^<]+)<"
+    assert re.search(row, cat).group(1) == re.search(row, whole).group(1)
+    assert cat.count('<img src="data:image/png;base64,') == whole.count('<img src="data:image/png;base64,')  # one map per view

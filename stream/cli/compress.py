@@ -10,15 +10,20 @@ from . import options
 
 
 @click.command("compress")
-@click.argument("input", type=click.Path(dir_okay=False))
-@click.argument("output", type=click.Path(dir_okay=False))
+@options.paths_argument
 @click.option("--max-error", type=float, default=CompressOptions.max_error, show_default=True, metavar="METRES",
               help="Error budget: patches fit their points within it (RMS); points no patch models within it are kept exactly.")
 @options.job_options
+@click.option("--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
+              help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), each compressed on its own "
+              "to DIR/NAME.pcz.")
 @options.report_option
 @options.reports_errors
-def compress_command(input, output, max_error, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, report):
-    """Compress INPUT (LAS/LAZ, any size) to OUTPUT, a .pcz of quadric patch models and residual points.
+def compress_command(paths, max_error, report, **run):
+    """Compress INPUT (LAS/LAZ/COPC, any size) to OUTPUT, a .pcz of quadric patch models and residual points.
+
+    With --out-dir DIR every argument is an input and each file is
+    compressed on its own to DIR/NAME.pcz (patches do not cross files).
 
     Smooth surfaces become quantised quadric patches (octree cell, point
     count, frame, quadric, extent); the points of edges, vegetation and
@@ -29,15 +34,23 @@ def compress_command(input, output, max_error, tile_size, scheduler, workers, st
     Example:
       patchcloud compress city.laz city.pcz --max-error 0.02
       patchcloud compress city.laz city.pcz --report city_pcz.html
+      patchcloud compress tiles/ --out-dir tiles_pcz/
       patchcloud decompress city.pcz preview.laz --lod 2
     """
-    from patchcloud.stream import compress, report_compress
+    from patchcloud.stream import compress
 
-    options.check_report(report, overwrite, input, output)
+    from patchcloud.core import PatchcloudNotImplementedError
 
-    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile)
+    run = options.run_options(run)
+    if run.out_dir is not None and report is not None:
+        raise PatchcloudNotImplementedError("compress --out-dir compresses each file on its own: a --report of them is not built yet")
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
     summary = compress(input, output, CompressOptions(max_error=max_error), run)
-    options.finish_job(summary, quiet, report, report_compress)
+    if isinstance(summary, list):  # a catalog, file by file (no --report: input_and_output refuses it)
+        for s in summary:
+            options.finish_job(s, run.quiet, None, "report_compress")
+    else:
+        options.finish_job(summary, run.quiet, report, "report_compress")
 
 
 @click.command("decompress")

@@ -16,8 +16,7 @@ from . import options
 @options.catalog_options
 @options.report_option
 @options.reports_errors
-def don_command(paths, r_small, r_large, mode, viewpoint, tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile,
-                out_dir, assume_crs, report):
+def don_command(paths, r_small, r_large, mode, viewpoint, report, **run):
     """Difference of Normals of INPUT (LAS/LAZ/COPC, any size), written to OUTPUT.
 
     With --out-dir DIR every argument is an input, the files are taken as
@@ -34,11 +33,10 @@ def don_command(paths, r_small, r_large, mode, viewpoint, tile_size, scheduler, 
     Example:
       patchcloud don street.laz street_don.laz --rs 0.2 --rl 2.0 --report street_don.html
     """
-    from patchcloud.stream import don, report_don
+    from patchcloud.stream import don
 
-    input, output = options.input_and_output(paths, out_dir, report, overwrite)
-
+    run = options.run_options(run)
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
     asked = DonOptions(r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None)
-    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs)
     summary = don(input, output, asked, run)
-    options.finish_job(summary, quiet, report, report_don)
+    options.finish_job(summary, run.quiet, report, "report_don")

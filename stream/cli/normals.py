@@ -22,10 +22,7 @@ from . import options
 @options.catalog_options
 @options.report_option
 @options.reports_errors
-def normals_command(
-    paths, tile_size, criterion, threshold, orient, viewpoint, no_blend, scheduler, workers, store, keep_store, overwrite,
-    quiet, profile, out_dir, assume_crs, report,
-):
+def normals_command(paths, criterion, threshold, orient, viewpoint, no_blend, report, **run):
     """Normals and curvature of INPUT (LAS/LAZ/COPC, any size), written to OUTPUT.
 
     With --out-dir DIR every argument is an input (files, directories,
@@ -46,14 +43,13 @@ def normals_command(
       patchcloud normals city.laz city_normals.laz --report city_normals.html
       patchcloud normals tiles/ --out-dir tiles_normals/
     """
-    from patchcloud.stream import normals, report_normals
+    from patchcloud.stream import normals
 
-    input, output = options.input_and_output(paths, out_dir, report, overwrite)
-
+    run = options.run_options(run)
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
     asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend)
-    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs)
     summary = normals(input, output, asked, run)
-    options.finish_job(summary, quiet, report, report_normals)
+    options.finish_job(summary, run.quiet, report, "report_normals")
 
 
 normals_command.help = normals_command.help.replace("{methods}", Method.describe(long=True))

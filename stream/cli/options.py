@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError
 
-__all__ = ["paths_argument", "catalog_options", "input_and_output", "tile_size", "scheduler", "workers", "store", "keep_store", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -30,6 +30,11 @@ store = click.option(
 keep_store = click.option("--keep-store", is_flag=True, help="Keep the default store after success.")
 overwrite = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 quiet = click.option("--quiet", "-q", is_flag=True, help="No progress bars or summary.")
+in_memory = click.option(
+    "--in-memory/--on-disk", "in_memory", default=None,
+    help="Run in this process with the tiles in memory (no dask cluster, no store on disk; same results), or on a store. "
+    "Default: in memory for inputs of up to 2 million points when no --store, --keep-store or --scheduler is given.",
+)
 profile = click.option(
     "--profile", type=click.Path(dir_okay=False), default=None, metavar="PATH",
     help="Write the run's task stream there (JSON: each task's step, start, end and worker), e.g. for tools/bench_scale.py.",
@@ -45,12 +50,17 @@ report_option = click.option(
 paths_argument = click.argument("paths", nargs=-1, required=True, metavar="INPUT... [OUTPUT]", type=click.Path())
 
 
+out_dir = click.option(
+    "--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
+    help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), taken as one cloud; "
+    "each file's output goes to DIR under its name (.copc.laz becomes .laz).",
+)
+
+
 def catalog_options(func):
     """--out-dir and --assume-crs: the options of a job that takes a catalog of files."""
     for option in reversed([
-        click.option("--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
-                     help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), taken as one cloud; "
-                     "each file's output goes to DIR under its name (.copc.laz becomes .laz)."),
+        out_dir,
         click.option("--assume-crs", default=None, metavar="CRS",
                      help="With --out-dir: the CRS of files that have none (e.g. EPSG:2154); without it such a file among files "
                      "with a CRS is an error."),
@@ -61,12 +71,11 @@ def catalog_options(func):
 
 def input_and_output(paths: tuple[str, ...], out_dir: str | None, report: str | None, overwrite: bool):
     """The job function's ``input`` and ``output`` from the command's arguments (``IN OUT``, or inputs and ``--out-dir``),
-    after checking ``--report`` can be written (:func:`check_report`; not yet with ``--out-dir``)."""
-    from patchcloud.core import PatchcloudNotImplementedError, PatchcloudValueError
+    after checking ``--report`` can be written (:func:`check_report`)."""
+    from patchcloud.core import PatchcloudValueError
 
     if out_dir is not None:
-        if report is not None:
-            raise PatchcloudNotImplementedError("--report covers one file: a report of a catalog (--out-dir) is not built yet")
+        check_report(report, overwrite, *paths)
         return list(paths), None
     if len(paths) == 1:
         raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT file after it, or --out-dir DIR")
@@ -84,29 +93,32 @@ def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:
         check_report_path(report, overwrite=overwrite, others=job_files)
 
 
-def finish_job(summary, quiet: bool, report: str | None, write_report) -> None:
-    """After a job: print its summary (unless ``quiet``) and write its ``--report`` with ``write_report(summary, path)``."""
+def finish_job(summary, quiet: bool, report: str | None, write_report: str) -> None:
+    """After a job: print its summary (unless ``quiet``) and write its ``--report`` with ``write_report(summary, path)``,
+    the name of a function of :mod:`patchcloud.stream.views.report` (imported only then: matplotlib is slow to import)."""
     if not quiet:
         click.echo(summary.format())
     if report is not None:
-        write_report(summary, report)
+        from patchcloud.stream.views import report as reports
+
+        getattr(reports, write_report)(summary, report)
         if not quiet:
             click.echo(f"  report          {report}")
 
 
-def run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir=None, assume_crs=None):
-    """The :class:`patchcloud.stream.RunOptions` of the options :func:`job_options` (and :func:`catalog_options`) add
-    (``--keep-store`` absent: the default rule)."""
+def run_options(values: dict):
+    """The :class:`patchcloud.stream.RunOptions` of the options :func:`job_options` (and :func:`catalog_options`) add,
+    ``values`` by their names (a command's ``**run``; ``--keep-store`` absent: the default rule)."""
     from patchcloud.stream import RunOptions
 
-    return RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, store=store, keep_store=keep_store or None,
-                      overwrite=overwrite, quiet=quiet, profile=profile, out_dir=out_dir, assume_crs=assume_crs)
+    return RunOptions(**dict(values, keep_store=values.get("keep_store") or None))
 
 
 
 def job_options(func):
-    """The options every out-of-core job shares: --tile-size, --scheduler, --workers, --store, --keep-store, --overwrite, -q, --profile."""
-    for option in reversed([tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile]):
+    """The options every out-of-core job shares, named as the fields of RunOptions (a command takes them as ``**run``:
+    :func:`run_options`): --tile-size, --scheduler, --workers, --store, --keep-store, --in-memory, --overwrite, -q, --profile."""
+    for option in reversed([tile_size, scheduler, workers, store, keep_store, in_memory, overwrite, quiet, profile]):
         func = option(func)
     return func
 

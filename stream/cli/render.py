@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from patchcloud.core import PatchcloudValueError
@@ -14,8 +16,7 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
 
 
 @click.command("render")
-@click.argument("input", type=click.Path(dir_okay=False))
-@click.argument("output", type=click.Path(dir_okay=False))
+@options.paths_argument
 @click.option("--color", "--colour", "color", type=click.Choice(_MODES), required=True,
               help="What the colours show: normals (RGB = (n+1)/2), curvature, don (|DoN|), segments (ClusterID), "
               "patches (PatchId, boundaries darkened), classification (ASPRS colours), intensity, elevation.")
@@ -35,29 +36,57 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
 @click.option("--heights", type=click.Choice(["robust", "all"]), default="robust", show_default=True,
               help="robust: frame the heights of a sample of the file, so noise far above or below (birds, low "
               "returns) does not squash the picture; all: frame the header's bounds.")
+@options.catalog_options
 @options.quiet
 @options.reports_errors
-def render_command(input, output, color, view, bbox, width, shade, value_range, fill, heights, quiet):
-    """A PNG picture of INPUT (LAS/LAZ, any size) in OUTPUT.
+def render_command(paths, color, view, bbox, width, shade, value_range, fill, heights, out_dir, assume_crs, quiet):
+    """A PNG picture of INPUT (LAS/LAZ/COPC, any size) in OUTPUT.
 
-    The file is read in chunks and decimated to the point nearest the viewer
-    in every pixel, so memory depends on the image, not the file.  An
-    existing OUTPUT is replaced.
+    Several inputs (files, directories, quoted globs) before OUTPUT are
+    drawn as one cloud in one picture, a map of the catalog; with --out-dir
+    DIR every argument is an input and each file gets its own picture,
+    DIR/NAME.png.
+
+    The files are read in chunks and decimated to the point nearest the
+    viewer in every pixel, so memory depends on the image, not the files.
+    An existing OUTPUT is replaced.
 
     \b
     Example:
       patchcloud render city_normals.laz city.png --color normals
       patchcloud render city_segments.laz seg.png --color segments --view oblique --width 2400
       patchcloud render city.laz z.png --color elevation --bbox 650000 6860000 650100 6860100
+      patchcloud render tiles/ catalog.png --color elevation
+      patchcloud render tiles_normals/ --out-dir pictures/ --color normals
     """
-    from patchcloud.stream.views.render import render
+    from patchcloud.core import PatchcloudIOError
+    from patchcloud.stream.io.catalog import expand_inputs, output_paths
+    from patchcloud.stream.views.render import check_modes, input_sources, render
 
     if width is not None and width < 1:
         raise PatchcloudValueError(f"--width must be a positive number of pixels; got {width}")
-    s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
-               heights=heights)
-    if not quiet:
-        click.echo(s.format())
+    if out_dir is None:
+        if len(paths) < 2:
+            raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT picture after it, or --out-dir DIR")
+        jobs = [(list(paths[:-1]) if len(paths) > 2 else paths[0], paths[-1])]
+    else:
+        inputs = expand_inputs(list(paths))
+        pngs = [p.with_suffix(".png") for p in output_paths(inputs, out_dir, list(paths))]
+        for k, png in enumerate(pngs):
+            if png in pngs[:k]:
+                raise PatchcloudValueError(f"{inputs[pngs.index(png)]} and {inputs[k]}: two inputs would draw the same picture {png}")
+        jobs = list(zip(inputs, pngs))
+    for input, _ in jobs:  # every input checked before any picture is drawn
+        check_modes(input_sources(input, assume_crs)[0], [color], shade)
+    if out_dir is not None:
+        if not Path(out_dir).parent.is_dir():
+            raise PatchcloudIOError(f"{out_dir}: the directory {Path(out_dir).parent} does not exist")
+        Path(out_dir).mkdir(exist_ok=True)
+    for input, output in jobs:
+        s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
+                   heights=heights, assume_crs=assume_crs)
+        if not quiet:
+            click.echo(s.format())
 
 
 @click.command("render-tiles")

@@ -24,8 +24,7 @@ from . import options
 @options.report_option
 @options.reports_errors
 def segment_command(
-    paths, r_small, r_large, mode, viewpoint, threshold, axis, axis_threshold, tolerance, min_points, max_points,
-    tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs, report,
+    paths, r_small, r_large, mode, viewpoint, threshold, axis, axis_threshold, tolerance, min_points, max_points, report, **run,
 ):
     """DoN segments of INPUT (LAS/LAZ/COPC, any size), written to OUTPUT.
 
@@ -44,14 +43,14 @@ def segment_command(
     Example:
       patchcloud segment street.laz segments.laz --rs 0.2 --rl 2.0 --threshold 0.25 --tolerance 0.2 --min-points 50
     """
-    from patchcloud.stream import report_don, segment
+    from patchcloud.stream import segment
 
-    input, output = options.input_and_output(paths, out_dir, report, overwrite)
+    run = options.run_options(run)
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
 
     asked = SegmentOptions(
         r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, threshold=threshold, tolerance=tolerance,
         min_cluster=min_points, max_cluster=max_points, axis=axis, axis_threshold=axis_threshold,
     )
-    run = options.run_options(tile_size, scheduler, workers, store, keep_store, overwrite, quiet, profile, out_dir, assume_crs)
     summary = segment(input, output, asked, run)
-    options.finish_job(summary, quiet, report, report_don)
+    options.finish_job(summary, run.quiet, report, "report_don")

@@ -43,7 +43,7 @@ import dataclasses
 import hashlib
 import json
 import os
-import shutil
+import uuid
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -59,12 +59,16 @@ from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.catalog import Catalog, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import LasSource, check_las_output, check_writable, open_source
 from patchcloud.stream.io.las_output import LAZ_CHUNK
+from patchcloud.stream.io import memory_group
 from patchcloud.stream.io.store import Store
 
 __all__ = [
-    "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
+    "IN_MEMORY_POINTS", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
     "time_and_memory_lines", "file_lines",
 ]
+
+#: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): peak memory about 0.8 GB.
+IN_MEMORY_POINTS = 2_000_000
 
 
 @dataclass(frozen=True)
@@ -114,6 +118,14 @@ class RunOptions:
         In a catalog, the CRS of the files that have none (``"EPSG:2154"``,
         WKT: what pyproj takes); without it a file without a CRS among
         files with one is an error.
+    in_memory : bool, optional
+        Run in this process, the tiles held in memory: no dask cluster, no
+        store on disk, the kernels on every core; the same tiles and the
+        same results, byte for byte, as a run on a store.  Default (None):
+        for inputs of at most :data:`IN_MEMORY_POINTS` points when neither
+        ``store``, ``keep_store`` nor a ``scheduler`` other than "auto" is
+        given.  True: whatever the size (memory then grows with it: about
+        0.4 kB per point at the peak); False: never.
     """
 
     tile_size: float | None = None
@@ -127,6 +139,7 @@ class RunOptions:
     chunk: int | None = None
     out_dir: str | None = None
     assume_crs: str | None = None
+    in_memory: bool | None = None
 
     def __post_init__(self) -> None:
         check_tile_size(self.tile_size)
@@ -138,6 +151,23 @@ class RunOptions:
             raise PatchcloudValueError(f"chunk must be a positive multiple of {LAZ_CHUNK:,} points, got {self.chunk!r}")
         if not isinstance(self.scheduler, str) or not self.scheduler:
             raise PatchcloudValueError(f"scheduler must be a name or an address, got {self.scheduler!r}")
+        if self.in_memory not in (None, True, False):
+            raise PatchcloudValueError(f"in_memory must be True, False or None (by the input's size), got {self.in_memory!r}")
+        if self.in_memory:
+            if self.store is not None or self.keep_store:
+                raise PatchcloudValueError("in_memory runs keep no store: leave out store and keep_store, or in_memory")
+            if self.scheduler not in ("auto", "synchronous"):
+                raise PatchcloudValueError(f"in_memory runs inline, on no scheduler: leave out scheduler ({self.scheduler!r}), or in_memory")
+
+    def runs_in_memory(self, points: int) -> bool:
+        """Whether a run on an input of ``points`` points runs in memory (see ``in_memory``).
+
+        >>> RunOptions().runs_in_memory(60_000), RunOptions().runs_in_memory(10**8), RunOptions(scheduler="threads").runs_in_memory(60_000)
+        (True, False, False)
+        """
+        if self.in_memory is not None:
+            return self.in_memory
+        return points <= IN_MEMORY_POINTS and self.store is None and not self.keep_store and self.scheduler == "auto"
 
 
 def split_options(kwargs: dict, options, kind: type, run: RunOptions | None) -> tuple[Any, RunOptions]:
@@ -193,7 +223,8 @@ def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: i
     return [
         "  time            " + ", ".join(f"{s} {t:.1f} s" for s, t in seconds.items())
         + f"; total {total:.1f} s ({points / max(total, 1e-9):,.0f} points/s)",
-        f"  peak memory     {peak_memory / 2**20:,.0f} MiB (all processes, scheduler {scheduler})",
+        f"  peak memory     {peak_memory / 2**20:,.0f} MiB "
+        + ("(one process, in memory)" if scheduler == "in memory" else f"(all processes, scheduler {scheduler})"),
     ]
 
 
@@ -241,6 +272,11 @@ class JobContext:
             self.catalog = Catalog.of(self.source)
         if not self.outputs:
             self.outputs = [self.output]
+
+    @property
+    def scheduler(self) -> str:
+        """How the run ran, as summaries name it: the scheduler, or "in memory"."""
+        return "in memory" if memory_group.is_memory_url(self.store.url) else self.runner.scheduler
 
     @property
     def input_name(self) -> str:
@@ -346,8 +382,22 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
         are not one cloud (CRSs, grids).
     """
     catalog, outs, out, default_store = _inputs_and_outputs(job, input, output, run)
+    if run.runs_in_memory(catalog.point_count):
+        url = f"{memory_group.PREFIX}{uuid.uuid4().hex}"
+        try:
+            return _run(job, catalog, outs, out, url, False, dataclasses.replace(run, scheduler="synchronous"))
+        finally:
+            Store.discard(url)
     url = run.store or default_store
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
+    summary = _run(job, catalog, outs, out, url, keep, run)
+    if not keep:
+        Store.discard(url)
+    return summary
+
+
+def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep: bool, run: RunOptions) -> Any:
+    """Tile, run the steps, write the outputs: run_job once what is read and written is checked and the store chosen."""
     started = time.time()
     with Runner(run.scheduler, run.workers, quiet=run.quiet, points=catalog.point_count) as runner:
         store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk)
@@ -365,6 +415,4 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
         summary = job.summarise(ctx)
         if run.profile:
             write_profile(run.profile, runner, ctx.seconds, started, runner.ready_at, time.time())
-    if not keep and "://" not in url:
-        shutil.rmtree(url, ignore_errors=True)
     return summary

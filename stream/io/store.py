@@ -1,6 +1,8 @@
 """The zarr store that holds a cloud cut into tiles, and what has been computed on them.
 
-Layout (zarr format 3; a local path or any fsspec URL the workers can reach)::
+Layout (zarr format 3; a local path or any fsspec URL the workers can reach;
+or ``memory://NAME``, a store in this process's memory for inline runs:
+:mod:`.memory_group`)::
 
     store/                       attrs: format, version, catalog (the input files), source (the first), grid, steps done
       index/chunk_tile           (K, 3) int64: input chunk, tile, points of the chunk in the tile
@@ -25,15 +27,14 @@ are stored; the float64 local frame is ``X * scale + offset - origin``.
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass
 
 import numpy as np
-import zarr
-from zarr.core.buffer import default_buffer_prototype
-from zarr.core.sync import sync
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, PatchTable
 
+from . import memory_group
 from .catalog import Catalog
 
 __all__ = ["Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name"]
@@ -120,8 +121,15 @@ def array_to_table(a: np.ndarray, corner: np.ndarray, edge: float) -> PatchTable
     )
 
 
+def _zarr():
+    """zarr, imported on first use: runs in memory never import it."""
+    import zarr
+
+    return zarr
+
+
 class Store:
-    """A tiled cloud in a zarr group.
+    """A tiled cloud in a zarr group (or a :class:`~.memory_group.MemoryGroup` for ``memory://`` URLs).
 
     Examples
     --------
@@ -134,18 +142,21 @@ class Store:
     #: Points per zarr chunk of per-point arrays.
     CHUNK = 1 << 16
 
-    def __init__(self, group: zarr.Group, url: str):
+    def __init__(self, group, url: str):
         self.group = group
         self.url = url
         self._attrs: dict | None = None
-        self._groups: dict[str, zarr.Group] = {}
+        self._groups: dict = {}
 
     # -- opening -----------------------------------------------------------
     @classmethod
     def create(cls, url: str, overwrite: bool = False) -> "Store":
         """A new, empty store at ``url`` (replacing what is there when ``overwrite``)."""
         try:
-            g = zarr.open_group(url, mode="w" if overwrite else "w-")
+            if memory_group.is_memory_url(url):
+                g = memory_group.create(url, overwrite)
+            else:
+                g = _zarr().open_group(url, mode="w" if overwrite else "w-")
         except Exception as exc:
             raise PatchcloudIOError(f"{url}: cannot create a store there ({exc})") from exc
         g.attrs.update(format=FORMAT, version=VERSION, steps={})
@@ -155,7 +166,7 @@ class Store:
     def open(cls, url: str, mode: str = "r+") -> "Store":
         """An existing store; a clear error when ``url`` is not one or is of another version."""
         try:
-            g = zarr.open_group(url, mode=mode)
+            g = memory_group.open_group(url) if memory_group.is_memory_url(url) else _zarr().open_group(url, mode=mode)
         except Exception as exc:
             raise PatchcloudIOError(f"{url}: not a patchcloud store ({exc})") from exc
         a = dict(g.attrs)
@@ -167,11 +178,21 @@ class Store:
 
     @classmethod
     def exists(cls, url: str) -> bool:
+        if memory_group.is_memory_url(url):
+            return memory_group.exists(url)
         try:
-            g = zarr.open_group(url, mode="r")
+            g = _zarr().open_group(url, mode="r")
         except Exception:
             return False
         return dict(g.attrs).get("format") == FORMAT
+
+    @classmethod
+    def discard(cls, url: str) -> None:
+        """Remove the store at ``url``: an in-memory one, or a local directory (an fsspec URL is left as it is)."""
+        if memory_group.is_memory_url(url):
+            memory_group.drop(url)
+        elif "://" not in url:
+            shutil.rmtree(url, ignore_errors=True)
 
     # -- global state --------------------------------------------------------
     @property
@@ -216,7 +237,7 @@ class Store:
         self.update(steps=steps)
 
     # -- tiles ---------------------------------------------------------------
-    def tile(self, ijk) -> zarr.Group:
+    def tile(self, ijk):
         name = tile_name(ijk)
         g = self._groups.get(name)
         if g is None:
@@ -332,17 +353,35 @@ class Store:
     def put_blob(self, key: str, values: np.ndarray) -> None:
         """Write ``values`` (any shape, kept as flat float64) under ``key``: one store write, for the many small arrays of a pass."""
         data = np.ascontiguousarray(values, dtype="<f8").tobytes()
+        if isinstance(self.group, memory_group.MemoryGroup):
+            self.group.blobs[key] = data
+            return
+        from zarr.core.buffer import default_buffer_prototype
+        from zarr.core.sync import sync
+
         sync((self.group.store_path / key).set(default_buffer_prototype().buffer.from_bytes(data)))
 
     def get_blob(self, key: str) -> np.ndarray:
         """The flat float64 array written under ``key`` by :meth:`put_blob`."""
-        buf = sync((self.group.store_path / key).get(prototype=default_buffer_prototype()))
-        if buf is None:
+        if isinstance(self.group, memory_group.MemoryGroup):
+            data = self.group.blobs.get(key)
+        else:
+            from zarr.core.buffer import default_buffer_prototype
+            from zarr.core.sync import sync
+
+            buf = sync((self.group.store_path / key).get(prototype=default_buffer_prototype()))
+            data = None if buf is None else buf.to_bytes()
+        if data is None:
             raise PatchcloudValueError(f"{self.url}: no blob {key!r} (step not run?)")
-        return np.frombuffer(buf.to_bytes(), dtype="<f8").astype(np.float64)
+        return np.frombuffer(data, dtype="<f8").astype(np.float64)
 
     def remove_blobs(self, prefix: str) -> None:
         """Remove every blob (and array) whose key starts with ``prefix/``."""
+        if isinstance(self.group, memory_group.MemoryGroup):
+            self.group.delete_prefix(prefix)
+            return
+        from zarr.core.sync import sync
+
         sync((self.group.store_path / prefix).delete_dir())
 
     def patch_table(self, ijk) -> PatchTable:

@@ -18,20 +18,23 @@ store made by ``normals``, ``don`` or ``segment`` is reused):
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import laspy
 import numpy as np
 
-from patchcloud.core import CompressOptions, PatchModels, QuantisedModels, fit_models, quantise_models
+from patchcloud.core import CompressOptions, PatchcloudIOError, PatchcloudValueError, PatchModels, QuantisedModels, fit_models, quantise_models
 from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
 from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
 from patchcloud.stream.io import pcz
-from patchcloud.stream.io.las import LasSource
+from patchcloud.stream.io.catalog import expand_inputs, output_paths
+from patchcloud.stream.io.las import LasSource, check_writable, open_source
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "CompressJob", "CompressSummary", "compress_tile"]
+__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -149,7 +152,7 @@ class CompressJob(Job):
     """The steps of ``compress`` on the scaffold; its write packs the ``.pcz``."""
 
     write_step = "pack"
-    catalogs = False  # one .pcz per file of a catalog: not built yet
+    catalogs = False  # a catalog is compressed file by file: compress_catalog
 
     def __init__(self, options: CompressOptions) -> None:
         self.options = options
@@ -198,21 +201,23 @@ class CompressJob(Job):
             cells=counts["cells"], residual=counts["residual"], max_error=self.options.max_error,
             input_bytes=ctx.source.size, output_bytes=ctx.output.stat().st_size,
             mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=ctx.seconds,
-            peak_memory=ctx.peak_memory, scheduler=ctx.runner.scheduler,
+            peak_memory=ctx.peak_memory, scheduler=ctx.scheduler,
         )
 
 
 def compress(
     input, output: str | os.PathLike | None = None, options: CompressOptions | None = None, run: RunOptions | None = None,
     **kwargs,
-) -> CompressSummary:
+) -> CompressSummary | list[CompressSummary]:
     """Compress a LAS/LAZ file of any size to a ``.pcz`` of quadric patch models and residual points.
 
     Parameters
     ----------
     input : path
-        LAS, LAZ or COPC (one file: a catalog of several, with ``out_dir``,
-        raises PatchcloudNotImplementedError).
+        LAS, LAZ or COPC.  A catalog: ``input`` several paths, a directory
+        or a glob, ``output`` None and ``out_dir`` given: each file is
+        compressed on its own to ``out_dir``/NAME.pcz
+        (:func:`compress_catalog`), and the result is a list of summaries.
     output : path
         The ``.pcz`` (see :mod:`patchcloud.stream.io.pcz`).
     options : CompressOptions, optional
@@ -229,7 +234,7 @@ def compress(
 
     Returns
     -------
-    CompressSummary
+    CompressSummary, or a list of them (a catalog)
 
     Examples
     --------
@@ -238,4 +243,32 @@ def compress(
     (60653, True, True)
     """
     options, run = split_options(kwargs, options, CompressOptions, run)
+    if run.out_dir is not None:
+        if output is not None:
+            raise PatchcloudValueError(f"{output}: with out_dir (--out-dir) every argument is an input; the outputs go to {run.out_dir}")
+        return compress_catalog(input, options, run)
     return run_job(CompressJob(options), input, output, run)
+
+
+def compress_catalog(inputs, options: CompressOptions, run: RunOptions) -> list[CompressSummary]:
+    """Compress every file ``inputs`` name (paths, directories, globs) to ``run.out_dir``/NAME.pcz, file by file.
+
+    Each ``.pcz`` is that of the file compressed alone (patches do not
+    cross files, so each decompresses to its own file's points); every
+    input and output is checked before the first is written.
+    """
+    paths = expand_inputs(inputs)
+    outs = [o.with_suffix(".pcz") for o in output_paths(paths, run.out_dir, inputs)]
+    for k, o in enumerate(outs):
+        if o in outs[:k]:
+            raise PatchcloudValueError(f"{paths[outs.index(o)]} and {paths[k]}: two inputs would write the same output {o}")
+    for p in paths:
+        open_source(p)
+    out_dir = Path(run.out_dir)
+    if not out_dir.parent.is_dir():
+        raise PatchcloudIOError(f"{out_dir}: the directory {out_dir.parent} does not exist")
+    if out_dir.exists():
+        outs = [check_writable(o, run.overwrite) for o in outs]
+    out_dir.mkdir(exist_ok=True)
+    one = dataclasses.replace(run, out_dir=None)
+    return [run_job(CompressJob(options), p, o, one) for p, o in zip(paths, outs)]

@@ -174,7 +174,7 @@ class DonJob(Job):
             input=ctx.input_name, output=str(ctx.output), points=ctx.catalog.point_count, tiles=len(ctx.store.tiles),
             tile_size=ctx.store.grid.tile_size, parameters={k: self.params[k] for k in self.params if not k.endswith("_key")},
             defined=sum(i["defined"] for i in v), histogram=np.sum([i["hist"] for i in v], axis=0).astype(int).tolist() if v else [],
-            seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.runner.scheduler, store=ctx.kept_store, files=ctx.files,
+            seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.scheduler, store=ctx.kept_store, files=ctx.files,
         )
 
 

@@ -182,7 +182,7 @@ class NormalsJob(Job):
             tile_size=st.grid.tile_size,
             patches_by_kind={k.name.lower(): int(kinds[k]) for k in PatchKind},
             normals_by_method={m.name.lower(): int(methods[m]) for m in Method},
-            parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.runner.scheduler,
+            parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.scheduler,
             store=ctx.kept_store, files=ctx.files,
         )
 

@@ -51,6 +51,7 @@ import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
+from patchcloud.stream.io.catalog import open_catalog
 from patchcloud.stream.io.las import LasSource, laz_backend, open_source, read_chunks
 
 __all__ = [
@@ -633,7 +634,7 @@ class RenderSummary:
     def format(self) -> str:
         rng = "" if self.value_range is None else f", colour range {self.value_range[0]:.4g} .. {self.value_range[1]:.4g}"
         return (
-            f"{self.output}: {self.width} x {self.height} px, {self.color}, {self.view} view{', shaded' if self.shaded else ''}{rng}\n"
+            f"{self.input} -> {self.output}: {self.width} x {self.height} px, {self.color}, {self.view} view{', shaded' if self.shaded else ''}{rng}\n"
             f"{self.points_read:,} points read, {self.points_in_box:,} in the frame, {self.points_drawn:,} drawn "
             f"(one per pixel), {self.pixels_filled:,} pixels filled, {self.seconds:.1f} s"
         )
@@ -720,14 +721,17 @@ def auto_fill(shape: tuple[int, int], points: int) -> int:
 
 
 def render_array(
-    input: str | os.PathLike, *, color: str, view: str | None = None, bbox=None, width: int = 1600,
+    input, *, color: str, view: str | None = None, bbox=None, width: int = 1600,
     shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust", chunk: int = 1 << 20,
+    assume_crs: str | None = None,
 ) -> RenderImage:
-    """The picture of a LAS/LAZ file of any size as an RGB array, read out of core.
+    """The picture of a LAS/LAZ file of any size, or of a catalog of them, as an RGB array, read out of core.
 
     Parameters
     ----------
-    input : path of a LAS/LAZ file.
+    input : path of a LAS/LAZ/COPC file, or a catalog: several paths, a
+        directory, a glob (:func:`patchcloud.stream.io.catalog.expand_inputs`),
+        drawn as one cloud in one frame (the files must be in one CRS).
     color : {"normals", "curvature", "don", "segments", "patches", "classification", "intensity", "elevation"}
         What the colour shows; the file must have the dimension(s) of the
         mode (see :data:`COLOR_MODES`).
@@ -760,6 +764,8 @@ def render_array(
         outside the picture.  "all": the header's bounds.
     chunk : int
         Points read at a time (the result does not depend on it).
+    assume_crs : str, optional
+        In a catalog, the CRS of files without one (as ``RunOptions.assume_crs``).
 
     Returns
     -------
@@ -782,14 +788,50 @@ def render_array(
     (60653, True, False)
     """
     return render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range,
-                         fill=fill, heights=heights, chunk=chunk)[0]
+                         fill=fill, heights=heights, chunk=chunk, assume_crs=assume_crs)[0]
+
+
+def input_sources(input, assume_crs: str | None = None) -> tuple[list[LasSource], str]:
+    """The files a picture shows, and how it names them: one file, or a catalog (several paths, a directory, a glob).
+
+    The files of a catalog must be one cloud in one CRS (see
+    :func:`patchcloud.stream.io.catalog.open_catalog`, and its ``assume_crs``).
+    """
+    if isinstance(input, (str, os.PathLike)) and Path(input).is_file():
+        return [open_source(input)], str(input)
+    cat = open_catalog(input, assume_crs)
+    return list(cat.sources), cat.path
+
+
+def check_modes(sources: Sequence[LasSource], colors: Sequence[str], shade: bool | None) -> bool:
+    """Check every file has the dimensions of the colour modes (and the normals, to ``shade``); return whether to shade
+    (``shade`` None: when every file has the normals)."""
+    has_normals = True
+    for src in sources:
+        dims = file_dimensions(src.path)
+        for color in colors:
+            missing = [d for d in COLOR_MODES[color] if d not in dims]
+            if missing:
+                raise PatchcloudValueError(
+                    f"{src.path}: colour mode '{color}' needs the dimension{'s' if len(missing) > 1 else ''} {', '.join(missing)}, "
+                    f"which the file does not have; this file supports: {', '.join(supported_modes(dims))}"
+                )
+        if not all(d in dims for d in NORMAL_DIMS):
+            has_normals = False
+            if shade:
+                raise PatchcloudValueError(
+                    f"{src.path}: shading needs the normals (NormalX, NormalY, NormalZ), which the file does not have; "
+                    f"run patchcloud normals first, or render without shading"
+                )
+    return has_normals if shade is None else bool(shade)
 
 
 def render_arrays(
-    input: str | os.PathLike, *, colors: Sequence[str], view: str | None = None, bbox=None, width: int = 1600,
+    input, *, colors: Sequence[str], view: str | None = None, bbox=None, width: int = 1600,
     shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust", chunk: int = 1 << 20,
+    assume_crs: str | None = None,
 ) -> list[RenderImage]:
-    """Pictures of one file in several colour modes, from one read of the file (see :func:`render_array`).
+    """Pictures of one file, or of a catalog as one cloud, in several colour modes, from one read (see :func:`render_array`).
 
     The pixels, the points drawn in them and the shading are the same in
     every picture (they depend on the view, not on the colour); each pixel
@@ -824,32 +866,18 @@ def render_arrays(
     if heights not in HEIGHTS:
         raise PatchcloudValueError(f"heights must be one of {', '.join(HEIGHTS)}; got {heights!r}")
     bbox = _check_bbox(bbox)
-    src: LasSource = open_source(input)
-    dims = file_dimensions(input)
-    for color in colors:
-        missing = [d for d in COLOR_MODES[color] if d not in dims]
-        if missing:
-            raise PatchcloudValueError(
-                f"{input}: colour mode '{color}' needs the dimension{'s' if len(missing) > 1 else ''} {', '.join(missing)}, "
-                f"which the file does not have; this file supports: {', '.join(supported_modes(dims))}"
-            )
-    has_normals = all(d in dims for d in NORMAL_DIMS)
-    if shade is None:
-        shade = has_normals
-    elif shade and not has_normals:
-        raise PatchcloudValueError(
-            f"{input}: shading needs the normals (NormalX, NormalY, NormalZ), which the file does not have; "
-            f"run patchcloud normals first, or render without shading"
-        )
+    sources, name = input_sources(input, assume_crs)
+    shade = check_modes(sources, colors, shade)
 
-    origin = np.asarray(src.mins, dtype=np.float64)
+    origin = np.min([s.mins for s in sources], axis=0).astype(np.float64)
     lo = np.zeros(3)
-    hi = np.asarray(src.maxs, dtype=np.float64) - origin
+    hi = np.max([s.maxs for s in sources], axis=0).astype(np.float64) - origin
     if bbox is not None:
         lo[:2] = np.asarray(bbox[:2]) - origin[:2]
         hi[:2] = np.asarray(bbox[2:]) - origin[:2]
     if heights == "robust":
-        lo[2], hi[2] = (h - origin[2] for h in robust_heights(src))
+        low, high = zip(*(robust_heights(s) for s in sources))
+        lo[2], hi[2] = min(low) - origin[2], max(high) - origin[2]
     if view is None:
         view = choose_view(lo, hi)
     R = view_axes(view, lo, hi)
@@ -865,7 +893,9 @@ def render_arrays(
             value_dims.append(d)
     zb = ZBuffer(frame.height, frame.width, nval + len(value_dims))
     in_box = 0
-    for start, pts in read_chunks(src, int(chunk)):
+    firsts = np.cumsum([0] + [s.point_count for s in sources])  # a point's index: its place in the catalog (ties: the first)
+    chunks = ((int(first) + start, pts) for src, first in zip(sources, firsts) for start, pts in read_chunks(src, int(chunk)))
+    for start, pts in chunks:
         x = np.asarray(pts.x, dtype=np.float64) - origin[0]
         y = np.asarray(pts.y, dtype=np.float64) - origin[1]
         z = np.asarray(pts.z, dtype=np.float64) - origin[2]
@@ -920,8 +950,8 @@ def render_arrays(
         if brightness is not None:
             rgb[filled] *= brightness[filled][:, None]
         images.append(RenderImage(
-            source=str(input), color=color, view=view, shaded=bool(shade), rgb=rgb, filled=filled, value=value,
-            extent=extent, pixel=frame.pixel, axes=R, point_count=src.point_count, points_in_box=in_box,
+            source=name, color=color, view=view, shaded=bool(shade), rgb=rgb, filled=filled, value=value,
+            extent=extent, pixel=frame.pixel, axes=R, point_count=int(firsts[-1]), points_in_box=in_box,
             points_drawn=points_drawn, value_range=rng, legend=legend, bbox=bbox, fill=int(fill),
             seconds=time.perf_counter() - t0,
         ))
@@ -981,11 +1011,12 @@ def render_figure(img: RenderImage):
 
 
 def render(
-    input: str | os.PathLike, output: str | os.PathLike, *, color: str, view: str | None = None, bbox=None,
+    input, output: str | os.PathLike, *, color: str, view: str | None = None, bbox=None,
     width: int = 1600, shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust",
-    chunk: int = 1 << 20,
+    chunk: int = 1 << 20, assume_crs: str | None = None,
 ) -> RenderSummary:
-    """Write a PNG picture of a LAS/LAZ file of any size (out of core; see :func:`render_array` for the options).
+    """Write a PNG picture of a LAS/LAZ file of any size, or of a catalog of files in one frame
+    (out of core; see :func:`render_array` for the options).
 
     The PNG is written atomically (an existing file is replaced).
 
@@ -1010,11 +1041,11 @@ def render(
     t0 = time.perf_counter()
     out = check_png_path(output)
     img = render_array(input, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
-                       heights=heights, chunk=chunk)
+                       heights=heights, chunk=chunk, assume_crs=assume_crs)
     save_png(render_figure(img), out)
     H, W = img.filled.shape
     return RenderSummary(
-        input=str(input), output=str(out), color=color, view=img.view, shaded=img.shaded, width=W, height=H,
+        input=img.source, output=str(out), color=color, view=img.view, shaded=img.shaded, width=W, height=H,
         points_read=img.point_count, points_in_box=img.points_in_box, points_drawn=img.points_drawn,
         pixels_filled=img.pixels_filled, value_range=img.value_range, seconds=time.perf_counter() - t0,
     )

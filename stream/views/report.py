@@ -323,6 +323,28 @@ def _value(v) -> str:
     return str(v)
 
 
+def run_files(summary) -> tuple[list[str], list[str]]:
+    """The inputs and outputs of a run: one each, or a catalog's files (``summary.files``: (input, output, points))."""
+    files = getattr(summary, "files", None) or []
+    if len(files) > 1:
+        return [i for i, _, _ in files], [o for _, o, _ in files]
+    return [summary.input], [summary.output]
+
+
+def file_rows(summary) -> list[tuple[str, str]]:
+    """One summary row per file of a catalog run (none for one file).
+
+    >>> from patchcloud.stream import NormalsSummary
+    >>> s = NormalsSummary("a/t1.las and 1 more file", "o", 3, 1, 8.0, {}, {}, {}, files=[("a/t1.las", "o/t1.las", 2), ("a/t2.las", "o/t2.las", 1)])
+    >>> file_rows(s)
+    [('files', '2'), ('file: t1.las', '2 points -> o/t1.las'), ('file: t2.las', '1 points -> o/t2.las')]
+    """
+    files = getattr(summary, "files", None) or []
+    if len(files) < 2:
+        return []
+    return [("files", _n(len(files)))] + [(f"file: {Path(i).name}", f"{_n(n)} points -> {o}") for i, o, n in files]
+
+
 def _job_rows(seconds: dict[str, float], points: int, peak_memory: int, scheduler: str | None, store: str | None) -> list[tuple[str, str]]:
     total = sum(seconds.values())
     rows = [(f"time: {step}", f"{t:.2f} s") for step, t in seconds.items()]
@@ -352,7 +374,7 @@ def normals_rows(summary: "NormalsSummary") -> list[tuple[str, str]]:
     ]
     rows += [(f"normals: {name}", _share(v, s.points)) for name, v in m.items()]
     rows += [(f"parameter: {name}", _value(v)) for name, v in s.parameters.items()]
-    return rows + _job_rows(s.seconds, s.points, s.peak_memory, s.scheduler, s.store)
+    return rows + _job_rows(s.seconds, s.points, s.peak_memory, s.scheduler, s.store) + file_rows(s)
 
 
 def don_rows(summary: "DonSummary") -> list[tuple[str, str]]:
@@ -368,7 +390,7 @@ def don_rows(summary: "DonSummary") -> list[tuple[str, str]]:
     if s.segments is not None:
         rows.append(("segments", _n(s.segments)))
     rows += [(f"parameter: {name}", _value(v)) for name, v in s.parameters.items()]
-    return rows + _job_rows(s.seconds, s.points, s.peak_memory, s.scheduler, s.store)
+    return rows + _job_rows(s.seconds, s.points, s.peak_memory, s.scheduler, s.store) + file_rows(s)
 
 
 def compress_rows(summary: "CompressSummary") -> list[tuple[str, str]]:
@@ -516,6 +538,20 @@ def normal_statistics(
     return NormalStatistics(Histogram(curv_edges, curv), angles, reference, mean)
 
 
+def merge_statistics(parts: Sequence[NormalStatistics]) -> NormalStatistics:
+    """The statistics of a catalog from those of its files (same bins): counts added, the mean angle weighted by them."""
+    first = parts[0]
+    curv = Histogram(first.curvature.edges, np.sum([p.curvature.counts for p in parts], axis=0))
+    with_angles = [p for p in parts if p.angles is not None]
+    if not with_angles:
+        return NormalStatistics(curv, None, first.reference, float("nan"))
+    angles = Histogram(with_angles[0].angles.edges, np.sum([p.angles.counts for p in with_angles], axis=0))
+    total = sum(p.angles.total for p in with_angles if p.angles.total)
+    mean = sum(p.mean_angle * p.angles.total for p in with_angles if p.angles.total) / total if total else float("nan")
+    reference = with_angles[0].reference if len(with_angles) == len(parts) else f"{with_angles[0].reference} ({len(with_angles)} of {len(parts)} files)"
+    return NormalStatistics(curv, angles, reference, mean)
+
+
 def don_histogram(summary: "DonSummary") -> Histogram:
     """The DoN magnitude histogram of a run (its own bins over [0, 1], from :attr:`DonSummary.histogram`).
 
@@ -530,8 +566,8 @@ def don_histogram(summary: "DonSummary") -> Histogram:
     return Histogram(np.linspace(0.0, 1.0, counts.size + 1), counts)
 
 
-def segment_sizes(output: str | os.PathLike, *, chunk: int = 1 << 20) -> np.ndarray:
-    """Points of each segment of a ``segment`` output (``ClusterID`` 1, 2, ...), read in chunks.
+def segment_sizes(output, *, chunk: int = 1 << 20) -> np.ndarray:
+    """Points of each segment of a ``segment`` output, or of a catalog's outputs (a list: ids span the files), read in chunks.
 
     Memory: one integer per segment, none per point.
 
@@ -540,11 +576,12 @@ def segment_sizes(output: str | os.PathLike, *, chunk: int = 1 << 20) -> np.ndar
     (S,) int64
         ``sizes[i]`` points carry ClusterID ``i + 1``.
     """
-    src = open_source(output)
-    if "ClusterID" not in _dims(src.path):
-        raise PatchcloudIOError(f"{src.path}: no ClusterID (not a patchcloud segment output)")
+    sources = [open_source(p) for p in ([output] if isinstance(output, (str, os.PathLike)) else output)]
+    for src in sources:
+        if "ClusterID" not in _dims(src.path):
+            raise PatchcloudIOError(f"{src.path}: no ClusterID (not a patchcloud segment output)")
     sizes = np.zeros(0, dtype=np.int64)
-    for _, rec in read_chunks(src, chunk):
+    for _, rec in (c for src in sources for c in read_chunks(src, chunk)):
         ids = np.asarray(rec["ClusterID"], dtype=np.int64)
         b = np.bincount(ids)
         if b.size > sizes.size:
@@ -677,8 +714,9 @@ def segment_size_histogram(sizes: np.ndarray) -> Histogram:
 # --------------------------------------------------------------------------------------------------------------------
 # Views (patchcloud.stream.views.render)
 # --------------------------------------------------------------------------------------------------------------------
-def _views(path: str, colours: Sequence[tuple[str, str]], width: int) -> tuple[list[ReportFigure], list[str]]:
-    """PNG views of ``path`` (LAS/LAZ), one per colour, from one read of the file (:func:`patchcloud.stream.views.render.render_arrays`).
+def _views(paths: list[str], colours: Sequence[tuple[str, str]], width: int) -> tuple[list[ReportFigure], list[str]]:
+    """PNG views of ``paths`` (LAS/LAZ; several: a catalog in one map), one per colour, from one read
+    (:func:`patchcloud.stream.views.render.render_arrays`).
 
     A colour the file has no dimension for, or views that cannot be drawn
     (a PatchcloudError), become notes instead.
@@ -687,15 +725,16 @@ def _views(path: str, colours: Sequence[tuple[str, str]], width: int) -> tuple[l
 
     notes = []
     try:
-        can = set(supported_modes(file_dimensions(path)))
+        can = set.intersection(*(set(supported_modes(file_dimensions(p))) for p in paths))
     except PatchcloudError as exc:
         return [], [f"No views: {exc}"]
     wanted = [(c, cap) for c, cap in colours if c in can]
-    notes += [f"No view coloured by {c}: {path} has no dimension for it." for c, _ in colours if c not in can]
+    name = paths[0] if len(paths) == 1 else "the outputs"
+    notes += [f"No view coloured by {c}: {name} has no dimension for it." for c, _ in colours if c not in can]
     if not wanted:
         return [], notes
     try:
-        images = render_arrays(path, colors=[c for c, _ in wanted], width=width)
+        images = render_arrays(paths[0] if len(paths) == 1 else paths, colors=[c for c, _ in wanted], width=width)
     except PatchcloudError as exc:
         return [], notes + [f"The views could not be drawn: {exc}"]
     figures = [ReportFigure(figure_png(render_figure(img)), caption, "Views") for img, (_, caption) in zip(images, wanted)]
@@ -728,12 +767,13 @@ def report_normals(
     -------
     Path
     """
-    stats = normal_statistics(summary.output, summary.input, chunk=chunk)
+    inputs, outputs = run_files(summary)
+    stats = merge_statistics([normal_statistics(o, i, chunk=chunk) for i, o in zip(inputs, outputs)])
     rows = normals_rows(summary)
     notes: list[str] = []
     figures: list[ReportFigure] = []
     if views:
-        f, n = _views(summary.output, [
+        f, n = _views(outputs, [
             ("normals", "Output coloured by normal direction."),
             ("curvature", "Output coloured by curvature (surface variation)."),
             ("patches", "Output coloured by patch."),
@@ -787,7 +827,7 @@ def report_don(
     if views:
         colours = ([("segments", "Output coloured by segment (grey: no segment).")] if segmenting else []) + [
             ("don", "Output coloured by DoN magnitude.")]
-        f, n = _views(summary.output, colours, view_width)
+        f, n = _views(run_files(summary)[1], colours, view_width)
         figures += f
         notes += n
     h = don_histogram(summary)
@@ -802,7 +842,7 @@ def report_don(
         notes.append(f"{undefined:,} points have no DoN (fewer than {summary.parameters.get('min_points', 3)} points, or only "
                      "collinear ones, in a ball): they are not in the histogram.")
     if segmenting:
-        sizes = segment_sizes(summary.output, chunk=chunk)
+        sizes = segment_sizes(run_files(summary)[1], chunk=chunk)
         if sizes.size:
             rows += [("segment size: smallest, median, largest",
                       f"{int(sizes.min()):,}, {int(np.median(sizes)):,}, {int(sizes.max()):,} points")]
@@ -830,7 +870,7 @@ def report_compress(
     notes: list[str] = []
     figures: list[ReportFigure] = []
     if views:
-        f, n = _views(s.input, [("elevation", "Input coloured by elevation."),
+        f, n = _views([s.input], [("elevation", "Input coloured by elevation."),
                                 ("classification", "Input coloured by classification.")], view_width)
         figures += f
         notes += n

@@ -1,0 +1,89 @@
+"""Small inputs run in memory (no dask cluster, no store on disk) with the results of a run on a store, byte for byte."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from check_identical import pcz_digests
+from test_stream import write_scene
+
+from patchcloud.core import PatchcloudValueError
+from patchcloud.stream import RunOptions, compress, don, normals, segment
+from patchcloud.stream.io import memory_group
+from patchcloud.stream.jobs import normals_tiles
+
+SAMPLE = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("mem") / "scene.las"
+    write_scene(path, n=30_000, seed=5)
+    return path
+
+
+JOBS = {
+    "normals": (normals, {}, ".laz"),
+    "don": (don, {"mode": "exact", "r_small": 0.3, "r_large": 1.5}, ".las"),
+    "segment": (segment, {"r_small": 0.3, "r_large": 1.5, "threshold": 0.1, "tolerance": 0.3}, ".laz"),
+    "compress": (compress, {}, ".pcz"),
+}
+
+
+@pytest.mark.parametrize("job", sorted(JOBS))
+def test_in_memory_equals_a_run_on_a_store(scene, tmp_path, job):
+    func, opts, suffix = JOBS[job]
+    mem, disk = tmp_path / f"mem{suffix}", tmp_path / f"disk{suffix}"
+    s = func(scene, mem, tile_size=16, quiet=True, **opts)  # several tiles: seams and halos in memory too
+    assert s.scheduler == "in memory"
+    assert not list(tmp_path.glob("*.store")) and memory_group.urls() == []
+    func(scene, disk, tile_size=16, quiet=True, in_memory=False, scheduler="threads", workers=2, **opts)
+    if suffix == ".pcz":
+        assert pcz_digests(mem) == pcz_digests(disk)
+    else:
+        assert mem.read_bytes() == disk.read_bytes()
+
+
+def test_auto_runs_small_inputs_in_memory_unless_a_store_or_scheduler_is_asked():
+    assert RunOptions().runs_in_memory(2_000_000) and not RunOptions().runs_in_memory(2_000_001)
+    assert not RunOptions(store="s.zarr").runs_in_memory(10)
+    assert not RunOptions(keep_store=True).runs_in_memory(10)
+    assert not RunOptions(scheduler="processes").runs_in_memory(10)
+    assert not RunOptions(in_memory=False).runs_in_memory(10)
+    assert RunOptions(in_memory=True).runs_in_memory(10**9)
+
+
+@pytest.mark.parametrize("kwargs, says", [
+    (dict(in_memory=True, store="s.zarr"), "keep no store"),
+    (dict(in_memory=True, keep_store=True), "keep no store"),
+    (dict(in_memory=True, scheduler="threads"), "no scheduler"),
+    (dict(in_memory="yes"), "True, False or None"),
+])
+def test_in_memory_options_that_contradict_are_one_clear_error(kwargs, says):
+    with pytest.raises(PatchcloudValueError, match=says):
+        RunOptions(**kwargs)
+
+
+def test_a_failing_in_memory_run_leaves_nothing(scene, tmp_path, monkeypatch):
+    def broken(*args, **kwargs):
+        raise RuntimeError("broken tile")
+
+    monkeypatch.setattr(normals_tiles, "finish_one_tile", broken)
+    with pytest.raises(RuntimeError, match="broken tile"):
+        normals(scene, tmp_path / "out.laz", quiet=True)
+    assert memory_group.urls() == [] and list(tmp_path.iterdir()) == []
+
+
+def test_the_cli_on_a_small_file_imports_neither_dask_zarr_nor_matplotlib(tmp_path):
+    code = (
+        "import sys\n"
+        "from patchcloud.stream.cli import main\n"
+        f"try:\n    main(['normals', {str(SAMPLE)!r}, {str(tmp_path / 'n.laz')!r}, '-q'])\n"
+        "except SystemExit as e:\n    assert not e.code, e.code\n"
+        "print(sorted(m for m in ('dask', 'distributed', 'zarr', 'matplotlib') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]" and (tmp_path / "n.laz").stat().st_size > 0
+    np.testing.assert_equal(sorted(p.name for p in tmp_path.iterdir()), ["n.laz"])

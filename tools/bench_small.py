@@ -1,0 +1,158 @@
+"""Whole-process times of ``patchcloud normals`` against PDAL ``filters.normal`` on the files users have, same run.
+
+    python tools/bench_small.py [--pdal PATH] [--repeats 5] [--city-points 4000000] [--out tools/results/bench_small-DATE.txt]
+
+For each file (the embedded IGN tile, every LAS/LAZ of ../shared/data, and
+a synthetic city of ``--city-points`` points from tools/city_las.py), both
+tools run as a whole process, input file to output file, output in the
+input's format (LAS or LAZ), ``--repeats`` times each, alternately:
+
+- patchcloud: ``patchcloud normals IN OUT --overwrite -q`` (defaults: in
+  memory up to 2 million points, else a local cluster of worker processes),
+  after one untimed run so the numba cache is warm;
+- PDAL: ``pdal translate IN OUT normal --filters.normal.knn=8
+  --writers.las.extra_dims=all`` (knn 8 as the issue measures it;
+  PDAL's ``filters.normal`` is single-threaded).
+
+The table gives each tool's minimum / median / maximum seconds, the ratio
+PDAL median / patchcloud median (above 1: patchcloud is faster), and
+patchcloud's peak RSS.  The goals (issue 15): the embedded tile under 1 s;
+no slower than PDAL on any file; at least 3x faster on files of 500,000
+points or more and on the city.  A missing PDAL is skipped with the reason
+printed, and then no goal is met.  The machine (cores, CPU) heads the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+SHARED = ROOT.parent / "shared" / "data"
+SAMPLE = ROOT / "data" / "test_data_77055_627760_LA93_IGN69.laz"
+#: Files of at least this many points must be 3x faster than PDAL.
+BIG = 500_000
+
+
+def point_count(path: Path) -> int:
+    import laspy
+
+    with laspy.open(str(path)) as r:
+        return int(r.header.point_count)
+
+
+def inputs(city_points: int, work: Path) -> list[tuple[str, Path]]:
+    """(label, path) of every file to time: the embedded tile, ../shared/data's LAS/LAZ, the synthetic city."""
+    out = [("embedded IGN tile", SAMPLE)]
+    if SHARED.is_dir():
+        for p in sorted(SHARED.glob("*/*")):
+            if p.suffix.lower() in (".las", ".laz"):
+                out.append((f"{p.parent.name}/{p.name}", p))
+    else:
+        print(f"# ../shared/data not found beside the repo ({SHARED}): its files are skipped")
+    if city_points:
+        city = work / f"city-{city_points}.laz"
+        subprocess.run([sys.executable, str(HERE / "city_las.py"), str(city), "--points", str(city_points)], check=True)
+        out.append((f"synthetic city {city_points / 1e6:g}M", city))
+    return out
+
+
+def timed(cmd: list[str]) -> tuple[float, float]:
+    """Wall seconds and peak RSS (MiB, of the process and its children) of ``cmd``; raises if it fails."""
+    t0 = time.perf_counter()
+    proc = subprocess.run(["/usr/bin/time", "-f", "%M", *cmd], capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr.strip()[-400:]}")
+    rss = float(proc.stderr.strip().splitlines()[-1]) / 1024.0
+    return wall, rss
+
+
+def find_pdal(asked: str | None) -> tuple[str | None, str]:
+    """The PDAL command and its version line, or None and why not."""
+    cmd = asked or os.environ.get("PDAL") or shutil.which("pdal")
+    if not cmd:
+        return None, "no pdal on PATH (give --pdal or $PDAL; PDAL 2.8 from source, see DEVELOPERS.md)"
+    try:
+        v = subprocess.run([cmd, "--version"], capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError) as exc:
+        return None, f"{cmd} does not run ({exc})"
+    line = next((ln.strip() for ln in v.splitlines() if "pdal" in ln.lower() and any(c.isdigit() for c in ln)), v.strip())
+    return cmd, line
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pdal", default=None, help="The pdal command (default: $PDAL, else pdal on PATH).")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--city-points", type=int, default=4_000_000, help="Points of the synthetic city (0: none).")
+    ap.add_argument("--only", nargs="*", default=None, help="Only the files whose label contains one of these.")
+    ap.add_argument("--out", default=None, help="Also write the table here.")
+    args = ap.parse_args()
+
+    patchcloud = str(Path(sys.executable).with_name("patchcloud"))
+    pdal, pdal_line = find_pdal(args.pdal)
+    lines = [
+        f"# bench_small: whole-process normals, patchcloud vs PDAL filters.normal (knn 8); {os.cpu_count()} cores, "
+        f"{platform.processor() or platform.machine()}, Python {platform.python_version()}",
+        f"# command: python tools/bench_small.py {' '.join(sys.argv[1:])}",
+        f"# PDAL: {pdal_line}" if pdal else f"# PDAL skipped: {pdal_line}; no goal can be met",
+        f"# {args.repeats} runs each, alternately; seconds min / median / max; ratio = PDAL median / patchcloud median",
+        f"{'file':<58} {'points':>10} {'patchcloud s':>20} {'PDAL s':>20} {'ratio':>6} {'RSS MiB':>8}  goal",
+    ]
+    for ln in lines:
+        print(ln, flush=True)
+    met_all = pdal is not None
+    with tempfile.TemporaryDirectory(prefix="bench_small_") as tmp:
+        work = Path(tmp)
+        for label, path in inputs(args.city_points, work):
+            if args.only and not any(o in label for o in args.only):
+                continue
+            n = point_count(path)
+            out = work / f"out{path.suffix.lower()}"
+            ours = [patchcloud, "normals", str(path), str(out), "--overwrite", "-q"]
+            timed(ours)  # warm the numba cache (and the file in the page cache) first
+            theirs = [pdal, "translate", str(path), str(out), "normal", "--filters.normal.knn=8",
+                      "--writers.las.extra_dims=all"] if pdal else None
+            if theirs:
+                timed(theirs)
+            a, b, rss = [], [], 0.0
+            for _ in range(args.repeats):
+                w, r = timed(ours)
+                a.append(w)
+                rss = max(rss, r)
+                if theirs:
+                    b.append(timed(theirs)[0])
+            ma = statistics.median(a)
+            fa = f"{min(a):.2f}/{ma:.2f}/{max(a):.2f}"
+            if b:
+                mb = statistics.median(b)
+                fb, ratio = f"{min(b):.2f}/{mb:.2f}/{max(b):.2f}", mb / ma
+                need = 3.0 if (n >= BIG or label.startswith("synthetic")) else 1.0
+                ok = ratio >= need and (label != "embedded IGN tile" or ma < 1.0)
+                goal = f"{'met' if ok else 'MISSED'} (>= {need:g}x{', < 1 s' if label == 'embedded IGN tile' else ''})"
+                met_all &= ok
+                rs = f"{ratio:.2f}"
+            else:
+                fb, rs, goal = "skipped", "-", "no peer"
+            line = f"{label:<58} {n:>10,} {fa:>20} {fb:>20} {rs:>6} {rss:>8.0f}  {goal}"
+            lines.append(line)
+            print(line, flush=True)
+    tail = f"# all goals met: {'yes' if met_all else 'no'}"
+    lines.append(tail)
+    print(tail)
+    if args.out:
+        Path(args.out).write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
