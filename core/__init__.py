@@ -19,6 +19,7 @@ from . import _numba_cache  # noqa: F401  (first, before numba is imported: see 
 from .lazy import lazy_exports
 
 _SOURCES = {  # where each public name lives: imported on first use (PEP 562), so importing the package is quick
+    '.graph': ('connected_components',),
     '.cluster': ('components', 'euclidean_clusters', 'number_by_first'),
     '.don': ('difference_of_normals', 'don_magnitude', 'don_mask', 'segment_don'),
     '.errors': ('PatchcloudError', 'PatchcloudIOError', 'PatchcloudNotImplementedError', 'PatchcloudValueError'),
@@ -82,6 +83,8 @@ __all__ = [
     # .quadric
     "fit_nodes",
     "surface_normals",
+    # .graph
+    "connected_components",
     # .orient
     "MIN_RELIABILITY",
     "LeafSet",

@@ -14,10 +14,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from .forest import forest_links, kruskal, link_order
+from .graph import connected_components
 from .morton import MAX_DEPTH, containing, encode, key_range
 from .codes import PatchKind
 from .octree import Octree
@@ -281,14 +280,12 @@ def forest_signs(
     nodes = n + 1 if rule_node else n
     if n == 0:
         return np.ones(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
-    forest = coo_matrix((np.ones(fi.size), (fi, fj)), shape=(nodes, nodes))
-    ncomp, comp = connected_components(forest, directed=False)
+    ncomp, comp = connected_components(nodes, fi, fj)
     # doubled graph: node v+ is v, v- is v + nodes
     pos = fa > 0
     r = np.concatenate([fi[pos], fi[pos] + nodes, fi[~pos], fi[~pos] + nodes])
     c = np.concatenate([fj[pos], fj[pos] + nodes, fj[~pos] + nodes, fj[~pos]])
-    dg = coo_matrix((np.ones(r.size), (r, c)), shape=(2 * nodes, 2 * nodes))
-    _, lab = connected_components(dg, directed=False)
+    _, lab = connected_components(2 * nodes, r, c)
     root = np.full(ncomp, nodes, dtype=np.int64)
     np.minimum.at(root, comp, np.arange(nodes))
     if rule_node:

@@ -16,7 +16,8 @@ input's format (LAS or LAZ), ``--repeats`` times each, alternately:
 
 The table gives each tool's minimum / median / maximum seconds, the ratio
 PDAL median / patchcloud median (above 1: patchcloud is faster), and
-patchcloud's peak RSS.  The goals (issue 15): the embedded tile under 1 s;
+patchcloud's peak RSS (GNU time's %M: the largest single process's peak,
+not a sum over worker processes).  The goals (issue 15): the embedded tile under 1 s;
 no slower than PDAL on any file; at least 3x faster on files of 500,000
 points or more and on the city.  A missing PDAL is skipped with the reason
 printed, and then no goal is met.  The machine (cores, CPU) heads the table.
@@ -107,7 +108,7 @@ def main() -> None:
         f"# command: python tools/bench_small.py {' '.join(sys.argv[1:])}",
         f"# PDAL: {pdal_line}" if pdal else f"# PDAL skipped: {pdal_line}; no goal can be met",
         f"# {args.repeats} runs each, alternately; seconds min / median / max; ratio = PDAL median / patchcloud median",
-        f"{'file':<58} {'points':>10} {'patchcloud s':>20} {'PDAL s':>20} {'ratio':>6} {'RSS MiB':>8}  goal",
+        f"{'file':<58} {'points':>10} {'patchcloud s':>20} {'PDAL s':>20} {'ratio':>6} {'RSS MiB':>8}  goal   (RSS: patchcloud's largest process)",
     ]
     for ln in lines:
         print(ln, flush=True)

@@ -23,10 +23,8 @@ tile with its halo sees exactly the coordinates a whole-cloud run sees.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
-from patchcloud.core import components, don_magnitude, don_mask, number_by_first, radius_normals
+from patchcloud.core import components, connected_components, don_magnitude, don_mask, number_by_first, radius_normals
 
 from patchcloud.stream.io.store import Store
 
@@ -196,7 +194,7 @@ def merge_components(store: Store, min_points: int, max_points: int | None) -> i
         return 0
     a = np.concatenate(a_parts) if a_parts else np.zeros(0, np.int64)
     b = np.concatenate(b_parts) if b_parts else np.zeros(0, np.int64)
-    _, label = connected_components(coo_matrix((np.ones(a.size), (a, b)), shape=(total, total)), directed=False)
+    _, label = connected_components(total, a, b)
     size = np.bincount(label, weights=np.concatenate(sizes).astype(np.float64))
     ok = size >= min_points
     if max_points is not None:
