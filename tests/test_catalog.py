@@ -258,3 +258,35 @@ def test_a_catalog_report_has_a_row_per_file_one_map_and_the_merged_run_histogra
     row = r"segment size: smallest, median, largest</t[hd]><td>([^<]+)<"
     assert re.search(row, cat).group(1) == re.search(row, whole).group(1)
     assert cat.count('<img src="data:image/png;base64,') == whole.count('<img src="data:image/png;base64,')  # one map per view
+
+
+def test_a_catalog_stopped_during_its_export_resumes_per_file(cut, tmp_path, monkeypatch):
+    import os
+
+    from patchcloud.stream.io import las_output
+
+    d, _ = cut
+    clean, out, store = tmp_path / "clean", tmp_path / "out", str(tmp_path / "s.zarr")
+    normals(d / "in", out_dir=str(clean), tile_size=TILE, quiet=True)
+    finish, calls = las_output.finish, []
+
+    def stop_at_the_third(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt("stopped")
+        return finish(*args, **kwargs)
+
+    monkeypatch.setattr(las_output, "finish", stop_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, store=store, scheduler="synchronous")
+    monkeypatch.setattr(las_output, "finish", finish)
+    assert sorted(p.name for p in out.iterdir() if p.suffix == ".las") == ["tile_0.las", "tile_1.las"]  # no .partial either
+    assert not list(out.glob("*.partial"))
+    first = {k: (out / f"tile_{k}.las").stat().st_mtime_ns for k in (0, 1)}
+    normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, store=store, scheduler="synchronous")  # no overwrite needed
+    assert {k: (out / f"tile_{k}.las").stat().st_mtime_ns for k in (0, 1)} == first  # kept, not written again
+    for k in range(4):
+        assert (out / f"tile_{k}.las").read_bytes() == (clean / f"tile_{k}.las").read_bytes(), k
+    os.utime(out / "tile_1.las", ns=(first[1] + 10**9, first[1] + 10**9))  # touched since: no longer the store's output
+    with pytest.raises(PatchcloudIOError, match="tile_1.las: exists"):
+        normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, store=store, scheduler="synchronous")

@@ -52,3 +52,32 @@ def test_bunny_reconstruction_against_mesh_normals():
     ang = angles_deg(res.normals, ref)
     assert np.median(ang) < 3.0  # point-wise k-NN PCA (k=30) gets 2.6 degrees here
     assert np.mean(np.einsum("ij,ij->i", res.normals, ref) > 0) > 0.95
+
+
+def test_the_six_real_ign_tiles_as_a_catalog_are_the_merged_file(tmp_path):
+    """The real 6-tile IGN LiDAR HD catalog of ../shared/data: per point, the normals of a run on the merged file."""
+    laspy = pytest.importorskip("laspy")
+    from patchcloud.stream import normals
+
+    first = shared_file("lidar-ign-lidarhd-tiles/test_data_77050_627755_LA93_IGN69.laz")
+    tiles = sorted(first.parent.glob("*.laz"))
+    assert len(tiles) == 6
+    parts = [laspy.read(p) for p in tiles]
+    merged = laspy.LasData(parts[0].header.copy())
+    merged.points = laspy.ScaleAwarePointRecord(
+        np.concatenate([p.points.array for p in parts]), parts[0].header.point_format, parts[0].header.scales,
+        parts[0].header.offsets)
+    assert all(np.array_equal(p.header.scales, parts[0].header.scales) and np.array_equal(p.header.offsets, parts[0].header.offsets)
+               for p in parts)  # one grid already: the merged file is the concatenation of the records
+    merged.write(tmp_path / "merged.laz")
+    whole = normals(tmp_path / "merged.laz", tmp_path / "merged_normals.laz", quiet=True)
+    cat = normals(first.parent, out_dir=str(tmp_path / "out"), quiet=True)
+    assert cat.points == whole.points == sum(len(p.points) for p in parts)
+    ref = laspy.read(tmp_path / "merged_normals.laz")
+    start = 0
+    for p in tiles:
+        got = laspy.read(tmp_path / "out" / p.name)
+        n = len(got.points)
+        for dim in ("NormalX", "NormalY", "NormalZ", "Curvature", "NormalMethod", "PatchId"):
+            np.testing.assert_array_equal(np.asarray(got[dim]), np.asarray(ref[dim])[start : start + n], err_msg=f"{p.name} {dim}")
+        start += n

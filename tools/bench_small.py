@@ -1,6 +1,7 @@
 """Whole-process times of ``patchcloud normals`` against PDAL ``filters.normal`` on the files users have, same run.
 
-    python tools/bench_small.py [--pdal PATH] [--repeats 5] [--city-points 4000000] [--out tools/results/bench_small-DATE.txt]
+    python tools/bench_small.py [--pdal PATH] [--repeats 5] [--city-points 4000000 ...] [--out tools/results/bench_small-DATE.txt]
+    python tools/bench_small.py --modes --city-points 2000000 4000000 10000000 --only city [--repeats 3]
 
 For each file (the embedded IGN tile, every LAS/LAZ of ../shared/data, and
 a synthetic city of ``--city-points`` points from tools/city_las.py), both
@@ -21,6 +22,10 @@ not a sum over worker processes).  The goals (issue 15): the embedded tile under
 no slower than PDAL on any file; at least 3x faster on files of 500,000
 points or more and on the city.  A missing PDAL is skipped with the reason
 printed, and then no goal is met.  The machine (cores, CPU) heads the table.
+
+With ``--modes``, no PDAL: patchcloud ``--in-memory`` against ``--on-disk``
+(a store and a local cluster of worker processes) on each file, to show
+where running in memory pays (the ``IN_MEMORY_POINTS`` default).
 """
 
 from __future__ import annotations
@@ -51,7 +56,7 @@ def point_count(path: Path) -> int:
         return int(r.header.point_count)
 
 
-def inputs(city_points: int, work: Path) -> list[tuple[str, Path]]:
+def inputs(city_points: list[int], work: Path) -> list[tuple[str, Path]]:
     """(label, path) of every file to time: the embedded tile, ../shared/data's LAS/LAZ, the synthetic city."""
     out = [("embedded IGN tile", SAMPLE)]
     if SHARED.is_dir():
@@ -60,10 +65,12 @@ def inputs(city_points: int, work: Path) -> list[tuple[str, Path]]:
                 out.append((f"{p.parent.name}/{p.name}", p))
     else:
         print(f"# ../shared/data not found beside the repo ({SHARED}): its files are skipped")
-    if city_points:
-        city = work / f"city-{city_points}.laz"
-        subprocess.run([sys.executable, str(HERE / "city_las.py"), str(city), "--points", str(city_points)], check=True)
-        out.append((f"synthetic city {city_points / 1e6:g}M", city))
+    for n in city_points:
+        if n:
+            city = work / f"city-{n}.laz"
+            subprocess.run([sys.executable, str(HERE / "city_las.py"), str(city), "--points", str(n)], check=True,
+                           stdout=subprocess.DEVNULL)
+            out.append((f"synthetic city {n / 1e6:g}M", city))
     return out
 
 
@@ -95,12 +102,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--pdal", default=None, help="The pdal command (default: $PDAL, else pdal on PATH).")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--city-points", type=int, default=4_000_000, help="Points of the synthetic city (0: none).")
+    ap.add_argument("--city-points", type=int, nargs="*", default=[4_000_000], help="Points of the synthetic cities (0: none).")
+    ap.add_argument("--modes", action="store_true", help="patchcloud in memory against on disk, no PDAL.")
     ap.add_argument("--only", nargs="*", default=None, help="Only the files whose label contains one of these.")
     ap.add_argument("--out", default=None, help="Also write the table here.")
     args = ap.parse_args()
 
     patchcloud = str(Path(sys.executable).with_name("patchcloud"))
+    if args.modes:
+        return modes(args, patchcloud)
     pdal, pdal_line = find_pdal(args.pdal)
     lines = [
         f"# bench_small: whole-process normals, patchcloud vs PDAL filters.normal (knn 8); {os.cpu_count()} cores, "
@@ -151,6 +161,41 @@ def main() -> None:
     tail = f"# all goals met: {'yes' if met_all else 'no'}"
     lines.append(tail)
     print(tail)
+    if args.out:
+        Path(args.out).write_text("\n".join(lines) + "\n")
+
+
+def modes(args, patchcloud: str) -> None:
+    """patchcloud --in-memory against --on-disk, whole process, each file (see the module's docstring)."""
+    lines = [
+        f"# bench_small --modes: whole-process patchcloud normals, in memory vs on disk; {os.cpu_count()} cores, "
+        f"{platform.processor() or platform.machine()}, Python {platform.python_version()}",
+        f"# command: python tools/bench_small.py {' '.join(sys.argv[1:])}",
+        f"# {args.repeats} runs each, alternately; seconds min / median / max; RSS: peak of the largest process (MiB); "
+        "ratio = on-disk median / in-memory median",
+        f"{'file':<40} {'points':>11} {'in memory s':>20} {'RSS':>6} {'on disk s':>20} {'RSS':>6} {'ratio':>6}",
+    ]
+    for ln in lines:
+        print(ln, flush=True)
+    with tempfile.TemporaryDirectory(prefix="bench_small_") as tmp:
+        work = Path(tmp)
+        for label, path in inputs(args.city_points, work):
+            if args.only and not any(o in label for o in args.only):
+                continue
+            out = work / f"out{path.suffix.lower()}"
+            runs = {m: [patchcloud, "normals", str(path), str(out), "--overwrite", "-q", m] for m in ("--in-memory", "--on-disk")}
+            timed(runs["--in-memory"])  # warm
+            got = {m: ([], 0.0) for m in runs}
+            for _ in range(args.repeats):
+                for m, cmd in runs.items():
+                    w, r = timed(cmd)
+                    got[m] = (got[m][0] + [w], max(got[m][1], r))
+            (a, ra), (b, rb) = got["--in-memory"], got["--on-disk"]
+            fa, fb = (f"{min(x):.2f}/{statistics.median(x):.2f}/{max(x):.2f}" for x in (a, b))
+            line = (f"{label:<40} {point_count(path):>11,} {fa:>20} {ra:>6.0f} {fb:>20} {rb:>6.0f} "
+                    f"{statistics.median(b) / statistics.median(a):>6.2f}")
+            lines.append(line)
+            print(line, flush=True)
     if args.out:
         Path(args.out).write_text("\n".join(lines) + "\n")
 

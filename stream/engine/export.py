@@ -19,10 +19,20 @@ A job declares what it adds as :class:`Column` s (see
 in order of first appearance in the catalog (``renumber``, e.g. ClusterID)
 take one more pass over the parts first: each part's ids in the order they
 first appear (:func:`first_seen_part`), numbered by the client in part order.
+
+**Resume per file.**  Each output is finished (stitched, renamed) as soon
+as the last of its parts is written, and recorded in the store (group
+``outputs``: its path, size, modification time and :func:`output_key`).
+A rerun on the same store skips every output recorded as complete with the
+same key whose file is still as recorded (:func:`complete_outputs`), and
+writes the others: after a crash during the export of a catalog, only the
+files not yet finished are written again.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -40,7 +50,7 @@ from patchcloud.stream.io.las import check_writable, is_laz_name, output_header,
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store, tile_name
 
-__all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds"]
+__all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs"]
 
 
 @dataclass(frozen=True)
@@ -171,6 +181,31 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     return stats, None
 
 
+def output_key(store: Store, columns: list[Column], dims) -> str:
+    """What an output holds, as a short hash: the dimensions added, the columns, and the steps done on the store (with
+    the keys of their resolved parameters), so an output written after other parameters is not taken as this one."""
+    what = dict(dims=[[str(d[0]), np.dtype(d[1]).str] for d in dims], columns=[[c.array, list(c.dims)] for c in columns],
+                steps=store.attrs.get("steps", {}), params=store.attrs.get("params_key"))
+    return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _file_record(path: Path) -> dict:
+    st = path.stat()
+    return dict(path=str(path.resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns))
+
+
+def complete_outputs(store: Store, outputs, key: str | None = None) -> list[bool]:
+    """For each output (one per file of the store's catalog): whether the store records it as written completely
+    (with ``key``, when given) and the file is still as it was then (same size and modification time)."""
+    recorded = store.group_attrs("outputs")
+    out = []
+    for f, o in enumerate(outputs):
+        r, p = recorded.get(str(f)), Path(o)
+        ok = r is not None and p.is_file() and (key is None or r.get("key") == key)
+        out.append(bool(ok and {k: r.get(k) for k in ("path", "size", "mtime_ns")} == _file_record(p)))
+    return out
+
+
 def export_columns(
     store: Store, outputs, columns: list[Column], dims, runner: Runner | None = None, overwrite: bool = False,
     quiet: bool = False,
@@ -185,14 +220,20 @@ def export_columns(
     of first appearance (``renumber``) are numbered over the whole catalog,
     files in catalog order.  The tasks write ``OUTPUT.partial`` (the
     workers must reach the outputs' directory), each renamed to its output
-    when complete.
+    when its last part is written, and recorded in the store; outputs a
+    previous run on this store completed (:func:`complete_outputs`) are
+    kept as they are.
     """
     runner = runner or Runner("synchronous", quiet=quiet)
     cat = store.catalog
     outputs = [outputs] if isinstance(outputs, (str, os.PathLike)) else list(outputs)
     if len(outputs) != len(cat.sources):
         raise PatchcloudValueError(f"{len(cat.sources)} files in the store {store.url}, {len(outputs)} outputs given")
-    outs = [check_writable(o, overwrite) for o in outputs]
+    key = output_key(store, columns, dims)
+    done = complete_outputs(store, outputs, key)
+    outs = [Path(o) if d else check_writable(o, overwrite) for o, d in zip(outputs, done)]
+    if all(done):
+        return
     compressed = [is_laz_name(o) for o in outs]
     headers = [las_output.prepare_header(output_header(src, dims), c) for src, c in zip(cat.sources, compressed)]
     parts = catalog_parts(cat, int(store.attrs["part_points"]))
@@ -210,14 +251,29 @@ def export_columns(
                     ids(part[k])
                 store.put(f"export/{col.array}_ids", ids.known)
                 store.put(f"export/{col.array}_numbers", ids.number)
-        starts = [las_output.begin(h, tmp, src.point_count) for h, tmp, src in zip(headers, tmps, cat.sources)]
-        calls = [((store.url, p, f, p - int(first_part[f]), first, count, columns, dims, tmps[f], starts[f], compressed[f]),
-                  {"laz_parallel": laz_parallel}) for p, (f, first, count) in enumerate(parts)]
-        results = runner.map(export_part, calls, "export")
-        for f, (h, tmp, out) in enumerate(zip(headers, tmps, outs)):
-            mine = results[first_part[f] : first_part[f + 1]]
-            las_output.finish(h, tmp, starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None)
-            Path(tmp).replace(out)
+        todo = [f for f in range(len(outs)) if not done[f]]
+        starts = {f: las_output.begin(headers[f], tmps[f], cat.sources[f].point_count) for f in todo}
+        calls, owner = [], []
+        for p, (f, first, count) in enumerate(parts):
+            if not done[f]:
+                calls.append(((store.url, p, f, p - int(first_part[f]), first, count, columns, dims, tmps[f], starts[f],
+                               compressed[f]), {"laz_parallel": laz_parallel}))
+                owner.append(f)
+        results: dict[int, list] = {f: [None] * int(first_part[f + 1] - first_part[f]) for f in todo}
+        left = {f: len(r) for f, r in results.items()}
+
+        def finish(k: int, result) -> None:  # the part's file is complete once its last part is in: stitch, rename, record
+            f = owner[k]
+            p = calls[k][0][1]
+            results[f][p - int(first_part[f])] = result
+            left[f] -= 1
+            if left[f] == 0:
+                mine = results.pop(f)
+                las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None)
+                Path(tmps[f]).replace(outs[f])
+                store.set_group_attrs("outputs", **{str(f): dict(_file_record(outs[f]), key=key)})
+
+        runner.map(export_part, calls, "export", on_result=finish)
     finally:
         for tmp in tmps:
             las_output.remove_partial(tmp)

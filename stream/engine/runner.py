@@ -161,8 +161,14 @@ class Runner:
         """
         return (os.cpu_count() or 1) if self.scheduler == "synchronous" else 1
 
-    def map(self, func: Callable, calls: Sequence[tuple[tuple, dict]], label: str) -> list:
-        """``[func(*args, **kwargs) for args, kwargs in calls]``, run in parallel, results in call order."""
+    def map(self, func: Callable, calls: Sequence[tuple[tuple, dict]], label: str,
+            on_result: Callable[[int, Any], None] | None = None) -> list:
+        """``[func(*args, **kwargs) for args, kwargs in calls]``, run in parallel, results in call order.
+
+        ``on_result(k, result)``, when given, runs in this process as each
+        call ``k`` completes (in the order they complete), e.g. to finish an
+        output as soon as its last part is written.
+        """
         bar = Progress(label, len(calls), quiet=self.quiet, unit=" tasks")
         results: list = [None] * len(calls)
         if self.client is None:
@@ -170,6 +176,8 @@ class Runner:
                 results[k], when = _call(func, self.numba_threads, args, kwargs)
                 self.tasks.append((label, *when))
                 bar.update()
+                if on_result is not None:
+                    on_result(k, results[k])
         else:
             from dask.distributed import as_completed
 
@@ -181,9 +189,12 @@ class Runner:
             ]
             index = {f.key: k for k, f in enumerate(futures)}
             for f in as_completed(futures):
-                results[index[f.key]], when = f.result()
+                k = index[f.key]
+                results[k], when = f.result()
                 self.tasks.append((label, *when))
                 bar.update()
+                if on_result is not None:
+                    on_result(k, results[k])
         bar.close()
         return results
 
