@@ -121,11 +121,12 @@ class RunOptions:
         files with one is an error.
     in_memory : bool, optional
         Run in this process, the tiles held in memory: no dask cluster, no
-        store on disk, the kernels on every core; the same tiles and the
+        store on disk, the kernels on ``workers`` threads (default: every
+        core); the same tiles and the
         same results, byte for byte, as a run on a store.  Default (None):
         for inputs of at most :data:`IN_MEMORY_POINTS` points when neither
-        ``store``, ``keep_store`` nor a ``scheduler`` other than "auto" is
-        given.  True: whatever the size (memory then grows with it: about
+        ``store``, ``keep_store``, ``workers`` nor a ``scheduler`` other
+        than "auto" is given.  True: whatever the size (memory then grows with it: about
         0.45 GB plus 45 bytes per point at the peak); False: never.
     """
 
@@ -168,7 +169,8 @@ class RunOptions:
         """
         if self.in_memory is not None:
             return self.in_memory
-        return points <= IN_MEMORY_POINTS and self.store is None and not self.keep_store and self.scheduler == "auto"
+        return (points <= IN_MEMORY_POINTS and self.store is None and not self.keep_store and self.scheduler == "auto"
+                and self.workers is None)
 
 
 def split_options(kwargs: dict, options, kind: type, run: RunOptions | None) -> tuple[Any, RunOptions]:

@@ -80,7 +80,7 @@ class Runner:
         :data:`AUTO_PROCESSES_POINTS` points or more, else "threads"),
         "threads" (an in-process dask.distributed cluster, one thread per
         worker), "processes" (a local cluster of single-threaded worker
-        processes), "synchronous" (inline, every core in each task, for
+        processes), "synchronous" (inline, ``workers`` threads, default every core, in each task, for
         debugging), or the address of a running dask.distributed scheduler
         such as ``tcp://host:8786``.
     workers : int, optional
@@ -107,6 +107,7 @@ class Runner:
         if n < 1:
             raise PatchcloudValueError(f"workers must be at least 1, got {workers!r}")
         self.slots = n
+        self._threads = n
         if self.scheduler == "synchronous":
             self.slots = 1
             return
@@ -154,12 +155,12 @@ class Runner:
 
     @property
     def numba_threads(self) -> int:
-        """Threads per task: all the cores for the synchronous scheduler, else one (each worker is a core).
+        """Threads per task: ``workers`` (default: all the cores) for the synchronous scheduler, else one (each worker is a core).
 
         With one, tasks run the kernels' sequential, GIL-free versions and
         lazrs' sequential codec, so ``workers`` N uses N cores, no more.
         """
-        return (os.cpu_count() or 1) if self.scheduler == "synchronous" else 1
+        return self._threads if self.scheduler == "synchronous" else 1
 
     def map(self, func: Callable, calls: Sequence[tuple[tuple, dict]], label: str,
             on_result: Callable[[int, Any], None] | None = None) -> list:
