@@ -15,27 +15,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .forest import find_root
+
 __all__ = ["connected_components"]
-
-
-@njit(cache=True, nogil=True)
-def _find(parent, x):
-    root = x
-    while parent[root] != root:
-        root = parent[root]
-    while parent[x] != root:  # path compression
-        nxt = parent[x]
-        parent[x] = root
-        x = nxt
-    return root
 
 
 @njit(cache=True, nogil=True)
 def _labels(n, a, b):
     parent = np.arange(n)
     for e in range(a.size):
-        x = _find(parent, a[e])
-        y = _find(parent, b[e])
+        x = find_root(parent, a[e])
+        y = find_root(parent, b[e])
         if x < y:
             parent[y] = x
         elif y < x:
@@ -44,7 +34,7 @@ def _labels(n, a, b):
     label_of_root = np.full(n, -1, np.int64)
     count = 0
     for v in range(n):
-        r = _find(parent, v)
+        r = find_root(parent, v)
         if label_of_root[r] < 0:
             label_of_root[r] = count
             count += 1
