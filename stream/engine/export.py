@@ -43,10 +43,10 @@ import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, tile_keys
+from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, read_part, tile_keys
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io import las_output
-from patchcloud.stream.io.las import check_writable, is_laz_name, output_header, read_range
+from patchcloud.stream.io.las import check_writable, is_laz_name, output_header
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store, tile_name
 
@@ -118,9 +118,9 @@ def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: 
     lo, hi = np.searchsorted(index[:, 0], [p, p + 1])
     rows = index[lo:hi]
     starts = store.get("index/tile_start", slice(int(lo), int(hi)))
-    pts = read_range(src, first, count, parallel=laz_parallel)
-    n = len(pts)
-    xyz = cat.common(f, pts.array["X"], pts.array["Y"], pts.array["Z"])
+    records = read_part(store, p, src, first, count, laz_parallel)
+    n = len(records)
+    xyz = cat.common(f, records["X"], records["Y"], records["Z"])
     tid = np.searchsorted(pack_tile_keys(np.asarray(tiles, dtype=np.int64)), tile_keys(store.grid, xyz))
     counts = np.bincount(tid, minlength=len(tiles))
     if not np.array_equal(counts[rows[:, 1]], rows[:, 2]) or counts.sum() != rows[:, 2].sum():
@@ -135,7 +135,7 @@ def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: 
             got = g[col.array][start : start + m]
             v[dst] = col.per_tile(store, t, got) if col.per_tile else got
         s += m
-    return pts, values
+    return records, values
 
 
 def first_seen_part(url: str, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool = False) -> list:
@@ -159,11 +159,11 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     store = Store.open(url)
     cat = store.catalog
     header = las_output.prepare_header(output_header(cat.sources[f], dims), compressed)
-    pts, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel)
-    n = len(pts)
+    records, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel)
+    n = len(records)
     out = laspy.PackedPointRecord.zeros(n, header.point_format)
-    old = pts.array.dtype.itemsize
-    out.array.view(np.uint8).reshape(n, out.array.dtype.itemsize)[:, :old] = pts.array.view(np.uint8).reshape(n, old)
+    old = records.dtype.itemsize
+    out.array.view(np.uint8).reshape(n, out.array.dtype.itemsize)[:, :old] = records.view(np.uint8).reshape(n, old)
     for col, v in zip(columns, values):
         if col.renumber:
             known, number = store.get(f"export/{col.array}_ids"), store.get(f"export/{col.array}_numbers")
@@ -176,7 +176,7 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
                 out[name] = v[:, k]
     stats = las_output.point_stats(header, out)
     if compressed:
-        return stats, las_output.write_laz_part(tmp, local, header, out)
+        return stats, las_output.write_laz_part(tmp, local, header, out, parallel=laz_parallel)
     las_output.write_las_part(tmp, start, first, out)
     return stats, None
 

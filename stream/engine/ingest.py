@@ -34,7 +34,7 @@ from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
     "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "part_size", "part_ranges", "catalog_parts", "part_path",
-    "scatter_part",
+    "scatter_part", "read_part",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
@@ -171,17 +171,33 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
         return
     cat = store.catalog
     grid = store.grid
-    pts = read_range(cat.sources[f], first, count, parallel=laz_parallel)
-    xyz = cat.common(f, pts.array["X"], pts.array["Y"], pts.array["Z"])
+    records = read_part(store, p, cat.sources[f], first, count, laz_parallel)
+    xyz = cat.common(f, records["X"], records["Y"], records["Z"])
     order, sk, starts, ends = _route(grid, grid.local(xyz))
     if field == "xyz":
         store.put(f"{path}/xyz", xyz[order])
         sums = xyz.astype(np.int64).sum(axis=0)
         store.set_group_attrs(path, keys=sk[starts].tolist(), counts=(ends - starts).tolist(), sums=sums.tolist(), done_xyz=True)
     else:
-        rec = pts.array.view(np.uint8).reshape(len(pts), pts.array.dtype.itemsize)
+        rec = records.view(np.uint8).reshape(len(records), records.dtype.itemsize)
         store.put(f"{path}/record", rec[order])
         store.set_group_attrs(path, done_record=True)
+
+
+def read_part(store: Store, p: int, src: LasSource, first: int, count: int, laz_parallel: bool = False) -> np.ndarray:
+    """The records of part ``p`` (points ``first:first + count`` of ``src``) as laspy's structured array.
+
+    A store in memory keeps each part's records from its first read (the
+    ingest), so its export does not decode the file a second time; any
+    other store reads the file each time (:func:`patchcloud.stream.io.las.read_range`).
+    """
+    path = f"inputs/{p:06d}"
+    if store.in_memory and store.has_array(path):
+        return store.get(path)
+    records = read_range(src, first, count, parallel=laz_parallel).array
+    if store.in_memory:
+        store.put(path, records)
+    return records
 
 
 def _scatter(store: Store, runner: Runner, field: str, label: str) -> None:

@@ -184,10 +184,15 @@ def write_las_part(tmp: str | os.PathLike, start: int, first: int, points: laspy
         os.close(fd)
 
 
-def write_laz_part(tmp: str | os.PathLike, part: int, header: laspy.LasHeader, points: laspy.PackedPointRecord) -> list:
-    """Compress ``points`` as whole LAZ chunks into fragment ``part`` of ``tmp``; return their chunk-table entries."""
+def write_laz_part(tmp: str | os.PathLike, part: int, header: laspy.LasHeader, points: laspy.PackedPointRecord,
+                   parallel: bool = False) -> list:
+    """Compress ``points`` as whole LAZ chunks into fragment ``part`` of ``tmp``; return their chunk-table entries.
+
+    ``parallel``: compress the chunks on lazrs' threads (for a process that
+    runs one task at a time); the bytes are the same either way.
+    """
     vlr = lazrs.LazVlr(header.vlrs.get("LasZipVlr")[0].record_data)
-    data = bytes(lazrs.compress_points(vlr, np.frombuffer(points.array, np.uint8), False))
+    data = bytes(lazrs.compress_points(vlr, np.frombuffer(points.array, np.uint8), bool(parallel)))
     table_at = struct.unpack("<q", data[:8])[0]
     table = lazrs.read_chunk_table(io.BytesIO(data), vlr)
     name = fragments_dir(tmp) / f"{part:06d}"

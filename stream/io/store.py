@@ -194,6 +194,11 @@ class Store:
         elif "://" not in url:
             shutil.rmtree(url, ignore_errors=True)
 
+    @property
+    def in_memory(self) -> bool:
+        """Whether the store is held in this process's memory (:mod:`.memory_group`)."""
+        return isinstance(self.group, memory_group.MemoryGroup)
+
     # -- global state --------------------------------------------------------
     @property
     def attrs(self) -> dict:
@@ -325,6 +330,10 @@ class Store:
         if values.size:
             a[...] = values
 
+    def has_array(self, path: str) -> bool:
+        """Whether there is an array (or group) at ``path``."""
+        return path in self.group
+
     def get(self, path: str, rows: slice | None = None) -> np.ndarray:
         """The array at ``path`` (rows ``rows`` of it)."""
         try:
@@ -353,7 +362,7 @@ class Store:
     def put_blob(self, key: str, values: np.ndarray) -> None:
         """Write ``values`` (any shape, kept as flat float64) under ``key``: one store write, for the many small arrays of a pass."""
         data = np.ascontiguousarray(values, dtype="<f8").tobytes()
-        if isinstance(self.group, memory_group.MemoryGroup):
+        if self.in_memory:
             self.group.blobs[key] = data
             return
         from zarr.core.buffer import default_buffer_prototype
@@ -363,7 +372,7 @@ class Store:
 
     def get_blob(self, key: str) -> np.ndarray:
         """The flat float64 array written under ``key`` by :meth:`put_blob`."""
-        if isinstance(self.group, memory_group.MemoryGroup):
+        if self.in_memory:
             data = self.group.blobs.get(key)
         else:
             from zarr.core.buffer import default_buffer_prototype
@@ -377,7 +386,7 @@ class Store:
 
     def remove_blobs(self, prefix: str) -> None:
         """Remove every blob (and array) whose key starts with ``prefix/``."""
-        if isinstance(self.group, memory_group.MemoryGroup):
+        if self.in_memory:
             self.group.delete_prefix(prefix)
             return
         from zarr.core.sync import sync
