@@ -61,6 +61,7 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
     """
     from patchcloud.core import PatchcloudIOError
     from patchcloud.stream.io.catalog import expand_inputs, output_paths
+    from patchcloud.stream.io.las import check_not_input
     from patchcloud.stream.views.render import check_modes, input_sources, render
 
     if width is not None and width < 1:
@@ -76,8 +77,10 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
             if png in pngs[:k]:
                 raise PatchcloudValueError(f"{inputs[pngs.index(png)]} and {inputs[k]}: two inputs would draw the same picture {png}")
         jobs = list(zip(inputs, pngs))
-    for input, _ in jobs:  # every input checked before any picture is drawn
-        check_modes(input_sources(input, assume_crs)[0], [color], shade)
+    for input, output in jobs:  # every input checked before any picture is drawn
+        sources = input_sources(input, assume_crs)[0]
+        check_modes(sources, [color], shade)
+        check_not_input(output, [s.path for s in sources])
     if out_dir is not None:
         if not Path(out_dir).parent.is_dir():
             raise PatchcloudIOError(f"{out_dir}: the directory {Path(out_dir).parent} does not exist")

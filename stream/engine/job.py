@@ -57,7 +57,7 @@ from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.catalog import Catalog, expand_inputs, open_catalog, output_paths
-from patchcloud.stream.io.las import LasSource, check_las_output, check_writable, open_source
+from patchcloud.stream.io.las import LasSource, check_las_output, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
 from patchcloud.stream.io.store import Store
@@ -337,6 +337,18 @@ def write_profile(path: str | os.PathLike, runner: Runner, seconds: dict, starte
     tmp.replace(path)
 
 
+def _check_inputs_kept(catalog: Catalog, outs, store: str | None) -> None:
+    """No output and no store may be an input, nor the store an output (one clear error instead of a lost file)."""
+    inputs = [s.path for s in catalog.sources]
+    for o in outs:
+        check_not_input(o, inputs)
+    if store is not None and "://" not in store:
+        check_not_input(store, inputs)
+        for o in outs:
+            if same_file(store, o):
+                raise PatchcloudIOError(f"{store}: the store would be the output {o}; give another --store")
+
+
 def _store_url(run: RunOptions, catalog: Catalog, default_store: str) -> tuple[str, bool]:
     """The run's store: (URL, in memory)."""
     if run.runs_in_memory(catalog.point_count):
@@ -367,6 +379,7 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
         check_las_output(output)
         check_writable(output, overwrite=True)  # its directory; whether it may be replaced once the store is known
         catalog = Catalog.of(open_source(input))
+        _check_inputs_kept(catalog, [output], run.store)
         url, in_memory = _store_url(run, catalog, default_store_path(output))
         out = _writable(catalog, [Path(output)], url, in_memory, run.overwrite)[0]
         return catalog, [out], out, url, in_memory
@@ -383,6 +396,7 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
         raise PatchcloudIOError(f"{out_dir}: the directory {out_dir.parent} does not exist")
     outs = output_paths(paths, out_dir, input)
     catalog = open_catalog(paths, run.assume_crs)
+    _check_inputs_kept(catalog, outs, run.store)
     url, in_memory = _store_url(run, catalog, str(out_dir / "patchcloud.store"))
     if out_dir.exists():  # else no output can be there yet: the directory is made only once everything is checked
         outs = _writable(catalog, outs, url, in_memory, run.overwrite)

@@ -21,7 +21,7 @@ import numpy as np
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 __all__ = [
-    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "atomic_output", "is_laz_name", "laz_backend",
+    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
     "is_copc_name", "without_copc", "check_las_output",
 ]
 
@@ -264,6 +264,32 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
     if new:
         header.add_extra_dims(new)
     return header
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether ``a`` and ``b`` name one file (same inode: links and other spellings included; else the same resolved path).
+
+    >>> same_file("x/../a.las", "a.las")
+    True
+    """
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return Path(a).resolve() == Path(b).resolve()
+
+
+def check_not_input(output: str | os.PathLike, inputs) -> None:
+    """Refuse an output (or store, or report) that is one of the ``inputs``: an input is never replaced, ``--overwrite`` or not.
+
+    >>> check_not_input("out.laz", ["in.laz"])
+    >>> check_not_input("in.laz", ["./in.laz"])
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudIOError: in.laz: is the input ./in.laz; give another output (an input is never replaced)
+    """
+    for i in inputs:
+        if same_file(output, i):
+            raise PatchcloudIOError(f"{output}: is the input {i}; give another output (an input is never replaced)")
 
 
 def check_writable(path: str | os.PathLike, overwrite: bool) -> Path:

@@ -31,7 +31,7 @@ from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
 from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.catalog import expand_inputs, output_paths
-from patchcloud.stream.io.las import LasSource, check_writable, open_source
+from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source
 from patchcloud.stream.io.store import Store
 
 __all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile"]
@@ -264,6 +264,8 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions) -> list[
             raise PatchcloudValueError(f"{paths[outs.index(o)]} and {paths[k]}: two inputs would write the same output {o}")
     for p in paths:
         open_source(p)
+    for o in outs:
+        check_not_input(o, paths)
     out_dir = Path(run.out_dir)
     if not out_dir.parent.is_dir():
         raise PatchcloudIOError(f"{out_dir}: the directory {out_dir.parent} does not exist")

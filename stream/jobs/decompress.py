@@ -20,7 +20,7 @@ import numpy as np
 
 from patchcloud.core import MASK_SIDE, PatchcloudValueError, dequantise_models, sample_models
 from patchcloud.stream.io import pcz
-from patchcloud.stream.io.las import atomic_output, check_las_output, check_writable, is_laz_name, laz_backend
+from patchcloud.stream.io.las import atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend
 
 __all__ = ["decompress", "DecompressSummary"]
 
@@ -101,6 +101,7 @@ def decompress(
         if box.shape != (6,) or not np.isfinite(box).all() or np.any(box[:3] > box[3:]):
             raise PatchcloudValueError(f"bbox must be xmin ymin zmin xmax ymax zmax with each min <= max; got {bbox!r}")
     check_las_output(output)
+    check_not_input(output, [input])
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:

@@ -52,7 +52,7 @@ import numpy as np
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 from patchcloud.stream.io.catalog import open_catalog
-from patchcloud.stream.io.las import LasSource, laz_backend, open_source, read_chunks
+from patchcloud.stream.io.las import LasSource, check_not_input, laz_backend, open_source, read_chunks
 
 __all__ = [
     "COLOR_MODES", "VIEWS", "AMBIENT", "FLAT_RATIO", "LIGHT", "BACKGROUND", "UNDEFINED", "NO_SEGMENT",
@@ -1040,6 +1040,7 @@ def render(
 
     t0 = time.perf_counter()
     out = check_png_path(output)
+    check_not_input(out, [s.path for s in input_sources(input, assume_crs)[0]])
     img = render_array(input, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
                        heights=heights, chunk=chunk, assume_crs=assume_crs)
     save_png(render_figure(img), out)

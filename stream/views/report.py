@@ -48,7 +48,7 @@ from matplotlib.figure import Figure
 
 from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.io.las import atomic_output, open_source, read_chunks
+from patchcloud.stream.io.las import atomic_output, open_source, read_chunks, same_file
 from patchcloud.stream.views.plots import CMAP, STYLE, new_figure, style_axes
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -156,7 +156,7 @@ def check_report_path(path: str | os.PathLike, *, overwrite: bool = False, other
     if not os.access(p.parent, os.W_OK):
         raise PatchcloudIOError(f"{p}: the directory {p.parent} is not writable")
     for o in others:
-        if os.path.abspath(o) == os.path.abspath(p):
+        if same_file(o, p):
             raise PatchcloudIOError(f"{p}: the report would replace the job's file {o}")
     if p.exists() and not overwrite:
         raise PatchcloudIOError(f"{p}: exists (use --overwrite to replace it)")
