@@ -67,8 +67,8 @@ __all__ = [
     "time_and_memory_lines", "file_lines",
 ]
 
-#: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.54 GB
-#: (city LAZ, 2-core machine; about 0.45 GB plus 45 bytes per point: 0.60 GB at 4M points, 0.89 GB at 10M).
+#: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.61 GB
+#: (city LAZ, 2-core machine; about 0.45 GB plus 90 bytes per point: 0.77 GB at 4M points, 1.35 GB at 10M).
 IN_MEMORY_POINTS = 2_000_000
 
 
@@ -127,7 +127,7 @@ class RunOptions:
         for inputs of at most :data:`IN_MEMORY_POINTS` points when neither
         ``store``, ``keep_store``, ``workers`` nor a ``scheduler`` other
         than "auto" is given.  True: whatever the size (memory then grows with it: about
-        0.45 GB plus 45 bytes per point at the peak); False: never.
+        0.45 GB plus 90 bytes per point at the peak); False: never.
     """
 
     tile_size: float | None = None
