@@ -17,7 +17,8 @@ tile_size = click.option(
 )
 scheduler = click.option(
     "--scheduler", default="auto", show_default=True, metavar="ADDRESS",
-    help="'auto' (worker processes for files of 2 million points or more, else threads), 'threads', 'processes' "
+    help="'auto' (worker processes for files of 2 million points or more; below that in memory, or threads with --workers), "
+    "'threads', 'processes' "
     "(one task per worker, each worker a core), 'synchronous', or the address of a dask.distributed scheduler, "
     "e.g. tcp://host:8786 (the workers must then reach the input, the store and the output's directory).",
 )

@@ -83,7 +83,8 @@ class RunOptions:
         million points per tile over the file's footprint.
     scheduler : str
         "auto" (default: worker processes for files of 2 million points or
-        more, else threads), "threads", "processes", "synchronous", or a dask
+        more; below that in memory (``in_memory``), or threads when
+        ``workers`` is given), "threads", "processes", "synchronous", or a dask
         scheduler address such as ``tcp://host:8786``.
     workers : int, optional
         Threads or processes of the local scheduler (default: the cores).
