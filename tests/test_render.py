@@ -348,3 +348,6 @@ def test_outliers_far_above_do_not_spoil_the_framing(tmp_path):
     assert tall.rgb.shape[0] > 10 * side.rgb.shape[0] and tall.points_in_box == len(xyz)
     with pytest.raises(PatchcloudValueError, match="heights must be one of robust, all"):
         render_array(path, color="elevation", heights="some")
+    for bad in (-1, 65, 1.5, True):
+        with pytest.raises(PatchcloudValueError, match="fill must be a number of gap-filling passes from 0"):
+            render_array(path, color="elevation", fill=bad)

@@ -139,7 +139,7 @@ def don_options(func):
 
 
 def reports_errors(func):
-    """Turn a PatchcloudError (bad file, bad parameter) into one line on stderr and exit status 2."""
+    """Turn a PatchcloudError (bad file, bad parameter) into one line on stderr and exit status 2, Ctrl-C into one line and 130."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
@@ -148,5 +148,8 @@ def reports_errors(func):
         except PatchcloudError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(2)
+        except KeyboardInterrupt as exc:
+            click.echo(f"error: {exc or 'interrupted'}", err=True)
+            sys.exit(130)
 
     return wrapper

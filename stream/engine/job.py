@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any
 
 
-from patchcloud.core import PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with
+from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner
@@ -64,7 +64,7 @@ from patchcloud.stream.io.store import Store
 
 __all__ = [
     "IN_MEMORY_POINTS", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
-    "time_and_memory_lines", "file_lines",
+    "time_and_memory_lines", "file_lines", "kept_store_note",
 ]
 
 #: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.61 GB
@@ -428,10 +428,23 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
         finally:
             Store.discard(url)
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
-    summary = _run(job, catalog, outs, out, url, keep, run)
+    try:
+        summary = _run(job, catalog, outs, out, url, keep, run)
+    except PatchcloudError as exc:
+        raise type(exc)(f"{exc}{kept_store_note(url)}") from exc
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(f"interrupted{kept_store_note(url)}") from None
     if not keep:
         Store.discard(url)
     return summary
+
+
+def kept_store_note(url: str) -> str:
+    """What a failed or interrupted run says of its store: where it is, how big, and that the same command resumes from it."""
+    if "://" in url or not Store.exists(url):
+        return ""
+    size = sum(f.stat().st_size for f in Path(url).rglob("*") if f.is_file())
+    return f" (the store {url}, {size / 2**20:,.0f} MiB, is kept: the same command resumes from it; remove it to start over)"
 
 
 def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep: bool, run: RunOptions) -> Any:

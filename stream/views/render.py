@@ -704,6 +704,8 @@ def robust_heights(src: LasSource) -> tuple[float, float]:
 MAX_WIDTH = 6000
 #: Most gap-filling passes the default chooses.
 MAX_FILL = 8
+#: Most gap-filling passes that may be asked for (each pass widens the points by a pixel).
+FILL_LIMIT = 64
 
 
 def auto_fill(shape: tuple[int, int], points: int) -> int:
@@ -863,6 +865,9 @@ def render_arrays(
         raise PatchcloudValueError(f"view must be one of {', '.join(VIEWS)}; got {view!r}")
     if int(chunk) < 1:
         raise PatchcloudValueError(f"chunk must be a positive number of points; got {chunk!r}")
+    if fill is not None and (isinstance(fill, bool) or int(fill) != fill or not 0 <= fill <= FILL_LIMIT):
+        raise PatchcloudValueError(f"fill must be a number of gap-filling passes from 0 (none) to {FILL_LIMIT}, "
+                                   f"or left out (from the point spacing); got {fill!r}")
     if heights not in HEIGHTS:
         raise PatchcloudValueError(f"heights must be one of {', '.join(HEIGHTS)}; got {heights!r}")
     bbox = _check_bbox(bbox)

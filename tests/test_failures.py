@@ -1,0 +1,45 @@
+"""A failed or interrupted run: one line, and the store it keeps is named with its size and how to resume."""
+
+import pytest
+from click.testing import CliRunner
+from test_stream import write_scene
+
+from patchcloud.core import PatchcloudValueError
+from patchcloud.stream import normals
+from patchcloud.stream.cli import main
+from patchcloud.stream.jobs import normals_tiles
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("fail") / "scene.las"
+    write_scene(path, n=20_000, seed=3)
+    return path
+
+
+def test_a_failed_run_names_the_store_it_keeps_and_the_same_command_resumes(scene, tmp_path, monkeypatch):
+    out = tmp_path / "out.las"
+    finish = normals_tiles.finish_one_tile
+
+    def broken(*args, **kwargs):
+        raise PatchcloudValueError("a tile went wrong")
+
+    monkeypatch.setattr(normals_tiles, "finish_one_tile", broken)
+    with pytest.raises(PatchcloudValueError, match=r"a tile went wrong \(the store .*out.las.store, [\d,]+ MiB, is kept: "
+                                                   r"the same command resumes from it; remove it to start over\)"):
+        normals(scene, out, tile_size=16, scheduler="synchronous", quiet=True)
+    assert (tmp_path / "out.las.store").is_dir() and not out.exists()
+    monkeypatch.setattr(normals_tiles, "finish_one_tile", finish)
+    normals(scene, out, tile_size=16, scheduler="synchronous", quiet=True)
+    assert out.exists() and not (tmp_path / "out.las.store").exists()  # resumed, then the default store removed
+
+
+def test_ctrl_c_is_one_line_and_exit_130(scene, tmp_path, monkeypatch):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(normals_tiles, "finish_one_tile", interrupted)
+    r = CliRunner().invoke(main, ["normals", str(scene), str(tmp_path / "o.las"), "--on-disk", "--scheduler", "synchronous", "-q"])
+    assert r.exit_code == 130
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: interrupted (the store ") and "is kept" in lines[0], r.output
