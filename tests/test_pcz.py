@@ -122,3 +122,13 @@ def test_a_committed_file_of_this_version_reads_back_field_by_field():
         # the plane tile samples back on its plane
         q, _ = sample_models(dequantise_models(f.patches(0)[0]))
         assert len(q) > 1000 and np.abs(q[:, 2] - (0.1 * q[:, 0] + 1.0)).max() <= 0.005
+
+
+def test_a_tile_whose_residual_disagrees_with_the_index_is_named_as_the_store_names_it():
+    from pathlib import Path
+
+    with pcz.open_pcz(Path(__file__).parent / "data" / f"pcz-v{pcz.VERSION}.pcz") as f:
+        t = next(k for k in range(len(f.tiles)) if f.residual(k)[0].shape[0])
+        f.attrs["record_bytes"] += 1  # as a crafted header would say
+        with pytest.raises(PatchcloudIOError, match=r"tile t\+[01]\+0\+0 holds \d+ residual points of \d+ bytes, the index says"):
+            f.residual(t)

@@ -56,6 +56,8 @@ from zarr.codecs import BloscCodec
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
+from .store import tile_name
+
 __all__ = ["FORMAT", "VERSION", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
 
 FORMAT = "patchcloud-pcz"
@@ -267,7 +269,7 @@ class PczFile:
             mask=v["mask"],
         )
         if int(m.cells.sum()) != m.count.shape[0]:
-            raise PatchcloudIOError(f"{self.path}: tile {tuple(self.tiles[t])}: its patches name {int(m.cells.sum())} cells, "
+            raise PatchcloudIOError(f"{self.path}: tile {tile_name(self.tiles[t])}: its patches name {int(m.cells.sum())} cells, "
                                     f"the index says {m.count.shape[0]}")
         return m, v["classification"], v["intensity"]
 
@@ -281,10 +283,10 @@ class PczFile:
         try:
             las = laspy.read(io.BytesIO(self.root["residual/laz"][s].tobytes()))
         except Exception as exc:
-            raise PatchcloudIOError(f"{self.path}: the residual points of tile {tuple(self.tiles[t])} cannot be read ({exc})") from exc
+            raise PatchcloudIOError(f"{self.path}: the residual points of tile {tile_name(self.tiles[t])} cannot be read ({exc})") from exc
         raw = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
         if raw.shape != (n, B + 12):
-            raise PatchcloudIOError(f"{self.path}: tile {tuple(self.tiles[t])} holds {raw.shape[0]} residual points of "
+            raise PatchcloudIOError(f"{self.path}: tile {tile_name(self.tiles[t])} holds {raw.shape[0]} residual points of "
                                     f"{raw.shape[1]} bytes, the index says {n} of {B + 12}")
         return raw[:, :12].copy().view("<i4").reshape(n, 3), raw[:, 12:].copy()
 
