@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from patchcloud.core import PatchcloudValueError
@@ -59,8 +57,7 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
       patchcloud render tiles/ catalog.png --color elevation
       patchcloud render tiles_normals/ --out-dir pictures/ --color normals
     """
-    from patchcloud.core import PatchcloudIOError
-    from patchcloud.stream.io.catalog import expand_inputs, output_paths
+    from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
     from patchcloud.stream.io.las import check_not_input
     from patchcloud.stream.views.render import check_modes, input_sources, render
 
@@ -70,21 +67,15 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
         if len(paths) < 2:
             raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT picture after it, or --out-dir DIR")
         jobs = [(list(paths[:-1]) if len(paths) > 2 else paths[0], paths[-1])]
-    else:
+    else:  # one picture per file: every file checked before the first is drawn (render checks one job itself)
         inputs = expand_inputs(list(paths))
-        pngs = [p.with_suffix(".png") for p in output_paths(inputs, out_dir, list(paths))]
-        for k, png in enumerate(pngs):
-            if png in pngs[:k]:
-                raise PatchcloudValueError(f"{inputs[pngs.index(png)]} and {inputs[k]}: two inputs would draw the same picture {png}")
-        jobs = list(zip(inputs, pngs))
-    for input, output in jobs:  # every input checked before any picture is drawn
-        sources = input_sources(input, assume_crs)[0]
-        check_modes(sources, [color], shade)
-        check_not_input(output, [s.path for s in sources])
-    if out_dir is not None:
-        if not Path(out_dir).parent.is_dir():
-            raise PatchcloudIOError(f"{out_dir}: the directory {Path(out_dir).parent} does not exist")
-        Path(out_dir).mkdir(exist_ok=True)
+        directory = check_out_dir(out_dir)
+        jobs = list(zip(inputs, output_paths(inputs, directory, list(paths), suffix=".png")))
+        for input, output in jobs:
+            sources = input_sources(input, assume_crs)[0]
+            check_modes(sources, [color], shade)
+            check_not_input(output, [s.path for s in sources])
+        directory.mkdir(exist_ok=True)
     for input, output in jobs:
         s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
                    heights=heights, assume_crs=assume_crs)

@@ -253,19 +253,19 @@ def export_columns(
                 store.put(f"export/{col.array}_numbers", ids.number)
         todo = [f for f in range(len(outs)) if not done[f]]
         starts = {f: las_output.begin(headers[f], tmps[f], cat.sources[f].point_count) for f in todo}
-        calls, owner = [], []
+        calls, owner = [], []  # owner[k]: (file, part within the file) of call k
         for p, (f, first, count) in enumerate(parts):
             if not done[f]:
-                calls.append(((store.url, p, f, p - int(first_part[f]), first, count, columns, dims, tmps[f], starts[f],
-                               compressed[f]), {"laz_parallel": laz_parallel}))
-                owner.append(f)
+                local = p - int(first_part[f])
+                calls.append(((store.url, p, f, local, first, count, columns, dims, tmps[f], starts[f], compressed[f]),
+                              {"laz_parallel": laz_parallel}))
+                owner.append((f, local))
         results: dict[int, list] = {f: [None] * int(first_part[f + 1] - first_part[f]) for f in todo}
         left = {f: len(r) for f, r in results.items()}
 
         def finish(k: int, result) -> None:  # the part's file is complete once its last part is in: stitch, rename, record
-            f = owner[k]
-            p = calls[k][0][1]
-            results[f][p - int(first_part[f])] = result
+            f, local = owner[k]
+            results[f][local] = result
             left[f] -= 1
             if left[f] == 0:
                 mine = results.pop(f)

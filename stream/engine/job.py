@@ -56,7 +56,7 @@ from patchcloud.stream.engine.export import Column, complete_outputs, export_col
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.engine.tasks import map_tiles
-from patchcloud.stream.io.catalog import Catalog, expand_inputs, open_catalog, output_paths
+from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import LasSource, check_las_output, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
@@ -280,7 +280,7 @@ class JobContext:
     @property
     def scheduler(self) -> str:
         """How the run ran, as summaries name it: the scheduler, or "in memory"."""
-        return "in memory" if memory_group.is_memory_url(self.store.url) else self.runner.scheduler
+        return "in memory" if self.store.in_memory else self.runner.scheduler
 
     @property
     def input_name(self) -> str:
@@ -390,11 +390,7 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
     if len(paths) > 1 and not job.catalogs:
         raise PatchcloudNotImplementedError(f"{type(job).__name__.removesuffix('Job').lower()} takes one file at a time: "
                                             f"catalogs of files are not supported yet ({len(paths)} files given)")
-    out_dir = Path(run.out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise PatchcloudIOError(f"{out_dir}: exists and is not a directory")
-    if not out_dir.parent.exists():
-        raise PatchcloudIOError(f"{out_dir}: the directory {out_dir.parent} does not exist")
+    out_dir = check_out_dir(run.out_dir)
     outs = output_paths(paths, out_dir, input)
     catalog = open_catalog(paths, run.assume_crs)
     _check_inputs_kept(catalog, outs, run.store)

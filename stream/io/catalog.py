@@ -40,7 +40,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 from .las import LasSource, is_copc_name, open_source
 
-__all__ = ["Catalog", "expand_inputs", "open_catalog", "output_name", "output_paths", "factor_and_shift", "LAS_SUFFIXES"]
+__all__ = ["Catalog", "expand_inputs", "open_catalog", "output_name", "output_paths", "check_out_dir", "factor_and_shift", "LAS_SUFFIXES"]
 
 #: File name endings taken from a directory (case-insensitive).
 LAS_SUFFIXES = (".las", ".laz")
@@ -198,26 +198,44 @@ def output_name(path: str | os.PathLike) -> str:
     return name
 
 
-def output_paths(paths: list[Path], out_dir: str | os.PathLike, inputs=()) -> list[Path]:
+def output_paths(paths: list[Path], out_dir: str | os.PathLike, inputs=(), suffix: str | None = None) -> list[Path]:
     """Where each input's output goes in ``out_dir``; errors for two inputs with one output name or ``out_dir`` inside an input directory.
 
     ``inputs``: the inputs as given, to refuse an output directory inside
     a directory given as input (the outputs would mix with the inputs).
+    ``suffix``: the outputs' suffix (``.pcz``, ``.png``) instead of the
+    input's (:func:`output_name`).
+
+    >>> [p.name for p in output_paths([Path("a/t1.laz"), Path("b/t2.copc.laz")], "out", suffix=".png")]
+    ['t1.png', 't2.png']
     """
     out = Path(out_dir)
-    names: dict[str, Path] = {}
+    names: dict[str, Path] = {}  # output name, lower case -> its input
+    outs = []
     for p in paths:
-        n = output_name(p)
+        n = output_name(p) if suffix is None else str(Path(output_name(p)).with_suffix(suffix))
         if n.lower() in names:
             raise PatchcloudValueError(f"{names[n.lower()]} and {p}: two inputs would write the same output {out / n}")
         names[n.lower()] = p
+        outs.append(out / n)
     o = out.resolve()
     for item in (Path(i) for i in ([inputs] if isinstance(inputs, (str, os.PathLike)) else inputs)):
         if item.is_dir():
             d = item.resolve()
             if o == d or d in o.parents:
                 raise PatchcloudValueError(f"{out}: the output directory is inside the input directory {item}; choose another")
-    return [out / output_name(p) for p in paths]
+    return outs
+
+
+def check_out_dir(out_dir: str | os.PathLike) -> Path:
+    """``out_dir`` as a Path once it can hold the outputs: a directory, or absent with its parent there (the caller makes
+    it once everything else is checked, so an error leaves nothing behind)."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise PatchcloudIOError(f"{out}: exists and is not a directory")
+    if not out.parent.is_dir():
+        raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
+    return out
 
 
 def _same_crs(a: str, b: str) -> bool:

@@ -21,16 +21,15 @@ from __future__ import annotations
 import dataclasses
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import laspy
 import numpy as np
 
-from patchcloud.core import CompressOptions, PatchcloudIOError, PatchcloudValueError, PatchModels, QuantisedModels, fit_models, quantise_models
+from patchcloud.core import CompressOptions, PatchcloudValueError, PatchModels, QuantisedModels, fit_models, quantise_models
 from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
 from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
 from patchcloud.stream.io import pcz
-from patchcloud.stream.io.catalog import expand_inputs, output_paths
+from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
 from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source
 from patchcloud.stream.io.store import Store
 
@@ -258,17 +257,12 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions) -> list[
     input and output is checked before the first is written.
     """
     paths = expand_inputs(inputs)
-    outs = [o.with_suffix(".pcz") for o in output_paths(paths, run.out_dir, inputs)]
-    for k, o in enumerate(outs):
-        if o in outs[:k]:
-            raise PatchcloudValueError(f"{paths[outs.index(o)]} and {paths[k]}: two inputs would write the same output {o}")
+    out_dir = check_out_dir(run.out_dir)
+    outs = output_paths(paths, out_dir, inputs, suffix=".pcz")
     for p in paths:
         open_source(p)
     for o in outs:
         check_not_input(o, paths)
-    out_dir = Path(run.out_dir)
-    if not out_dir.parent.is_dir():
-        raise PatchcloudIOError(f"{out_dir}: the directory {out_dir.parent} does not exist")
     if out_dir.exists():
         outs = [check_writable(o, run.overwrite) for o in outs]
     out_dir.mkdir(exist_ok=True)

@@ -831,14 +831,15 @@ def check_modes(sources: Sequence[LasSource], colors: Sequence[str], shade: bool
 def render_arrays(
     input, *, colors: Sequence[str], view: str | None = None, bbox=None, width: int = 1600,
     shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust", chunk: int = 1 << 20,
-    assume_crs: str | None = None,
+    assume_crs: str | None = None, output: str | os.PathLike | None = None,
 ) -> list[RenderImage]:
     """Pictures of one file, or of a catalog as one cloud, in several colour modes, from one read (see :func:`render_array`).
 
     The pixels, the points drawn in them and the shading are the same in
     every picture (they depend on the view, not on the colour); each pixel
     keeps the values of every mode, so N pictures cost one pass over the
-    file, not N.
+    file, not N.  ``output``: the path the caller will write the pictures
+    to, refused (before the read) when it is one of the inputs.
 
     Returns
     -------
@@ -872,6 +873,8 @@ def render_arrays(
         raise PatchcloudValueError(f"heights must be one of {', '.join(HEIGHTS)}; got {heights!r}")
     bbox = _check_bbox(bbox)
     sources, name = input_sources(input, assume_crs)
+    if output is not None:  # where the caller will write the picture: never one of the inputs
+        check_not_input(output, [s.path for s in sources])
     shade = check_modes(sources, colors, shade)
 
     origin = np.min([s.mins for s in sources], axis=0).astype(np.float64)
@@ -1045,9 +1048,8 @@ def render(
 
     t0 = time.perf_counter()
     out = check_png_path(output)
-    check_not_input(out, [s.path for s in input_sources(input, assume_crs)[0]])
-    img = render_array(input, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
-                       heights=heights, chunk=chunk, assume_crs=assume_crs)
+    img = render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
+                        heights=heights, chunk=chunk, assume_crs=assume_crs, output=out)[0]
     save_png(render_figure(img), out)
     H, W = img.filled.shape
     return RenderSummary(
