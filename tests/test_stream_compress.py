@@ -152,3 +152,37 @@ def test_header_vlrs_and_extended_vlrs_survive(tmp_path):
         ("patchcloud-test", 7, b"vlr bytes")]
     assert [(v.user_id, v.record_id, bytes(v.record_data)) for v in back.evlrs] == [("patchcloud-test", 8, b"e" * 70000)]
     assert len(back.points) == 5000
+
+
+def test_the_same_input_gives_the_same_pcz_bytes_wherever_and_whenever_it_is(tmp_path):
+    """Reproducible .pcz: entries dated ZIP_TIME in name order; the input recorded by its name, its path only when asked."""
+    import os
+    import shutil
+    import time
+    import zipfile
+
+    import zarr
+    from test_stream import write_scene
+    from zarr.storage import ZipStore
+
+    from patchcloud.stream.io.pcz import ZIP_TIME
+
+    a = tmp_path / "a" / "scene.las"
+    a.parent.mkdir()
+    write_scene(a, n=20_000, seed=11)
+    b = tmp_path / "b" / "scene.las"
+    b.parent.mkdir()
+    shutil.copyfile(a, b)
+    os.utime(b, (time.time() - 3600, time.time() - 3600))
+    compress(a, tmp_path / "one.pcz", max_error=0.02, quiet=True)
+    time.sleep(2.1)  # another zip time stamp, were it the clock's
+    compress(b, tmp_path / "two.pcz", max_error=0.02, scheduler="synchronous", quiet=True)
+    assert (tmp_path / "one.pcz").read_bytes() == (tmp_path / "two.pcz").read_bytes()
+    with zipfile.ZipFile(tmp_path / "one.pcz") as z:
+        names = [i.filename for i in z.infolist()]
+        assert names == sorted(names) and {i.date_time for i in z.infolist()} == {ZIP_TIME}
+    src = dict(zarr.open_group(ZipStore(str(tmp_path / "one.pcz"), mode="r"), mode="r").attrs)["source"]
+    assert src["path"] == "scene.las" and "mtime_ns" not in src
+    compress(a, tmp_path / "three.pcz", max_error=0.02, quiet=True, record_source=True)
+    src = dict(zarr.open_group(ZipStore(str(tmp_path / "three.pcz"), mode="r"), mode="r").attrs)["source"]
+    assert src["path"] == str(a.resolve()) and src["mtime_ns"] == a.stat().st_mtime_ns

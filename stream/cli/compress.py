@@ -17,9 +17,12 @@ from . import options
 @click.option("--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
               help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), each compressed on its own "
               "to DIR/NAME.pcz.")
+@click.option("--record-source", is_flag=True, default=False,
+              help="Record the input's absolute path and modification time in the .pcz (default: its file name only, so the same "
+              "input and parameters give the same bytes).")
 @options.report_option
 @options.reports_errors
-def compress_command(paths, max_error, report, **run):
+def compress_command(paths, max_error, record_source, report, **run):
     """Compress INPUT (LAS/LAZ/COPC, any size) to OUTPUT, a .pcz of quadric patch models and residual points.
 
     With --out-dir DIR every argument is an input and each file is
@@ -45,7 +48,7 @@ def compress_command(paths, max_error, report, **run):
     if run.out_dir is not None and report is not None:
         raise PatchcloudNotImplementedError("compress --out-dir compresses each file on its own: a --report of them is not built yet")
     input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
-    summary = compress(input, output, CompressOptions(max_error=max_error), run)
+    summary = compress(input, output, CompressOptions(max_error=max_error), run, record_source=record_source)
     if isinstance(summary, list):  # a catalog, file by file (no --report: input_and_output refuses it)
         for s in summary:
             options.finish_job(s, run.quiet, None, "report_compress")

@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError
 
-__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -21,6 +21,11 @@ scheduler = click.option(
     "'threads', 'processes' "
     "(one task per worker, each worker a core), 'synchronous', or the address of a dask.distributed scheduler, "
     "e.g. tcp://host:8786 (the workers must then reach the input, the store and the output's directory).",
+)
+scheduler_file = click.option(
+    "--scheduler-file", default=None, metavar="JSON", type=click.Path(dir_okay=False),
+    help="Run on the dask scheduler whose address this file holds (what 'dask scheduler --scheduler-file' and dask-jobqueue "
+    "write; SLURM and PBS set-ups share it this way) instead of --scheduler.",
 )
 workers = click.option("--workers", type=int, default=None, help="Threads or processes on this machine (each uses one core). Default: the cores.")
 store = click.option(
@@ -112,14 +117,24 @@ def run_options(values: dict):
     ``values`` by their names (a command's ``**run``; ``--keep-store`` absent: the default rule)."""
     from patchcloud.stream import RunOptions
 
+    from patchcloud.core import PatchcloudValueError
+    from patchcloud.stream.engine.runner import scheduler_from_file
+
+    values = dict(values)
+    path = values.pop("scheduler_file", None)
+    if path is not None:
+        if values.get("scheduler", "auto") != "auto":
+            raise PatchcloudValueError("give --scheduler or --scheduler-file, not both")
+        values["scheduler"] = scheduler_from_file(path)
     return RunOptions(**dict(values, keep_store=values.get("keep_store") or None))
 
 
 
 def job_options(func):
     """The options every out-of-core job shares, named as the fields of RunOptions (a command takes them as ``**run``:
-    :func:`run_options`): --tile-size, --scheduler, --workers, --store, --keep-store, --in-memory, --overwrite, -q, --profile."""
-    for option in reversed([tile_size, scheduler, workers, store, keep_store, in_memory, overwrite, quiet, profile]):
+    :func:`run_options`): --tile-size, --scheduler, --scheduler-file, --workers, --store, --keep-store, --in-memory, --overwrite,
+    -q, --profile."""
+    for option in reversed([tile_size, scheduler, scheduler_file, workers, store, keep_store, in_memory, overwrite, quiet, profile]):
         func = option(func)
     return func
 

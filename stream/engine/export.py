@@ -48,7 +48,7 @@ from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io import las_output
 from patchcloud.stream.io.las import check_writable, is_laz_name, output_header
 from patchcloud.stream.io.catalog import Catalog
-from patchcloud.stream.io.store import Store, tile_name
+from patchcloud.stream.io.store import Store
 
 __all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs"]
 
@@ -129,10 +129,9 @@ def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: 
     values = [np.empty((n, len(col.dims)) if len(col.dims) > 1 else n, col.dtype) for col in columns]
     s = 0
     for t, m, start in zip(rows[:, 1].tolist(), rows[:, 2].tolist(), starts.tolist()):
-        g = store.group[f"tiles/{tile_name(tiles[t])}"]
         dst = order[s : s + m]
         for col, v in zip(columns, values):
-            got = g[col.array][start : start + m]
+            got = store.read(tiles[t], col.array, slice(start, start + m))
             v[dst] = col.per_tile(store, t, got) if col.per_tile else got
         s += m
     return records, values
@@ -269,7 +268,8 @@ def export_columns(
             left[f] -= 1
             if left[f] == 0:
                 mine = results.pop(f)
-                las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None)
+                las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None,
+                                  source=cat.sources[f].path)
                 Path(tmps[f]).replace(outs[f])
                 store.set_group_attrs("outputs", **{str(f): dict(_file_record(outs[f]), key=key)})
 

@@ -54,13 +54,14 @@ from typing import Any
 from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
-from patchcloud.stream.engine.runner import Runner
+from patchcloud.stream.engine.runner import Runner, check_scheduler
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import LasSource, check_las_output, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
-from patchcloud.stream.io.store import Store
+from patchcloud.stream.io.lock import RunLock
+from patchcloud.stream.io.store import PatchcloudStoreError, Store
 
 __all__ = [
     "IN_MEMORY_POINTS", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
@@ -152,8 +153,7 @@ class RunOptions:
             isinstance(self.chunk, bool) or int(self.chunk) != self.chunk or self.chunk < 1 or self.chunk % LAZ_CHUNK
         ):
             raise PatchcloudValueError(f"chunk must be a positive multiple of {LAZ_CHUNK:,} points, got {self.chunk!r}")
-        if not isinstance(self.scheduler, str) or not self.scheduler:
-            raise PatchcloudValueError(f"scheduler must be a name or an address, got {self.scheduler!r}")
+        check_scheduler(self.scheduler)
         if self.in_memory not in (None, True, False):
             raise PatchcloudValueError(f"in_memory must be True, False or None (by the input's size), got {self.in_memory!r}")
         if self.in_memory:
@@ -416,8 +416,20 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
     PatchcloudValueError (a ValueError)
         An invalid option (the scheduler's, say), or a catalog whose files
         are not one cloud (CRSs, grids).
+    PatchcloudLockedError (a PatchcloudIOError)
+        Another run is writing the same output or store
+        (:mod:`patchcloud.stream.io.lock`).
     """
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
+    locked = [out if run.out_dir is None else out / "patchcloud"]  # a catalog: OUT_DIR/patchcloud.lock
+    if run.store is not None and "://" not in run.store:
+        locked.append(run.store)
+    with RunLock(locked):
+        return _run_locked(job, catalog, outs, out, url, in_memory, run)
+
+
+def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, in_memory: bool, run: RunOptions) -> Any:
+    """run_job once its outputs and store are checked and locked."""
     if in_memory:
         try:
             return _run(job, catalog, outs, out, url, False, dataclasses.replace(run, scheduler="synchronous"))
@@ -426,6 +438,8 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
     try:
         summary = _run(job, catalog, outs, out, url, keep, run)
+    except PatchcloudStoreError:
+        raise
     except PatchcloudError as exc:
         raise type(exc)(f"{exc}{kept_store_note(url)}") from exc
     except KeyboardInterrupt:

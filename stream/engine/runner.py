@@ -8,7 +8,9 @@ those calls.
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import resource
 import socket
 import threading
@@ -17,14 +19,59 @@ import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from patchcloud.core import PatchcloudValueError, single_threaded
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError, single_threaded
 
 from patchcloud.stream.engine.progress import Progress
 
-__all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "resolve_scheduler"]
+__all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "ADDRESS_SCHEMES", "resolve_scheduler", "check_scheduler", "scheduler_from_file"]
 
 #: Named schedulers; anything else is taken as the address of a dask.distributed scheduler.
 SCHEDULERS = ("auto", "threads", "processes", "synchronous")
+#: The schemes of the dask.distributed scheduler addresses patchcloud takes (TLS: set dask's ``distributed.comm.tls``
+#: configuration, or ``DASK_DISTRIBUTED__COMM__TLS__*`` variables, as for any dask client).
+ADDRESS_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
+_ADDRESS = re.compile(r"^(?:(?P<scheme>[A-Za-z0-9]+)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+)(?::(?P<port>\d{1,5}))?$")
+
+
+def check_scheduler(scheduler) -> str:
+    """``scheduler`` when it is one of :data:`SCHEDULERS` or a scheduler address ``SCHEME://HOST[:PORT]`` (a scheme of
+    :data:`ADDRESS_SCHEMES`) or ``HOST:PORT``; else one PatchcloudValueError saying what is taken.
+
+    >>> check_scheduler("tls://10.0.0.1:8786"), check_scheduler("node7:8786"), check_scheduler("threads")
+    ('tls://10.0.0.1:8786', 'node7:8786', 'threads')
+    >>> check_scheduler("htps://node7:8786")
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: scheduler must be one of auto, threads, processes, synchronous or a dask scheduler address SCHEME://HOST[:PORT] with SCHEME one of tcp, tls, ucx, ws, wss (or HOST:PORT); got 'htps://node7:8786'
+    """
+    if isinstance(scheduler, str) and scheduler in SCHEDULERS:
+        return scheduler
+    m = _ADDRESS.match(scheduler) if isinstance(scheduler, str) else None
+    ok = m is not None and (m["scheme"] in ADDRESS_SCHEMES if m["scheme"] else m["port"] is not None)
+    if not ok or (m["port"] is not None and not 0 < int(m["port"]) < 65536):
+        raise PatchcloudValueError(
+            f"scheduler must be one of {', '.join(SCHEDULERS)} or a dask scheduler address SCHEME://HOST[:PORT] with SCHEME one of "
+            f"{', '.join(ADDRESS_SCHEMES)} (or HOST:PORT); got {scheduler!r}"
+        )
+    return scheduler
+
+
+def scheduler_from_file(path) -> str:
+    """The address in a dask scheduler file (the JSON ``dask scheduler --scheduler-file`` and dask-jobqueue write).
+
+    Raises
+    ------
+    PatchcloudIOError
+        ``path`` cannot be read or holds no address.
+    PatchcloudValueError
+        The address is not one :func:`check_scheduler` takes.
+    """
+    try:
+        with open(path) as f:
+            address = json.load(f)["address"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise PatchcloudIOError(f"{path}: not a dask scheduler file with an address ({type(exc).__name__}: {exc})") from None
+    return check_scheduler(address)
 
 #: From this many points on, "auto" runs worker processes (below, threads: no processes to start).
 AUTO_PROCESSES_POINTS = 2_000_000

@@ -10,19 +10,21 @@ only when complete.
 from __future__ import annotations
 
 import os
+import struct
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import laspy
+import lazrs
 import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
-    "is_copc_name", "without_copc", "check_las_output",
+    "is_copc_name", "without_copc", "check_las_output", "laz_point_range",
 ]
 
 
@@ -140,12 +142,20 @@ def open_source(path: str | os.PathLike) -> LasSource:
             record = int(h.point_format.size)
             start = int(h.offset_to_point_data)
             evlr = int(getattr(h, "start_of_first_evlr", 0) or 0)
+            if h.global_encoding.waveform_data_packets_internal:
+                waves = int(getattr(h, "start_of_waveform_data_packet_record", 0) or 0)
+                evlr = min(v for v in (evlr, waves) if v > 0) if max(evlr, waves) > 0 else 0
     except PatchcloudIOError:
         raise
     except Exception as exc:
         raise PatchcloudIOError(f"{p}: not a readable LAS/LAZ file ({exc})") from exc
     if src.point_count == 0:
         raise PatchcloudIOError(f"{p}: the file holds no points")
+    if compressed:
+        held = laz_point_range(p, start, record, src.point_format)
+        if held is not None and not held[0] <= src.point_count <= held[1]:
+            what = f"{held[0]:,}" if held[0] == held[1] else f"{held[0]:,} to {held[1]:,} (its chunks of fixed size)"
+            raise PatchcloudIOError(f"{p}: the header says {src.point_count:,} points but the LAZ chunk table holds {what}")
     if not compressed:
         end = start + src.point_count * record
         if st.st_size < end:
@@ -160,6 +170,44 @@ def open_source(path: str | os.PathLike) -> LasSource:
                 f"{p}: the header says {src.point_count:,} points but the point data holds {extra:,}"
             )
     return src
+
+
+def laz_point_range(path: str | os.PathLike, start: int, record: int, point_format: int) -> tuple[int, int] | None:
+    """The fewest and the most points the LAZ point data at ``start`` can hold, by its chunk table: (n, n) when exact.
+
+    Exact for variable-size chunks (COPC, ...), whose table counts each
+    chunk's points, and for the layered formats 6 to 10, whose last chunk
+    starts with its first point and its point count.  Chunks of a fixed size
+    in formats 0 to 5 hold that many points each but the last, of which the
+    table only says it holds at least one.  None: no readable chunk table
+    (a LAZ written without one, or cut short: the reading then fails).
+
+    ``record``: the point record's size (bytes).
+    """
+    try:
+        with open(path, "rb") as f:
+            vlrs = laspy.LasHeader.read_from(f).vlrs.get("LasZipVlr")
+            if not vlrs:
+                return None
+            vlr = lazrs.LazVlr(vlrs[0].record_data)
+            f.seek(start)
+            table = lazrs.read_chunk_table(f, vlr)
+            if not table:
+                return None
+            if vlr.uses_variable_size_chunks():
+                n = sum(int(c[0]) for c in table)
+                return n, n
+            size, k = int(vlr.chunk_size()), len(table)
+            if point_format < 6:
+                return size * (k - 1) + 1, size * k
+            f.seek(start + 8 + sum(int(c[1]) for c in table[:-1]) + record)  # the last chunk's first point, raw, then its count
+            last = f.read(4)
+            if len(last) < 4:
+                return None
+            n = size * (k - 1) + struct.unpack("<I", last)[0]
+            return n, n
+    except Exception:
+        return None
 
 
 def read_range(src: LasSource, first: int, count: int, parallel: bool = False) -> laspy.ScaleAwarePointRecord:

@@ -225,14 +225,34 @@ def _append(src, dst) -> None:
     shutil.copyfileobj(src, dst, 1 << 24)
 
 
-def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: list[PointStats], tables: list | None = None) -> None:
+def _copy_range(path: str, first: int, dst) -> None:
+    """Copy the bytes of file ``path`` from offset ``first`` to its end onto the end of ``dst``."""
+    with open(path, "rb") as src:
+        src.seek(first)
+        dst.seek(0, os.SEEK_END)
+        shutil.copyfileobj(src, dst, 1 << 24)
+
+
+def _is_waveform_record(v) -> bool:
+    return v.user_id == "LASF_Spec" and v.record_id == 65535
+
+
+def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: list[PointStats], tables: list | None = None,
+           source: str | None = None) -> None:
     """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments in part order and the chunk table;
     then the header's EVLRs (LAS 1.4: a CRS WKT is often one), after the point data.
 
     ``tables``: each LAZ part's chunk-table entries, in part order.
+    ``source``: the input file, whose internal waveform data packet record
+    (LAS 1.3: from the header's offset to the end of the file; LAS 1.4: an
+    EVLR, kept with the others) follows the points of the output too, the
+    header pointing at it; the wave packet descriptors of the points are
+    relative to its start, so they stay true.
     """
     h = _merge(header, stats)
     evlrs = header.evlrs if header.version.minor >= 4 and header.evlrs else None
+    waves = h.global_encoding.waveform_data_packets_internal
+    h.start_of_waveform_data_packet_record = 0
     with open(tmp, "r+b") as f:
         if h.are_points_compressed:
             f.seek(start)
@@ -248,10 +268,20 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
             f.truncate()
             f.seek(start)
             f.write(struct.pack("<q", table_at))
+        if waves and header.version.minor < 4 and source is not None:
+            with open(source, "rb") as src:
+                first = laspy.LasHeader.read_from(src).start_of_waveform_data_packet_record
+            f.seek(0, os.SEEK_END)
+            h.start_of_waveform_data_packet_record = f.tell()
+            _copy_range(source, first, f)
         if evlrs:
             f.seek(0, os.SEEK_END)
             h.start_of_first_evlr, h.number_of_evlrs = f.tell(), len(evlrs)
-            evlrs.write_to(f, as_extended=True)
+            for v in evlrs:
+                if waves and _is_waveform_record(v) and not h.start_of_waveform_data_packet_record:
+                    h.start_of_waveform_data_packet_record = f.tell()
+                type(evlrs)([v]).write_to(f, as_extended=True)
+        h.global_encoding.waveform_data_packets_internal = bool(h.start_of_waveform_data_packet_record)
         f.seek(0)
         h.write_to(f, ensure_same_size=True)
     if h.are_points_compressed:

@@ -32,6 +32,10 @@ anywhere: integers, floats, JSON attributes.  Layout, version 2::
                                   byte, as a LAZ file (lazrs: LAS records compress best
                                   with LAZ's field-wise predictive coding)
 
+The file is reproducible: the same input and parameters give the same
+bytes (entries in name order, each dated :data:`ZIP_TIME`; the input
+recorded by its name, not its path, unless asked).
+
 Reading checks the format mark and the version, and names the file in
 every error (:class:`patchcloud.core.errors.PatchcloudIOError`): a file
 that is not a zip, truncated, of another version or made by something else.
@@ -58,10 +62,12 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError, QuantisedMo
 
 from .store import tile_name
 
-__all__ = ["FORMAT", "VERSION", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
+__all__ = ["FORMAT", "VERSION", "ZIP_TIME", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
 
 FORMAT = "patchcloud-pcz"
 VERSION = 2
+#: The date of every zip entry (the zip format's earliest), so that a ``.pcz`` does not depend on when it was written.
+ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 #: Rows per chunk of every per-patch, per-cell and per-residual-point array.
 CHUNK = 1 << 16
 #: Byte shuffle + Zstd at its strongest level through Blosc (measured on an IGN tile's patches:
@@ -198,9 +204,12 @@ def write_pcz(
         )
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as z:
             base = work / "store"
-            for f in sorted(base.rglob("*")):
+            for f in sorted(base.rglob("*")):  # in name order, with a fixed time: the same models give the same bytes
                 if f.is_file():
-                    z.write(f, f.relative_to(base).as_posix())
+                    entry = zipfile.ZipInfo(f.relative_to(base).as_posix(), date_time=ZIP_TIME)
+                    entry.external_attr = 0o644 << 16
+                    with open(f, "rb") as src, z.open(entry, "w", force_zip64=True) as dst:
+                        shutil.copyfileobj(src, dst, 1 << 22)
         os.replace(tmp, out)
         return counts
     finally:

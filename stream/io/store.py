@@ -4,7 +4,7 @@ Layout (zarr format 3; a local path or any fsspec URL the workers can reach;
 or ``memory://NAME``, a store in this process's memory for inline runs:
 :mod:`.memory_group`)::
 
-    store/                       attrs: format, version, catalog (the input files), source (the first), grid, steps done
+    store/                       attrs: format, version, uid, catalog (the input files), source (the first), grid, steps done
       index/chunk_tile           (K, 3) int64: input chunk, tile, points of the chunk in the tile
       tiles/<name>/              attrs: ijk, count, done (per step)
         xyz                      (n, 3) int32  LAS integer coordinates, sorted by octree key
@@ -22,12 +22,23 @@ metres) anchored at ``origin`` (a multiple of :data:`ANCHOR` metres), so
 every tile is a cube of one global octree whatever the tile size, and a
 tile's face is an octree face.  Coordinates stay exact: the LAS integers
 are stored; the float64 local frame is ``X * scale + offset - origin``.
+
+Integrity: every array on disk carries, in its attributes, the crc32 of
+each of its chunks' data and the store's ``uid``; every read checks the
+chunks it touches (:meth:`Store.read`, :meth:`Store.get`), and every blob
+ends in its crc32.  A chunk altered or deleted (zarr reads a deleted chunk
+as zeros), an array missing, or one copied from another store is a
+:class:`PatchcloudStoreError` naming the tile and the array, never a
+silent zero.  Stores held in memory are not checked.
 """
 
 from __future__ import annotations
 
 import json
 import shutil
+import struct
+import uuid
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,14 +48,35 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError, PatchTable
 from . import memory_group
 from .catalog import Catalog
 
-__all__ = ["Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name"]
+__all__ = [
+    "Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name", "PatchcloudStoreError",
+    "chunk_checksums",
+]
 
 FORMAT = "patchcloud-store"
-VERSION = 1
+#: 2: arrays carry chunk checksums and the store's uid.
+VERSION = 2
+#: What a damaged store's error tells the user to do.
+START_OVER = "remove the store to start over"
 #: The grid origin is a multiple of this (metres), so grids of every power-of-two tile size up to it align.
 ANCHOR = 4096.0
 #: Largest tile size (metres).
 MAX_TILE = ANCHOR
+
+
+class PatchcloudStoreError(PatchcloudIOError):
+    """The store is damaged: an array is missing, its data is not what was written (a checksum differs, a chunk cannot be
+    decoded), or it was written by another store.  The message names the store, the tile or path, and the array."""
+
+
+def chunk_checksums(values: np.ndarray, rows: int) -> list[int]:
+    """The crc32 of each block of ``rows`` rows of ``values`` (its chunks' data as written), in order.
+
+    >>> chunk_checksums(np.arange(5, dtype="<i4"), 2) == [zlib.crc32(np.arange(k, min(k + 2, 5), dtype="<i4")) for k in (0, 2, 4)]
+    True
+    """
+    v = np.ascontiguousarray(values)
+    return [zlib.crc32(v[k : k + rows]) for k in range(0, v.shape[0], rows)]
 
 
 @dataclass(frozen=True)
@@ -159,7 +191,7 @@ class Store:
                 g = _zarr().open_group(url, mode="w" if overwrite else "w-")
         except Exception as exc:
             raise PatchcloudIOError(f"{url}: cannot create a store there ({exc})") from exc
-        g.attrs.update(format=FORMAT, version=VERSION, steps={})
+        g.attrs.update(format=FORMAT, version=VERSION, uid=uuid.uuid4().hex, steps={})
         return cls(g, url)
 
     @classmethod
@@ -173,7 +205,7 @@ class Store:
         if a.get("format") != FORMAT:
             raise PatchcloudIOError(f"{url}: not a patchcloud store (no '{FORMAT}' format mark)")
         if a.get("version") != VERSION:
-            raise PatchcloudIOError(f"{url}: store version {a.get('version')} is not supported (this is version {VERSION})")
+            raise PatchcloudStoreError(f"{url}: store version {a.get('version')} is not supported (this is version {VERSION}): {START_OVER}")
         return cls(g, url)
 
     @classmethod
@@ -211,6 +243,11 @@ class Store:
         kw = json.loads(json.dumps(kw))
         self.group.attrs.update(**kw)
         self._attrs = None
+
+    @property
+    def uid(self) -> str:
+        """The store's identity, recorded by every array written into it."""
+        return self.attrs.get("uid", "")
 
     @property
     def grid(self) -> Grid:
@@ -256,6 +293,8 @@ class Store:
             return dict(self.group[f"tiles/{tile_name(ijk)}"].attrs)
         except KeyError:
             return {}
+        except Exception as exc:
+            raise self._damaged(f"tile {tile_name(ijk)}", f"unreadable attributes: {exc}") from exc
 
     def tile_done(self, ijk, step: str, key=None) -> bool:
         """Step ``step`` is done on tile ``ijk`` (with ``key``, the parameters it was marked with, when given)."""
@@ -287,33 +326,71 @@ class Store:
 
     def write(self, ijk, name: str, values: np.ndarray, chunk: int | None = None) -> None:
         """Write (replace) array ``name`` of tile ``ijk``."""
-        g = self.tile(ijk)
-        values = np.ascontiguousarray(values)
-        rows = chunk or self.CHUNK
-        chunks = (max(1, min(rows, values.shape[0])),) + values.shape[1:]
-        a = g.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True)
-        if values.size:
-            a[...] = values
+        self._create(self.tile(ijk), name, values, chunk)
 
     def read(self, ijk, name: str, rows: slice | None = None) -> np.ndarray:
+        """Array ``name`` of tile ``ijk`` (rows ``rows`` of it, a slice of step 1), its chunks checked.
+
+        Raises
+        ------
+        PatchcloudStoreError
+            The array is missing, or damaged (see the module's docstring).
+        """
+        where = f"tile {tile_name(ijk)}"
         try:
             a = self.tile(ijk)[name]
         except KeyError:
-            raise PatchcloudValueError(f"{self.url}: tile {tile_name(ijk)} has no array {name!r} (step not run?)") from None
-        return a[...] if rows is None else a[rows]
+            raise self._damaged(where, f"array {name!r} is missing") from None
+        return self._checked(a, rows, f"{where}, array {name!r}")
+
+    def _damaged(self, where: str, what: str) -> PatchcloudStoreError:
+        return PatchcloudStoreError(f"{self.url}: {where}: the store is damaged ({what}); {START_OVER}")
+
+    def _create(self, group, name: str, values: np.ndarray, chunk: int | None):
+        """Write ``values`` as array ``name`` of ``group`` (replacing it), by chunks of ``chunk`` rows, with its checksums."""
+        values = np.ascontiguousarray(values)
+        rows = max(1, min(chunk or self.CHUNK, values.shape[0]))
+        chunks = (rows,) + values.shape[1:]
+        if self.in_memory:
+            a = group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True)
+        else:
+            sums = chunk_checksums(values, rows)
+            a = group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True,
+                                   attributes={"crc32": sums, "store": self.uid})
+        if values.size:
+            a[...] = values
+
+    def _checked(self, a, rows: slice | None, where: str) -> np.ndarray:
+        """Rows ``rows`` of array ``a`` (all: None), after checking the crc32 of every chunk they touch."""
+        if self.in_memory:
+            return a[...] if rows is None else a[rows]
+        attrs = a.attrs
+        sums = attrs.get("crc32")
+        if attrs.get("store") != self.uid or sums is None:
+            raise self._damaged(where, "written by another store")
+        n = a.shape[0]
+        start, stop, step = (0, n, 1) if rows is None else rows.indices(n)
+        if step != 1:
+            raise PatchcloudValueError(f"{self.url}: {where}: rows must be a slice of step 1, got {rows}")
+        if stop <= start:
+            return a[0:0]
+        size = a.chunks[0]
+        first, last = start // size, -(-stop // size)
+        try:
+            data = a[first * size : min(n, last * size)]
+        except Exception as exc:
+            raise self._damaged(where, f"a chunk cannot be decoded: {exc}") from exc
+        if len(sums) != -(-n // size):
+            raise self._damaged(where, "its checksums do not match its shape")
+        for k in range(first, last):
+            block = data[(k - first) * size : (k - first + 1) * size]
+            if zlib.crc32(np.ascontiguousarray(block)) != sums[k]:
+                raise self._damaged(where, f"rows {k * size:,} to {k * size + block.shape[0] - 1:,} differ from what was written")
+        return data[start - first * size : stop - first * size]
 
     def has(self, ijk, name: str) -> bool:
         key = f"tiles/{tile_name(ijk)}"
         return key in self.group and name in self.group[key]
-
-    def append(self, ijk, name: str, values: np.ndarray) -> None:
-        g = self.tile(ijk)
-        if name in g:
-            g[name].append(values, axis=0)
-        else:
-            chunks = (self.CHUNK * 4,) + values.shape[1:]
-            a = g.create_array(name, shape=(0,) + values.shape[1:], dtype=values.dtype, chunks=chunks)
-            a.append(values, axis=0)
 
     def delete(self, ijk, name: str) -> None:
         g = self.tile(ijk)
@@ -323,12 +400,7 @@ class Store:
     # -- arrays outside tiles (the ingest's parts, the export's tables) ------
     def put(self, path: str, values: np.ndarray, chunk: int | None = None) -> None:
         """Write (replace) the array at ``path`` (e.g. ``parts/000003/xyz``)."""
-        values = np.ascontiguousarray(values)
-        rows = chunk or self.CHUNK
-        chunks = (max(1, min(rows, values.shape[0])),) + values.shape[1:]
-        a = self.group.create_array(path, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True)
-        if values.size:
-            a[...] = values
+        self._create(self.group, path, values, chunk)
 
     def has_array(self, path: str) -> bool:
         """Whether there is an array (or group) at ``path``."""
@@ -339,8 +411,8 @@ class Store:
         try:
             a = self.group[path]
         except KeyError:
-            raise PatchcloudValueError(f"{self.url}: no array {path!r} (step not run?)") from None
-        return a[...] if rows is None else a[rows]
+            raise self._damaged(f"array {path!r}", "it is missing") from None
+        return self._checked(a, rows, f"array {path!r}")
 
     def group_attrs(self, path: str) -> dict:
         """The attributes of the group at ``path`` as stored now; {} when there is none."""
@@ -365,6 +437,7 @@ class Store:
         if self.in_memory:
             self.group.blobs[key] = data
             return
+        data += struct.pack("<Q", zlib.crc32(data))
         from zarr.core.buffer import default_buffer_prototype
         from zarr.core.sync import sync
 
@@ -381,7 +454,11 @@ class Store:
             buf = sync((self.group.store_path / key).get(prototype=default_buffer_prototype()))
             data = None if buf is None else buf.to_bytes()
         if data is None:
-            raise PatchcloudValueError(f"{self.url}: no blob {key!r} (step not run?)")
+            raise self._damaged(f"blob {key!r}", "it is missing")
+        if not self.in_memory:
+            if len(data) % 8 or len(data) < 8 or struct.unpack("<Q", data[-8:])[0] != zlib.crc32(data[:-8]):
+                raise self._damaged(f"blob {key!r}", "it differs from what was written")
+            data = data[:-8]
         return np.frombuffer(data, dtype="<f8").astype(np.float64)
 
     def remove_blobs(self, prefix: str) -> None:

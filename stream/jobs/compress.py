@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import laspy
 import numpy as np
@@ -33,7 +34,7 @@ from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_pa
 from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile"]
+__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile", "pcz_source"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -153,8 +154,9 @@ class CompressJob(Job):
     write_step = "pack"
     catalogs = False  # a catalog is compressed file by file: compress_catalog
 
-    def __init__(self, options: CompressOptions) -> None:
+    def __init__(self, options: CompressOptions, record_source: bool = False) -> None:
         self.options = options
+        self.record_source = record_source
         self.params: dict = {}
         self.infos: dict = {}
         self.counts: dict = {}
@@ -189,7 +191,7 @@ class CompressJob(Job):
         head, evlrs = _header_bytes(src)
         self.counts = pcz.write_pcz(
             ctx.output, _parts(st, budget), max_error=budget, grid=st.grid.to_json(), header=head, evlrs=evlrs,
-            source=dict(src.to_json(), point_format=pf.id), record_bytes=pf.size - 12, overwrite=ctx.run.overwrite,
+            source=pcz_source(src, pf.id, self.record_source), record_bytes=pf.size - 12, overwrite=ctx.run.overwrite,
         )
 
     def summarise(self, ctx: JobContext) -> CompressSummary:
@@ -204,9 +206,19 @@ class CompressJob(Job):
         )
 
 
+def pcz_source(src: LasSource, point_format: int, record_source: bool = False) -> dict:
+    """What a ``.pcz`` records of its input: its header's description and its file name; with ``record_source`` its
+    absolute path and modification time too (which make the ``.pcz`` depend on where and when the input was)."""
+    d = dict(src.to_json(), point_format=point_format)
+    if not record_source:
+        d["path"] = Path(src.path).name
+        d.pop("mtime_ns")
+    return d
+
+
 def compress(
     input, output: str | os.PathLike | None = None, options: CompressOptions | None = None, run: RunOptions | None = None,
-    **kwargs,
+    record_source: bool = False, **kwargs,
 ) -> CompressSummary | list[CompressSummary]:
     """Compress a LAS/LAZ file of any size to a ``.pcz`` of quadric patch models and residual points.
 
@@ -228,6 +240,10 @@ def compress(
         the models adds at most half the budget.
     run : RunOptions, optional
         How to run it (:class:`patchcloud.stream.RunOptions`).
+    record_source : bool
+        Record the input's absolute path and modification time in the
+        ``.pcz``.  Default: its file name only, so that the same input and
+        parameters give the same bytes wherever the input is.
     **kwargs
         Any field of either, by name.
 
@@ -245,11 +261,11 @@ def compress(
     if run.out_dir is not None:
         if output is not None:
             raise PatchcloudValueError(f"{output}: with out_dir (--out-dir) every argument is an input; the outputs go to {run.out_dir}")
-        return compress_catalog(input, options, run)
-    return run_job(CompressJob(options), input, output, run)
+        return compress_catalog(input, options, run, record_source)
+    return run_job(CompressJob(options, record_source), input, output, run)
 
 
-def compress_catalog(inputs, options: CompressOptions, run: RunOptions) -> list[CompressSummary]:
+def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_source: bool = False) -> list[CompressSummary]:
     """Compress every file ``inputs`` name (paths, directories, globs) to ``run.out_dir``/NAME.pcz, file by file.
 
     Each ``.pcz`` is that of the file compressed alone (patches do not
@@ -267,4 +283,4 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions) -> list[
         outs = [check_writable(o, run.overwrite) for o in outs]
     out_dir.mkdir(exist_ok=True)
     one = dataclasses.replace(run, out_dir=None)
-    return [run_job(CompressJob(options), p, o, one) for p, o in zip(paths, outs)]
+    return [run_job(CompressJob(options, record_source), p, o, one) for p, o in zip(paths, outs)]
