@@ -1,24 +1,56 @@
 """Point-wise normals for points no patch surface models (edge and sparse leaves).
 
 The paper leaves these points without a normal; here each gets the PCA
-normal of its ``k`` nearest neighbours (:mod:`.knn`: a compiled search by
-rings of octree cells), the surface variation of that neighbourhood, and
-principal curvatures from a quadric fitted to the neighbourhood in its PCA
-frame.
+normal of its ``k`` nearest neighbours (scipy's cKDTree), the surface
+variation of that neighbourhood, and principal curvatures from a quadric
+fitted to the neighbourhood in its PCA frame.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import _kernels
-from .knn import knn, knn_in_cells
+from .morton import MAX_DEPTH, decode, encode
 
-__all__ = ["knn_normals"]
+__all__ = ["knn_normals", "points_near"]
+
+
+def points_near(q: np.ndarray, keys: np.ndarray, level: int, query: np.ndarray, reach: int = 1) -> np.ndarray:
+    """Indices of the sorted points in the cells around the query points.
+
+    Cells are those of octree ``level``; every cell within ``reach`` cells
+    (per axis) of a query point's cell is taken, so any point closer to a
+    query than ``reach`` cell edges is among the result.
+
+    Parameters
+    ----------
+    q : (N, 3) int64 and keys : (N,) uint64
+        Depth-21 integer coordinates and Morton keys of the points, sorted by key.
+    level : int
+    query : (M,) int64 indices of the query points.
+    """
+    shift = MAX_DEPTH - level
+    cells = np.unique(encode(q[query] >> shift))
+    cells = decode(cells)
+    r = np.arange(-reach, reach + 1)
+    steps = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+    around = (cells[:, None, :] + steps[None, :, :]).reshape(-1, 3)
+    around = around[np.all((around >= 0) & (around < (1 << level)), axis=1)]
+    wanted = np.unique(encode(around))
+    # the points of a cell are one run of the sorted keys
+    s3 = np.uint64(3 * shift)
+    lo = np.searchsorted(keys, wanted << s3)
+    hi = np.searchsorted(keys, (wanted + np.uint64(1)) << s3)
+    size = hi - lo
+    total = int(size.sum())
+    offsets = np.cumsum(size) - size
+    return np.repeat(lo - offsets, size) + np.arange(total)
 
 
 def knn_normals(
-    points: np.ndarray, query: np.ndarray, k: int, grid: tuple[np.ndarray, np.ndarray, float] | None = None,
+    points: np.ndarray, query: np.ndarray, k: int, grid: tuple[np.ndarray, np.ndarray, int, float] | None = None,
     chunk: int = 65536,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """k-nearest-neighbour PCA normals of some points of a cloud.
@@ -31,12 +63,12 @@ def knn_normals(
         Indices of the points that need a normal.
     k : int
         Neighbours per point, the point itself included (capped at N).
-    grid : (q, keys, unit), optional
-        The points' depth-21 integer coordinates in a root cube of
-        ``unit * 2**21`` metres, and their Morton keys, ``points`` sorted by
-        key (a tile's octree: :func:`patchcloud.core.knn.knn_in_cells`);
-        without it the search makes its own.  The neighbours are the same
-        either way.
+    grid : (q, keys, level, cell_edge), optional
+        The points' depth-21 coordinates and Morton keys (``points`` sorted
+        by key) and an octree level with its cell edge: the search then runs
+        on the points of the cells around the queries only (see
+        :func:`points_near`), widening for the queries whose k-th neighbour
+        lies beyond; the result is the same as a search in the whole cloud.
 
     Returns
     -------
@@ -45,7 +77,7 @@ def knn_normals(
     k1, k2 : (M,) principal curvatures of the neighbourhood quadric (1/metre),
         "convex positive" with respect to ``normals``
     dir1 : (M, 3) direction of ``k1``
-    neighbours : (M, k) int64 indices of the neighbours, nearest first
+    neighbours : (M, k) int64 indices of the neighbours
     """
     n = points.shape[0]
     k = int(min(k, n))
@@ -55,14 +87,44 @@ def knn_normals(
     k1 = np.zeros(m)
     k2 = np.zeros(m)
     dir1 = np.zeros((m, 3))
+    neighbours = np.zeros((m, k), dtype=np.int64)
     if m == 0:
-        return normals, sigma3, k1, k2, dir1, np.zeros((0, k), dtype=np.int64)
-    if grid is None:
-        neighbours = knn(points, query, k)
-    else:
-        q, keys, unit = grid
-        neighbours = knn_in_cells(points, q, keys, unit, query, k)
+        return normals, sigma3, k1, k2, dir1, neighbours
+    if grid is not None and m > n // 10:
+        grid = None  # many queries: one tree over the whole cloud is cheaper than cells
+    whole: list[cKDTree] = []  # the whole-cloud tree, built at most once
     for lo in range(0, m, chunk):
-        hi = min(lo + chunk, m)
-        _kernels.knn_pca(points, query[lo:hi], neighbours[lo:hi], normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
+        qi = query[lo : lo + chunk]
+        nb = _knn(points, qi, k, grid, whole)
+        neighbours[lo : lo + chunk] = nb
+        hi = lo + qi.size
+        _kernels.knn_pca(points, qi, nb, normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
     return normals, sigma3, k1, k2, dir1, neighbours
+
+
+def _knn(points, qi, k, grid, whole: list, reach: int = 1) -> np.ndarray:
+    """Exact k nearest neighbours of ``points[qi]``, searched in as few cells as possible.
+
+    ``whole`` caches the k-d tree over the whole cloud between calls.
+    """
+    if grid is None:
+        if not whole:
+            whole.append(cKDTree(points, balanced_tree=False, compact_nodes=False))
+        return whole[0].query(points[qi], k=k, workers=-1)[1].reshape(qi.size, k)
+    q, keys, level, h = grid
+    subset = points_near(q, keys, level, qi, reach)
+    if subset.size < k:
+        dist = np.full((qi.size, k), np.inf)
+        nb = np.zeros((qi.size, k), dtype=np.int64)
+    else:
+        tree = cKDTree(points[subset], balanced_tree=False, compact_nodes=False)
+        dist, nb = tree.query(points[qi], k=k, workers=-1)
+        dist, nb = dist.reshape(qi.size, k), subset[nb.reshape(qi.size, k)]
+    far = np.flatnonzero(dist[:, -1] > reach * h)
+    if far.size:
+        nxt = reach * 4
+        if nxt >= (1 << level) or far.size > 256:  # the whole cloud
+            nb[far] = _knn(points, qi[far], k, None, whole)
+        else:
+            nb[far] = _knn(points, qi[far], k, grid, whole, nxt)
+    return nb

@@ -36,7 +36,7 @@ import numpy as np
 from . import _kernels
 from .blend import blend_across_faces
 from .fallback import knn_normals
-from .morton import MAX_DEPTH, encode
+from .morton import encode
 from .codes import Method, PatchKind
 from .octree import Octree, build_octree, max_level_for, point_keys, sort_points
 from .orient import (
@@ -334,9 +334,9 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centr
         return
     n = tree.local.shape[0]
     if skin is None:
-        points, grid = tree.local, (tree.q, tree.keys, tree.edge / 2.0**MAX_DEPTH)
+        points, grid = tree.local, (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level)
         all_normals, oriented = normals, method != 0
-    else:  # the neighbours' skin points take part in the search, on a grid of their own
+    else:  # the neighbours' skin points take part in the search; one tree over both
         points, grid = np.concatenate([tree.local, skin.points]), None
         all_normals = np.concatenate([normals, skin.normals])
         oriented = np.concatenate([method != 0, skin.oriented])
