@@ -99,3 +99,23 @@ def test_points_past_the_header_count_before_a_waveform_record_are_still_refused
     _set_count(path, 999)
     with pytest.raises(PatchcloudIOError, match=r"the header says 999 points but the point data holds 1,001"):
         open_source(path)
+
+
+def test_a_las_10_input_is_written_as_las_12_with_the_same_records(tmp_path):
+    """laspy writes LAS 1.2 to 1.4: a LAS 1.0 input's outputs are LAS 1.2 (formats 0 and 1 and the header are those of 1.0),
+    instead of the whole job running and then failing at the export."""
+    from patchcloud.stream import compress, decompress
+
+    path = tmp_path / "old.las"
+    las = _cloud(3000, 1, version="1.2")
+    las.write(str(path))
+    raw = bytearray(path.read_bytes())
+    raw[25] = 0  # version minor: LAS 1.0
+    path.write_bytes(bytes(raw))
+    assert str(laspy.open(str(path)).header.version) == "1.0"
+    normals(path, tmp_path / "out.las", quiet=True)
+    back = laspy.read(str(tmp_path / "out.las"))
+    assert str(back.header.version) == "1.2" and np.array_equal(back.X, las.X) and np.array_equal(back.gps_time, las.gps_time)
+    compress(path, tmp_path / "old.pcz", max_error=0.02, quiet=True)
+    decompress(tmp_path / "old.pcz", tmp_path / "back.laz")
+    assert str(laspy.open(str(tmp_path / "back.laz")).header.version) == "1.2"

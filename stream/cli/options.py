@@ -9,7 +9,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError
 
-__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "reports_errors", "os_error_line", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -153,8 +153,19 @@ def don_options(func):
     return func
 
 
+def os_error_line(exc: OSError) -> str:
+    """``PATH: what happened`` for an OSError (its file, its system message).
+
+    >>> os_error_line(OSError(28, "No space left on device", "/data/out.laz"))
+    '/data/out.laz: No space left on device'
+    """
+    what = exc.strerror or str(exc) or type(exc).__name__
+    return f"{exc.filename}: {what}" if exc.filename else what
+
+
 def reports_errors(func):
-    """Turn a PatchcloudError (bad file, bad parameter) into one line on stderr and exit status 2, Ctrl-C into one line and 130."""
+    """Turn a PatchcloudError (bad file, bad parameter) or an OSError (disk full, permission, read-only file system)
+    into one line on stderr and exit status 2, Ctrl-C into one line and 130."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
@@ -162,6 +173,9 @@ def reports_errors(func):
             return func(*args, **kwargs)
         except PatchcloudError as exc:
             click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+        except OSError as exc:
+            click.echo(f"error: {os_error_line(exc)}", err=True)
             sys.exit(2)
         except KeyboardInterrupt as exc:
             click.echo(f"error: {exc or 'interrupted'}", err=True)

@@ -33,7 +33,7 @@ from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
-    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "part_size", "part_ranges", "catalog_parts", "part_path",
+    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "part_size", "part_ranges", "catalog_parts", "part_path",
     "scatter_part", "read_part",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
@@ -72,6 +72,23 @@ def check_tile_size(tile_size) -> float | None:
     return float(tile_size)
 
 
+#: A tile size leaving fewer points per tile than this over the input's footprint is refused.
+MIN_POINTS_PER_TILE = 10
+
+
+def check_points_per_tile(src: LasSource | Catalog, t: float) -> None:
+    """Refuse tiles of edge ``t`` (metres) so small that the input's points spread over its footprint (x, y box) would
+    leave fewer than :data:`MIN_POINTS_PER_TILE` per tile: a grid of many more tiles than useful, minutes of work on
+    nothing."""
+    ext = np.maximum(np.asarray(src.maxs) - np.asarray(src.mins), t)
+    tiles = float(ext[0] * ext[1]) / (t * t)
+    if src.point_count < MIN_POINTS_PER_TILE * tiles:
+        raise PatchcloudValueError(
+            f"a tile size of {t:g} m leaves about {src.point_count / tiles:.2g} points per tile over the input's "
+            f"{ext[0]:g} x {ext[1]:g} m (at least {MIN_POINTS_PER_TILE} needed); give a larger --tile-size, or leave it out"
+        )
+
+
 def make_grid(src: LasSource | Catalog, tile_size: float | None) -> Grid:
     """The tile grid of a file or catalog: ``tile_size`` rounded down to a power of two (metres), or the default."""
     tile_size = check_tile_size(tile_size)
@@ -79,6 +96,7 @@ def make_grid(src: LasSource | Catalog, tile_size: float | None) -> Grid:
         t = auto_tile_size(src)
     else:
         t = float(2.0 ** np.floor(np.log2(tile_size)))
+        check_points_per_tile(src, t)
     origin = tuple(float(np.floor(m / ANCHOR) * ANCHOR) for m in src.mins)
     return Grid(origin=origin, tile_size=t, scale=src.scale, offset=src.offset)
 

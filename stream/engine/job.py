@@ -442,6 +442,9 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
         raise
     except PatchcloudError as exc:
         raise type(exc)(f"{exc}{kept_store_note(url)}") from exc
+    except OSError as exc:  # disk full, permission, read-only file system: named, and the store said
+        what = exc.strerror or str(exc) or type(exc).__name__
+        raise PatchcloudIOError(f"{exc.filename or url}: {what}{kept_store_note(url)}") from exc
     except KeyboardInterrupt:
         raise KeyboardInterrupt(f"interrupted{kept_store_note(url)}") from None
     if not keep:

@@ -24,7 +24,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
-    "is_copc_name", "without_copc", "check_las_output", "laz_point_range",
+    "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
 ]
 
 
@@ -123,6 +123,7 @@ def open_source(path: str | os.PathLike) -> LasSource:
         sig = f.read(4)
     if sig != b"LASF":
         raise PatchcloudIOError(f"{p}: not a LAS/LAZ file (no 'LASF' signature)")
+    check_header_sizes(p, st.st_size)
     try:
         with laspy.open(p) as reader:
             h = reader.header
@@ -170,6 +171,46 @@ def open_source(path: str | os.PathLike) -> LasSource:
                 f"{p}: the header says {src.point_count:,} points but the point data holds {extra:,}"
             )
     return src
+
+
+#: The smallest VLR and EVLR (their headers, bytes).
+VLR_BYTES, EVLR_BYTES = 54, 60
+
+
+def check_header_sizes(path: str | os.PathLike, size: int) -> None:
+    """Refuse a LAS header whose sizes and counts the file cannot hold, before anything is read or allocated from them.
+
+    The header's size, the offset to the point data, the number of VLRs
+    (each at least 54 bytes, between the header and the points), and for
+    LAS 1.4 the start and number of the EVLRs (each at least 60 bytes) are
+    checked against the file's ``size`` (bytes): a crafted header claiming a
+    billion VLRs is one error, not hours of parsing.
+
+    Raises
+    ------
+    PatchcloudIOError
+        Naming the file, the field and what the file can hold.
+    """
+    with open(path, "rb") as f:
+        head = f.read(375)
+    if len(head) < 227:
+        raise PatchcloudIOError(f"{path}: truncated: {len(head)} bytes, less than a LAS header (227)")
+    minor = head[25]
+    header_size, offset, vlrs = struct.unpack_from("<HII", head, 94)
+    if not 227 <= header_size <= min(size, 65535):
+        raise PatchcloudIOError(f"{path}: the header says it is {header_size:,} bytes long, in a file of {size:,} bytes")
+    if not header_size <= offset <= size:
+        raise PatchcloudIOError(f"{path}: the header puts the point data at byte {offset:,}, outside the file "
+                                f"({header_size:,} to {size:,})")
+    if vlrs * VLR_BYTES > offset - header_size:
+        raise PatchcloudIOError(f"{path}: the header says {vlrs:,} VLRs, but the {offset - header_size:,} bytes before the "
+                                f"point data hold at most {(offset - header_size) // VLR_BYTES:,}")
+    if minor >= 4 and header_size >= 375 and len(head) == 375:
+        start, evlrs = struct.unpack_from("<QI", head, 235)
+        if evlrs and (start > size or evlrs * EVLR_BYTES > size - start):
+            room = max(0, size - start) // EVLR_BYTES
+            raise PatchcloudIOError(f"{path}: the header says {evlrs:,} EVLRs from byte {start:,}, but the file "
+                                    f"({size:,} bytes) holds at most {room:,} there")
 
 
 def laz_point_range(path: str | os.PathLike, start: int, record: int, point_format: int) -> tuple[int, int] | None:
@@ -284,6 +325,20 @@ def laz_backend(parallel: bool = True):
         return None
 
 
+def writable_version(header: laspy.LasHeader) -> laspy.LasHeader:
+    """``header`` as LAS 1.2 when it is LAS 1.0 or 1.1 (changed in place and returned), else as it is.
+
+    laspy writes LAS 1.2 to 1.4 only; the 1.0 and 1.1 point formats (0 and
+    1) and header fields are those of 1.2, so the records stay the same.
+
+    >>> str(writable_version(laspy.LasHeader(point_format=1, version="1.3")).version)  # 1.0: tests/test_point_accounting.py
+    '1.3'
+    """
+    if header.version.minor < 2:
+        header.version = laspy.header.Version(1, 2)
+    return header
+
+
 def output_header(src: LasSource, dims) -> laspy.LasHeader:
     """The input's header (point format, version, scales, offsets, VLRs and EVLRs, CRS) with ``dims`` added.
 
@@ -298,7 +353,7 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
     another type is an error.
     """
     with laspy.open(src.path) as reader:
-        header = without_copc(reader.header)
+        header = writable_version(without_copc(reader.header))
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
     for name, dtype, desc, *no_data in dims:

@@ -345,7 +345,7 @@ def open_pcz(path: str | os.PathLike) -> PczFile:
 
 def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets) -> bytes:
     """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout)."""
-    h = laspy.LasHeader(point_format=point_format, version=version)
+    h = laspy.LasHeader(point_format=point_format, version="1.2" if str(version) in ("1.0", "1.1") else version)  # laspy writes 1.2+
     h.scales, h.offsets = np.asarray(scales, dtype=np.float64), np.asarray(offsets, dtype=np.float64)
     las = laspy.LasData(h)
     rows = np.frombuffer(np.ascontiguousarray(records).tobytes(), dtype=point_format.dtype()).copy()

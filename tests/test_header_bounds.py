@@ -1,0 +1,65 @@
+"""Sizes read from a file are checked against what the file can hold before anything is allocated from them; absurd
+parameters are refused with the limit named; OS errors (disk full) are one line."""
+
+import errno
+import struct
+
+import pytest
+from click.testing import CliRunner
+from test_stream import write_scene
+
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError
+from patchcloud.stream import normals
+from patchcloud.stream.cli import main
+from patchcloud.stream.io import las_output
+from patchcloud.stream.io.las import open_source
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("bounds") / "scene.las"
+    write_scene(path, n=20_000, seed=9, point_format=6, extra=False)
+    return path
+
+
+def _patched(src, dst, at, fmt, value):
+    raw = bytearray(src.read_bytes())
+    struct.pack_into(fmt, raw, at, value)
+    dst.write_bytes(bytes(raw))
+    return dst
+
+
+@pytest.mark.parametrize("field, at, fmt, value, said", [
+    ("VLR count", 100, "<I", 1_000_000_000, r"the header says 1,000,000,000 VLRs, but the [\d,]+ bytes before the point data hold at most \d+"),
+    ("point data offset", 96, "<I", 2**32 - 1, r"the header puts the point data at byte 4,294,967,295, outside the file"),
+    ("header size", 94, "<H", 12, r"the header says it is 12 bytes long"),
+    ("EVLR count", 243, "<I", 4_000_000_000, r"the header says 4,000,000,000 EVLRs from byte [\d,]+, but the file \([\d,]+ bytes\) holds at most \d+"),
+])
+def test_a_header_claiming_more_than_the_file_holds_is_one_error(scene, tmp_path, field, at, fmt, value, said):
+    bad = _patched(scene, tmp_path / "bad.las", at, fmt, value)
+    if field == "EVLR count":
+        struct.pack_into("<Q", raw := bytearray(bad.read_bytes()), 235, len(raw) - 10)
+        bad.write_bytes(bytes(raw))
+    with pytest.raises(PatchcloudIOError, match=said):
+        open_source(bad)
+    r = CliRunner().invoke(main, ["info", str(bad)])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "Traceback" not in r.output
+
+
+def test_a_tile_size_leaving_almost_no_points_per_tile_is_refused(scene, tmp_path):
+    with pytest.raises(PatchcloudValueError, match=r"a tile size of 0.0078125 m leaves about [\d.e-]+ points per tile .*at least 10 needed"):
+        normals(scene, tmp_path / "out.las", tile_size=0.01, quiet=True)
+    assert not (tmp_path / "out.las").exists()
+
+
+def test_a_full_disk_is_one_line_naming_the_file_and_the_kept_store(scene, tmp_path, monkeypatch):
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "out.las.partial"))
+
+    monkeypatch.setattr(las_output, "finish", full)
+    r = CliRunner().invoke(main, ["normals", str(scene), str(tmp_path / "out.las"), "--on-disk", "--scheduler", "synchronous",
+                                  "--quiet"])
+    assert r.exit_code == 2, r.output
+    assert r.output.count("\n") == 1 and "Traceback" not in r.output
+    assert r.output.startswith(f"error: {tmp_path / 'out.las.partial'}: No space left on device (the store ")
+    assert not (tmp_path / "out.las").exists() and not (tmp_path / "out.las.partial").exists()
