@@ -4,6 +4,7 @@ parameters are refused with the limit named; OS errors (disk full) are one line.
 import errno
 import struct
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 from test_stream import write_scene
@@ -63,3 +64,45 @@ def test_a_full_disk_is_one_line_naming_the_file_and_the_kept_store(scene, tmp_p
     assert r.output.count("\n") == 1 and "Traceback" not in r.output
     assert r.output.startswith(f"error: {tmp_path / 'out.las.partial'}: No space left on device (the store ")
     assert not (tmp_path / "out.las").exists() and not (tmp_path / "out.las.partial").exists()
+
+
+def test_an_absurd_decompress_density_is_refused_before_writing(scene, tmp_path):
+    from patchcloud.stream import compress, decompress
+
+    compress(scene, tmp_path / "s.pcz", max_error=0.02, quiet=True)
+    with pytest.raises(PatchcloudValueError, match=r"a density of 1e\+09 per m² would sample about [\d,]+ points, more than 100 "
+                                                   r"times the [\d,]+ the file stands for"):
+        decompress(tmp_path / "s.pcz", tmp_path / "back.laz", density=1e9)
+    assert not (tmp_path / "back.laz").exists()
+
+
+def test_big_tiles_are_sampled_in_batches_of_bounded_size(scene, tmp_path, monkeypatch):
+    import laspy
+
+    from patchcloud.stream import compress, decompress
+    from patchcloud.stream.jobs import decompress as module
+
+    compress(scene, tmp_path / "s.pcz", max_error=0.02, quiet=True)
+    whole = decompress(tmp_path / "s.pcz", tmp_path / "whole.las")
+    monkeypatch.setattr(module, "SAMPLE_BATCH", 500)
+    a = decompress(tmp_path / "s.pcz", tmp_path / "a.las")
+    decompress(tmp_path / "s.pcz", tmp_path / "b.las")
+    assert (a.reconstructed, a.residual) == (whole.reconstructed, whole.residual)  # every cell's count, in batches
+    assert (tmp_path / "a.las").read_bytes() == (tmp_path / "b.las").read_bytes()  # and the same points every time
+    w, b = laspy.read(str(tmp_path / "whole.las")), laspy.read(str(tmp_path / "a.las"))
+    assert np.array_equal(np.sort(w.classification), np.sort(b.classification))  # each cell's points, in the same cells
+
+
+def test_an_unexpected_error_is_one_line_unless_debug(scene, tmp_path, monkeypatch):
+    from patchcloud.stream.jobs import normals_tiles
+
+    def bug(*args, **kwargs):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(normals_tiles, "finish_one_tile", bug)
+    args = ["normals", str(scene), str(tmp_path / "out.las"), "--scheduler", "synchronous", "--quiet"]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert r.output.startswith("error: internal error: RuntimeError: boom (a bug in patchcloud: `patchcloud --debug ...`")
+    r = CliRunner().invoke(main, ["--debug", *args])
+    assert isinstance(r.exception, RuntimeError) and str(r.exception).startswith("boom")

@@ -18,7 +18,8 @@ __all__ = ["main"]
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="patchcloud")
-def main() -> None:
+@click.option("--debug", is_flag=True, default=False, help="Show the traceback of an unexpected error (a bug) instead of one line.")
+def main(debug: bool) -> None:
     """Normals, curvature, Difference of Normals and segments of LiDAR point clouds of any size.
 
     \b

@@ -165,7 +165,8 @@ def os_error_line(exc: OSError) -> str:
 
 def reports_errors(func):
     """Turn a PatchcloudError (bad file, bad parameter) or an OSError (disk full, permission, read-only file system)
-    into one line on stderr and exit status 2, Ctrl-C into one line and 130."""
+    into one line on stderr and exit status 2, Ctrl-C into one line and 130; any other exception (a bug, raised here
+    or in a worker) into one line and 2 as well, unless ``patchcloud --debug`` asks for its traceback."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
@@ -176,6 +177,15 @@ def reports_errors(func):
             sys.exit(2)
         except OSError as exc:
             click.echo(f"error: {os_error_line(exc)}", err=True)
+            sys.exit(2)
+        except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
+            raise
+        except Exception as exc:  # a bug, here or in a worker: one line unless --debug
+            ctx = click.get_current_context(silent=True)
+            if ctx is not None and ctx.find_root().params.get("debug"):
+                raise
+            click.echo(f"error: internal error: {type(exc).__name__}: {str(exc)[:500]} (a bug in patchcloud: "
+                       "`patchcloud --debug ...` shows the traceback; please report it)", err=True)
             sys.exit(2)
         except KeyboardInterrupt as exc:
             click.echo(f"error: {exc or 'interrupted'}", err=True)

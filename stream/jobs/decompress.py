@@ -22,7 +22,7 @@ from patchcloud.core import MASK_SIDE, PatchcloudValueError, dequantise_models, 
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.las import atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, writable_version
 
-__all__ = ["decompress", "DecompressSummary"]
+__all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING"]
 
 
 @dataclass
@@ -38,6 +38,25 @@ class DecompressSummary:
     def format(self) -> str:
         return (f"{self.input} -> {self.output}\n  points          {self.reconstructed + self.residual:,}: "
                 f"{self.reconstructed:,} sampled from patches, {self.residual:,} residual\n  time            {self.seconds:.1f} s")
+
+
+#: Most points sampled at once: a tile's cells are sampled in batches of about this many (memory bounded whatever the
+#: density; a tile within one batch is sampled as it always was).
+SAMPLE_BATCH = 8_000_000
+#: ``density`` may ask for at most this many times the points the ``.pcz`` stands for.
+MAX_UPSAMPLING = 100
+
+
+def _batches(counts: np.ndarray, size: int) -> list[slice]:
+    """Runs of cells whose counts add up to about ``size`` points each (a cell is never split).
+
+    >>> _batches(np.array([3, 3, 3, 3]), 6)
+    [slice(0, 2, None), slice(2, 4, None)]
+    """
+    total = np.cumsum(counts)
+    cuts = np.unique(np.searchsorted(total, np.arange(size, int(total[-1]) if total.size else 0, size), side="right"))
+    edges = [0] + [int(c) for c in cuts if 0 < c < counts.size] + [counts.size]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
 def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
@@ -67,7 +86,9 @@ def decompress(
         residual point).  Sampled points carry the majority class and
         mean intensity of their patch's points in their octree cell; their other dimensions are 0.
     density : float, optional
-        Points per square metre of each cell's occupied extent.
+        Points per square metre of each cell's occupied extent; at most
+        :data:`MAX_UPSAMPLING` times the points the file stands for in all
+        (checked before anything is written).
     lod : int, optional
         Level of detail: each cell's own count divided by ``4**lod`` (at
         least one point); 0 (the default, with no density) is the count.
@@ -115,37 +136,50 @@ def decompress(
         origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
         tiles = range(len(f.tiles)) if box is None else f.tiles_in(box[:3] - origin, box[3:] - origin)
         L = header.point_format.size
-        n_rec = n_res = 0
+        if density is not None:
+            want = sum(int(_counts(dequantise_models(f.patches(int(t))[0]), density, None).sum()) for t in tiles)
+            have = int(f.attrs["counts"]["points"])
+            if want > MAX_UPSAMPLING * have:
+                raise PatchcloudValueError(
+                    f"{input}: a density of {density:g} per m² would sample about {want:,} points, more than {MAX_UPSAMPLING} "
+                    f"times the {have:,} the file stands for; give a lower density"
+                )
+        written = [0, 0]  # sampled, residual
+
+        def write(writer, rec, is_res: bool) -> None:
+            if box is not None and len(rec):
+                p = np.column_stack([rec["X"], rec["Y"], rec["Z"]]) * scale + offset
+                inside = np.all((p >= box[:3]) & (p <= box[3:]), axis=1)
+                rec = laspy.PackedPointRecord(rec.array[inside], header.point_format)
+            if len(rec):
+                writer.write_points(rec)
+            written[int(is_res)] += len(rec)
+
         with atomic_output(output, overwrite) as out:
             with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
                             laz_backend=laz_backend()) as writer:
                 for t in tiles:
                     q, cls, inten = f.patches(int(t))
                     models = dequantise_models(q)
-                    pts, k = sample_models(models, _counts(models, density, lod), seed=seed + int(t))
-                    xyz = np.rint((pts + origin - offset) / scale).astype(np.int64)
+                    counts = _counts(models, density, lod)
+                    for b, cells in enumerate(_batches(counts, SAMPLE_BATCH)):  # each batch written before the next
+                        some = np.zeros_like(counts)
+                        some[cells] = counts[cells]
+                        pts, k = sample_models(models, some, seed=seed + int(t) if b == 0 else [seed + int(t), b])
+                        xyz = np.rint((pts + origin - offset) / scale).astype(np.int64)
+                        sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
+                        sampled["X"], sampled["Y"], sampled["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+                        sampled["classification"] = cls[k]
+                        sampled["intensity"] = inten[k]
+                        sampled["Reconstructed"] = np.ones(len(xyz), np.uint8)
+                        write(writer, sampled, False)
                     rxyz, rrec = f.residual(int(t))
-                    sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
-                    sampled["X"], sampled["Y"], sampled["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-                    sampled["classification"] = cls[k]
-                    sampled["intensity"] = inten[k]
-                    sampled["Reconstructed"] = np.ones(len(xyz), np.uint8)
                     resid = laspy.PackedPointRecord.zeros(len(rxyz), header.point_format)
                     raw = resid.array.view(np.uint8).reshape(len(rxyz), L)
                     raw[:, :12] = rxyz.astype("<i4").view(np.uint8).reshape(len(rxyz), 12)
                     raw[:, 12 : 12 + rrec.shape[1]] = rrec
-                    for rec, is_res in ((sampled, False), (resid, True)):
-                        if box is not None and len(rec):
-                            p = np.column_stack([rec["X"], rec["Y"], rec["Z"]]) * scale + offset
-                            inside = np.all((p >= box[:3]) & (p <= box[3:]), axis=1)
-                            rec = laspy.PackedPointRecord(rec.array[inside], header.point_format)
-                        if len(rec):
-                            writer.write_points(rec)
-                        if is_res:
-                            n_res += len(rec)
-                        else:
-                            n_rec += len(rec)
+                    write(writer, resid, True)
                 if evlrs:
                     writer.write_evlrs(evlrs)
-    return DecompressSummary(input=str(input), output=str(output), reconstructed=n_rec, residual=n_res,
+    return DecompressSummary(input=str(input), output=str(output), reconstructed=written[0], residual=written[1],
                              seconds=time.perf_counter() - t0)
