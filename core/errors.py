@@ -7,7 +7,7 @@ working for callers who do not know patchcloud.
 
 from __future__ import annotations
 
-__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError", "PatchcloudNotImplementedError"]
+__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError", "PatchcloudNotImplementedError", "os_error_line"]
 
 
 class PatchcloudError(Exception):
@@ -24,3 +24,13 @@ class PatchcloudIOError(PatchcloudError, OSError):
 
 class PatchcloudNotImplementedError(PatchcloudError, NotImplementedError):
     """A combination patchcloud does not handle yet (e.g. a catalog for ``compress``); the message names it."""
+
+
+def os_error_line(exc: OSError) -> str:
+    """``PATH: what happened`` for an OSError (its file, its system message); without a file, what happened.
+
+    >>> os_error_line(OSError(28, "No space left on device", "/data/out.laz"))
+    '/data/out.laz: No space left on device'
+    """
+    what = exc.strerror or str(exc) or type(exc).__name__
+    return f"{exc.filename}: {what}" if exc.filename else what

@@ -7,9 +7,9 @@ import sys
 
 import click
 
-from patchcloud.core import DonOptions, PatchcloudError
+from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "reports_errors", "os_error_line", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -151,16 +151,6 @@ def don_options(func):
     ]):
         func = option(func)
     return func
-
-
-def os_error_line(exc: OSError) -> str:
-    """``PATH: what happened`` for an OSError (its file, its system message).
-
-    >>> os_error_line(OSError(28, "No space left on device", "/data/out.laz"))
-    '/data/out.laz: No space left on device'
-    """
-    what = exc.strerror or str(exc) or type(exc).__name__
-    return f"{exc.filename}: {what}" if exc.filename else what
 
 
 def reports_errors(func):

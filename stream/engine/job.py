@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any
 
 
-from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with
+from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with, os_error_line
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner, check_scheduler
@@ -443,8 +443,8 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     except PatchcloudError as exc:
         raise type(exc)(f"{exc}{kept_store_note(url)}") from exc
     except OSError as exc:  # disk full, permission, read-only file system: named, and the store said
-        what = exc.strerror or str(exc) or type(exc).__name__
-        raise PatchcloudIOError(f"{exc.filename or url}: {what}{kept_store_note(url)}") from exc
+        line = os_error_line(exc) if exc.filename else f"{url}: {os_error_line(exc)}"
+        raise PatchcloudIOError(f"{line}{kept_store_note(url)}") from exc
     except KeyboardInterrupt:
         raise KeyboardInterrupt(f"interrupted{kept_store_note(url)}") from None
     if not keep:

@@ -139,7 +139,7 @@ class Runner:
     """
 
     def __init__(self, scheduler: str = "auto", workers: int | None = None, quiet: bool = False, points: int | None = None) -> None:
-        self.scheduler = resolve_scheduler(scheduler or "auto", points)
+        self.scheduler = resolve_scheduler(check_scheduler(scheduler or "auto"), points)
         #: Every task run: (label, start, end, host:process:thread), times in seconds since the epoch.
         self.tasks: list[tuple[str, float, float, str]] = []
         self.quiet = quiet
@@ -158,7 +158,7 @@ class Runner:
         if self.scheduler == "synchronous":
             self.slots = 1
             return
-        if "://" in self.scheduler or (":" in self.scheduler and self.scheduler not in SCHEDULERS):
+        if self.scheduler not in SCHEDULERS:  # an address (check_scheduler took it)
             from dask.distributed import Client
 
             try:
@@ -169,10 +169,6 @@ class Runner:
             self.slots = max(1, sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()))
             self.ready_at = time.time()
             return
-        if self.scheduler not in ("threads", "processes"):
-            raise PatchcloudValueError(
-                f"scheduler must be one of {', '.join(SCHEDULERS)} or a dask scheduler address such as tcp://host:8786; got {scheduler!r}"
-            )
         # the local cluster starts in the background while the caller gets on (opening the input, making the store)
         self._starting = threading.Thread(target=self._start_local, args=(n,), name="patchcloud-start-cluster", daemon=True)
         self._starting.start()

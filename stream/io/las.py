@@ -24,7 +24,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
-    "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
+    "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "with_writable_version", "check_header_sizes",
 ]
 
 
@@ -120,10 +120,10 @@ def open_source(path: str | os.PathLike) -> LasSource:
         raise PatchcloudIOError(f"{p}: is a directory, not a LAS/LAZ file")
     st = p.stat()
     with open(p, "rb") as f:
-        sig = f.read(4)
-    if sig != b"LASF":
+        head = f.read(375)
+    if head[:4] != b"LASF":
         raise PatchcloudIOError(f"{p}: not a LAS/LAZ file (no 'LASF' signature)")
-    check_header_sizes(p, st.st_size)
+    check_header_sizes(p, head, st.st_size)
     try:
         with laspy.open(p) as reader:
             h = reader.header
@@ -177,22 +177,21 @@ def open_source(path: str | os.PathLike) -> LasSource:
 VLR_BYTES, EVLR_BYTES = 54, 60
 
 
-def check_header_sizes(path: str | os.PathLike, size: int) -> None:
+def check_header_sizes(path: str | os.PathLike, head: bytes, size: int) -> None:
     """Refuse a LAS header whose sizes and counts the file cannot hold, before anything is read or allocated from them.
 
     The header's size, the offset to the point data, the number of VLRs
     (each at least 54 bytes, between the header and the points), and for
     LAS 1.4 the start and number of the EVLRs (each at least 60 bytes) are
     checked against the file's ``size`` (bytes): a crafted header claiming a
-    billion VLRs is one error, not hours of parsing.
+    billion VLRs is one error, not hours of parsing.  ``head``: the file's
+    first 375 bytes (fewer if it is shorter); ``path`` names it in the error.
 
     Raises
     ------
     PatchcloudIOError
         Naming the file, the field and what the file can hold.
     """
-    with open(path, "rb") as f:
-        head = f.read(375)
     if len(head) < 227:
         raise PatchcloudIOError(f"{path}: truncated: {len(head)} bytes, less than a LAS header (227)")
     minor = head[25]
@@ -325,17 +324,22 @@ def laz_backend(parallel: bool = True):
         return None
 
 
-def writable_version(header: laspy.LasHeader) -> laspy.LasHeader:
-    """``header`` as LAS 1.2 when it is LAS 1.0 or 1.1 (changed in place and returned), else as it is.
+def writable_version(version) -> str:
+    """The LAS version written for an input of LAS ``version``: 1.2 for 1.0 and 1.1, else the same.
 
     laspy writes LAS 1.2 to 1.4 only; the 1.0 and 1.1 point formats (0 and
     1) and header fields are those of 1.2, so the records stay the same.
 
-    >>> str(writable_version(laspy.LasHeader(point_format=1, version="1.3")).version)  # 1.0: tests/test_point_accounting.py
-    '1.3'
+    >>> writable_version("1.0"), writable_version("1.1"), writable_version("1.4")
+    ('1.2', '1.2', '1.4')
     """
-    if header.version.minor < 2:
-        header.version = laspy.header.Version(1, 2)
+    v = str(version)
+    return "1.2" if v in ("1.0", "1.1") else v
+
+
+def with_writable_version(header: laspy.LasHeader) -> laspy.LasHeader:
+    """``header`` with its version set to :func:`writable_version` of it (changed in place and returned)."""
+    header.version = laspy.header.Version.from_str(writable_version(header.version))
     return header
 
 
@@ -353,7 +357,7 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
     another type is an error.
     """
     with laspy.open(src.path) as reader:
-        header = writable_version(without_copc(reader.header))
+        header = with_writable_version(without_copc(reader.header))
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
     for name, dtype, desc, *no_data in dims:

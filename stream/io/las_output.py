@@ -202,16 +202,17 @@ def write_laz_part(tmp: str | os.PathLike, part: int, header: laspy.LasHeader, p
     return [tuple(int(v) for v in e) for e in table]
 
 
-def _append(src, dst) -> None:
-    """Copy the file ``src`` to the end of ``dst`` (both open, ``dst`` flushed): in the kernel where it can."""
-    size = os.fstat(src.fileno()).st_size
+def _append(src, dst, first: int = 0) -> None:
+    """Copy the file ``src`` from byte ``first`` to its end onto ``dst`` at its position (both open, ``dst`` flushed):
+    in the kernel where it can."""
+    size = max(0, os.fstat(src.fileno()).st_size - first)
     copy = getattr(os, "copy_file_range", None)
     at = dst.tell()
     if copy is not None:
         try:
             done = 0
             while done < size:
-                n = copy(src.fileno(), dst.fileno(), size - done, done, at + done)
+                n = copy(src.fileno(), dst.fileno(), size - done, first + done, at + done)
                 if n == 0:
                     break
                 done += n
@@ -221,16 +222,8 @@ def _append(src, dst) -> None:
             dst.seek(at)
         except OSError:  # e.g. across file systems on old kernels: copy through user space
             dst.seek(at)
-    src.seek(0)
+    src.seek(first)
     shutil.copyfileobj(src, dst, 1 << 24)
-
-
-def _copy_range(path: str, first: int, dst) -> None:
-    """Copy the bytes of file ``path`` from offset ``first`` to its end onto the end of ``dst``."""
-    with open(path, "rb") as src:
-        src.seek(first)
-        dst.seek(0, os.SEEK_END)
-        shutil.copyfileobj(src, dst, 1 << 24)
 
 
 def _is_waveform_record(v) -> bool:
@@ -269,11 +262,11 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
             f.seek(start)
             f.write(struct.pack("<q", table_at))
         if waves and header.version.minor < 4 and source is not None:
-            with open(source, "rb") as src:
-                first = laspy.LasHeader.read_from(src).start_of_waveform_data_packet_record
             f.seek(0, os.SEEK_END)
+            f.flush()
             h.start_of_waveform_data_packet_record = f.tell()
-            _copy_range(source, first, f)
+            with open(source, "rb") as src:
+                _append(src, f, laspy.LasHeader.read_from(src).start_of_waveform_data_packet_record)
         if evlrs:
             f.seek(0, os.SEEK_END)
             h.start_of_first_evlr, h.number_of_evlrs = f.tell(), len(evlrs)

@@ -60,6 +60,7 @@ from zarr.codecs import BloscCodec
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
+from .las import writable_version
 from .store import tile_name
 
 __all__ = ["FORMAT", "VERSION", "ZIP_TIME", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
@@ -345,7 +346,7 @@ def open_pcz(path: str | os.PathLike) -> PczFile:
 
 def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets) -> bytes:
     """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout)."""
-    h = laspy.LasHeader(point_format=point_format, version="1.2" if str(version) in ("1.0", "1.1") else version)  # laspy writes 1.2+
+    h = laspy.LasHeader(point_format=point_format, version=writable_version(version))
     h.scales, h.offsets = np.asarray(scales, dtype=np.float64), np.asarray(offsets, dtype=np.float64)
     las = laspy.LasData(h)
     rows = np.frombuffer(np.ascontiguousarray(records).tobytes(), dtype=point_format.dtype()).copy()

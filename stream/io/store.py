@@ -375,13 +375,13 @@ class Store:
         if stop <= start:
             return a[0:0]
         size = a.chunks[0]
+        if len(sums) != -(-n // size):
+            raise self._damaged(where, "its checksums do not match its shape")
         first, last = start // size, -(-stop // size)
         try:
             data = a[first * size : min(n, last * size)]
         except Exception as exc:
             raise self._damaged(where, f"a chunk cannot be decoded: {exc}") from exc
-        if len(sums) != -(-n // size):
-            raise self._damaged(where, "its checksums do not match its shape")
         for k in range(first, last):
             block = data[(k - first) * size : (k - first + 1) * size]
             if zlib.crc32(np.ascontiguousarray(block)) != sums[k]:

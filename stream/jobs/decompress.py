@@ -20,7 +20,7 @@ import numpy as np
 
 from patchcloud.core import MASK_SIDE, PatchcloudValueError, dequantise_models, sample_models
 from patchcloud.stream.io import pcz
-from patchcloud.stream.io.las import atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, writable_version
+from patchcloud.stream.io.las import atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, with_writable_version
 
 __all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING"]
 
@@ -126,7 +126,7 @@ def decompress(
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
-        header = writable_version(laspy.LasHeader.read_from(io.BytesIO(f.header_bytes), read_evlrs=False))
+        header = with_writable_version(laspy.LasHeader.read_from(io.BytesIO(f.header_bytes), read_evlrs=False))
         evlrs = f.evlrs(header.number_of_evlrs if header.version.minor >= 4 else 0)
         header.vlrs = [v for v in header.vlrs if v.user_id not in ("laszip encoded", "copc")]  # LAS/LAZ out, not COPC
         if evlrs:
