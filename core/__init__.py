@@ -22,7 +22,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.graph': ('connected_components',),
     '.cluster': ('components', 'euclidean_clusters', 'number_by_first'),
     '.don': ('difference_of_normals', 'don_magnitude', 'don_mask', 'segment_don'),
-    '.errors': ('PatchcloudError', 'PatchcloudIOError', 'PatchcloudNotImplementedError', 'PatchcloudValueError', 'os_error_line'),
+    '.errors': ('PatchcloudError', 'PatchcloudIOError', 'PatchcloudMemoryError', 'PatchcloudNotImplementedError', 'PatchcloudValueError', 'os_error_line'),
     '.moments': ('cell_moments',),
     '.morton': ('MAX_DEPTH', 'decode'),
     '.codes': ('Method', 'PatchKind'),
@@ -68,6 +68,7 @@ __all__ = [
     "PatchcloudValueError",
     "PatchcloudIOError",
     "PatchcloudNotImplementedError",
+    "PatchcloudMemoryError",
     "os_error_line",
     # the tile interface: what patchcloud.stream uses (besides names of the user API above)
     # .morton

@@ -7,7 +7,7 @@ working for callers who do not know patchcloud.
 
 from __future__ import annotations
 
-__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError", "PatchcloudNotImplementedError", "os_error_line"]
+__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError", "PatchcloudNotImplementedError", "PatchcloudMemoryError", "os_error_line"]
 
 
 class PatchcloudError(Exception):
@@ -24,6 +24,11 @@ class PatchcloudIOError(PatchcloudError, OSError):
 
 class PatchcloudNotImplementedError(PatchcloudError, NotImplementedError):
     """A combination patchcloud does not handle yet (e.g. a catalog for ``compress``); the message names it."""
+
+
+class PatchcloudMemoryError(PatchcloudError, MemoryError):
+    """A size read from a file, or asked for by a parameter, would need more memory than the budget allows
+    (``--max-memory``); nothing was allocated.  The message names the file and what it asked for."""
 
 
 def os_error_line(exc: OSError) -> str:

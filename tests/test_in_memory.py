@@ -53,7 +53,7 @@ def test_auto_runs_small_inputs_in_memory_unless_a_store_or_scheduler_is_asked()
     assert not RunOptions(scheduler="processes").runs_in_memory(10)
     assert not RunOptions(workers=2).runs_in_memory(10)  # workers asked for: a local cluster of them
     assert not RunOptions(in_memory=False).runs_in_memory(10)
-    assert RunOptions(in_memory=True).runs_in_memory(10**9)
+    assert RunOptions(in_memory=True).runs_in_memory(10**7)  # asked for: beyond the default's size, within the budget
 
 
 @pytest.mark.parametrize("kwargs, says", [

@@ -64,6 +64,7 @@ def compress_command(paths, max_error, record_source, report, **run):
 @click.option("--bbox", type=float, nargs=6, default=None, metavar="XMIN YMIN ZMIN XMAX YMAX ZMAX",
               help="Only this box (file coordinates); only the tiles that meet it are read.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the sampling.")
+@options.max_memory
 @options.overwrite
 @options.quiet
 @options.reports_errors

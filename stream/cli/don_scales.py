@@ -76,6 +76,7 @@ def _write_text(path: str, text: str) -> None:
               help="The figure. Default: INPUT's stem + _don_scales.png in the current directory.")
 @click.option("--no-plot", is_flag=True, help="Do not draw the figure.")
 @click.option("--table", default=None, metavar="OUT.txt", help="Also write the table to this file.")
+@options.max_memory
 @options.quiet
 @options.reports_errors
 def don_scales_command(input, radii, small, large, classes_from, classes, sample, mode, min_class_points, min_defined, max_points, seed,

@@ -12,6 +12,7 @@ from . import options
 @click.command("info")
 @click.argument("path")
 @click.option("--json", "as_json", is_flag=True, help="Print the description as JSON.")
+@options.max_memory
 @options.reports_errors
 def info_command(path, as_json):
     """What PATH holds: a LAS/LAZ file (points, bounds, dimensions, CRS) or a store (tiles, steps done)."""

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import functools
+import os
 import sys
 
 import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -44,6 +45,28 @@ in_memory = click.option(
 profile = click.option(
     "--profile", type=click.Path(dir_okay=False), default=None, metavar="PATH",
     help="Write the run's task stream there (JSON: each task's step, start, end and worker), e.g. for tools/bench_scale.py.",
+)
+
+
+def _set_max_memory(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
+    """--max-memory's callback: set the budget for this command (and the workers it starts), restored when it ends."""
+    if value is None:
+        return
+    from patchcloud.core import PatchcloudValueError
+    from patchcloud.stream.io.budget import ENV, set_max_memory
+
+    before = os.environ.get(ENV)
+    try:
+        set_max_memory(value)
+    except PatchcloudValueError as exc:
+        raise click.BadParameter(str(exc)) from None
+    ctx.call_on_close(lambda: os.environ.__setitem__(ENV, before) if before is not None else os.environ.pop(ENV, None))
+
+
+max_memory = click.option(
+    "--max-memory", default=None, metavar="SIZE", envvar="PATCHCLOUD_MAX_MEMORY", expose_value=False, callback=_set_max_memory,
+    help="Memory budget of each process (e.g. 8GiB, 4GB): sizes read from a file and allocations asked for by a parameter are "
+    "checked against it before anything is allocated. Default: half the machine's memory. Also PATCHCLOUD_MAX_MEMORY.",
 )
 report_option = click.option(
     "--report", type=click.Path(dir_okay=False), default=None, metavar="PATH",
@@ -133,8 +156,9 @@ def run_options(values: dict):
 def job_options(func):
     """The options every out-of-core job shares, named as the fields of RunOptions (a command takes them as ``**run``:
     :func:`run_options`): --tile-size, --scheduler, --scheduler-file, --workers, --store, --keep-store, --in-memory, --overwrite,
-    -q, --profile."""
-    for option in reversed([tile_size, scheduler, scheduler_file, workers, store, keep_store, in_memory, overwrite, quiet, profile]):
+    -q, --profile; and --max-memory (which sets the budget, :mod:`patchcloud.stream.io.budget`)."""
+    for option in reversed([tile_size, scheduler, scheduler_file, workers, store, keep_store, in_memory, overwrite, quiet, profile,
+                            max_memory]):
         func = option(func)
     return func
 

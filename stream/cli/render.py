@@ -35,6 +35,7 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
               help="robust: frame the heights of a sample of the file, so noise far above or below (birds, low "
               "returns) does not squash the picture; all: frame the header's bounds.")
 @options.catalog_options
+@options.max_memory
 @options.quiet
 @options.reports_errors
 def render_command(paths, color, view, bbox, width, shade, value_range, fill, heights, out_dir, assume_crs, quiet):
@@ -91,6 +92,7 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
 @click.option("--step", default=None, metavar="NAME",
               help="The step whose state is shown: sort, fit, finish (normals), don_skin, don, cluster (don, segment), "
               "compress. Default: the last of them any tile reached.")
+@options.max_memory
 @options.quiet
 @options.reports_errors
 def render_tiles_command(store, output, by, step, quiet):

@@ -13,6 +13,7 @@ from . import options
 @options.tile_size
 @options.scheduler
 @options.workers
+@options.max_memory
 @options.overwrite
 @options.quiet
 @options.reports_errors

@@ -60,6 +60,7 @@ from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, 
 from patchcloud.stream.io.las import LasSource, check_las_output, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
+from patchcloud.stream.io.budget import check_memory, max_memory
 from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import PatchcloudStoreError, Store
 
@@ -71,6 +72,9 @@ __all__ = [
 #: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.61 GB
 #: (city LAZ, 2-core machine; about 0.45 GB plus 90 bytes per point: 0.77 GB at 4M points, 1.35 GB at 10M).
 IN_MEMORY_POINTS = 2_000_000
+#: Peak memory of a run in memory: this much, plus :data:`IN_MEMORY_POINT_BYTES` per point (measured on the city, 2M to 10M points).
+IN_MEMORY_BASE = 450 << 20
+IN_MEMORY_POINT_BYTES = 90
 
 
 @dataclass(frozen=True)
@@ -128,7 +132,8 @@ class RunOptions:
         same results, byte for byte, as a run on a store.  Default (None):
         for inputs of at most :data:`IN_MEMORY_POINTS` points when neither
         ``store``, ``keep_store``, ``workers`` nor a ``scheduler`` other
-        than "auto" is given.  True: whatever the size (memory then grows with it: about
+        than "auto" is given, and its peak fits the memory budget.  True:
+        whatever the size within the budget (memory grows with it: about
         0.45 GB plus 90 bytes per point at the peak); False: never.
     """
 
@@ -163,15 +168,19 @@ class RunOptions:
                 raise PatchcloudValueError(f"in_memory runs inline, on no scheduler: leave out scheduler ({self.scheduler!r}), or in_memory")
 
     def runs_in_memory(self, points: int) -> bool:
-        """Whether a run on an input of ``points`` points runs in memory (see ``in_memory``).
+        """Whether a run on an input of ``points`` points runs in memory (see ``in_memory``): by default only if its
+        peak fits the memory budget (:mod:`patchcloud.stream.io.budget`); asked for beyond it, a PatchcloudMemoryError.
 
         >>> RunOptions().runs_in_memory(60_000), RunOptions().runs_in_memory(10**8), RunOptions(scheduler="threads").runs_in_memory(60_000)
         (True, False, False)
         """
+        need = IN_MEMORY_BASE + IN_MEMORY_POINT_BYTES * int(points)
+        if self.in_memory:
+            check_memory(need, f"a run in memory of {int(points):,} points", "--on-disk runs in bounded memory")
         if self.in_memory is not None:
             return self.in_memory
         return (points <= IN_MEMORY_POINTS and self.store is None and not self.keep_store and self.scheduler == "auto"
-                and self.workers is None)
+                and self.workers is None and need <= max_memory())
 
 
 def split_options(kwargs: dict, options, kind: type, run: RunOptions | None) -> tuple[Any, RunOptions]:

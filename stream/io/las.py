@@ -177,7 +177,7 @@ def open_source(path: str | os.PathLike) -> LasSource:
 VLR_BYTES, EVLR_BYTES = 54, 60
 
 
-def check_header_sizes(path: str | os.PathLike, head: bytes, size: int) -> None:
+def check_header_sizes(path: str | os.PathLike, head: bytes, size: int, *, evlrs: bool = True) -> None:
     """Refuse a LAS header whose sizes and counts the file cannot hold, before anything is read or allocated from them.
 
     The header's size, the offset to the point data, the number of VLRs
@@ -185,7 +185,9 @@ def check_header_sizes(path: str | os.PathLike, head: bytes, size: int) -> None:
     LAS 1.4 the start and number of the EVLRs (each at least 60 bytes) are
     checked against the file's ``size`` (bytes): a crafted header claiming a
     billion VLRs is one error, not hours of parsing.  ``head``: the file's
-    first 375 bytes (fewer if it is shorter); ``path`` names it in the error.
+    first 375 bytes (fewer if it is shorter); ``path`` names it in the error;
+    ``evlrs`` False: the EVLRs are not in these bytes (a header kept apart
+    from its file), leave them out.
 
     Raises
     ------
@@ -204,7 +206,7 @@ def check_header_sizes(path: str | os.PathLike, head: bytes, size: int) -> None:
     if vlrs * VLR_BYTES > offset - header_size:
         raise PatchcloudIOError(f"{path}: the header says {vlrs:,} VLRs, but the {offset - header_size:,} bytes before the "
                                 f"point data hold at most {(offset - header_size) // VLR_BYTES:,}")
-    if minor >= 4 and header_size >= 375 and len(head) == 375:
+    if evlrs and minor >= 4 and header_size >= 375 and len(head) == 375:
         start, evlrs = struct.unpack_from("<QI", head, 235)
         if evlrs and (start > size or evlrs * EVLR_BYTES > size - start):
             room = max(0, size - start) // EVLR_BYTES

@@ -39,6 +39,13 @@ recorded by its name, not its path, unless asked).
 Reading checks the format mark and the version, and names the file in
 every error (:class:`patchcloud.core.errors.PatchcloudIOError`): a file
 that is not a zip, truncated, of another version or made by something else.
+Nothing a file states is trusted before it is checked (:func:`open_pcz`):
+every zip entry's size against the file and the memory budget
+(:mod:`.budget`; a compressed entry expanding far beyond its size is a zip
+bomb), every array's type, shape and chunks against this layout, every
+chunk's decoded size against its chunk, the tile index against the arrays
+and the counts, and the points the cells stand for against the counts;
+then every read of a tile's rows is checked against the budget.
 """
 
 from __future__ import annotations
@@ -58,9 +65,10 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec
 
-from patchcloud.core import PatchcloudIOError, PatchcloudValueError, QuantisedModels
+from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
-from .las import writable_version
+from .budget import check_memory
+from .las import check_header_sizes, writable_version
 from .store import tile_name
 
 __all__ = ["FORMAT", "VERSION", "ZIP_TIME", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
@@ -74,6 +82,14 @@ CHUNK = 1 << 16
 #: Byte shuffle + Zstd at its strongest level through Blosc (measured on an IGN tile's patches:
 #: 22 % smaller than zarr's default Zstd level 3; the arrays are small next to the points they replace).
 CODEC = BloscCodec(cname="zstd", clevel=9, shuffle="shuffle")
+
+#: A compressed zip entry may expand to at most this many times its size, and 1 MiB in any case (a ``.pcz``'s entries
+#: are stored, not compressed; a repacked one's JSON deflates about tenfold): beyond, a zip bomb.
+MAX_ZIP_RATIO = 100
+#: Bytes a tile's rows take in memory as they are read, per patch and per cell (the stored types, their int64 copies).
+PATCH_ROW_BYTES, CELL_ROW_BYTES = 3 * (1 + 12 + 12 + 48 + 4 + 4), 3 * (1 + 12 + 4 + 16 + 8 + 1 + 2)
+_STARTS = ("patch_start", "cell_start", "residual_start", "residual_byte_start")
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 
 _PATCH_ARRAYS = (
     ("scale", np.int8, ()), ("centroid", np.int32, (3,)), ("rotation", np.int32, (3,)), ("coeffs", np.int64, (6,)),
@@ -222,8 +238,10 @@ def write_pcz(
 class PczFile:
     """An open ``.pcz`` (see :func:`open_pcz`): its attributes, and its patches and residual points by tile or region."""
 
-    def __init__(self, path: str, root: zarr.Group, store) -> None:
+    def __init__(self, path: str, root: zarr.Group, store, largest_cell: int = 0) -> None:
         self.path = path
+        #: The most points one cell stands for.
+        self.largest_cell = largest_cell
         self.root = root
         self._store = store
         self.attrs = dict(root.attrs)
@@ -246,6 +264,19 @@ class PczFile:
     def header_bytes(self) -> bytes:
         return bytes(self.root["header"][...])
 
+    def las_header(self) -> laspy.LasHeader:
+        """The input's LAS header and VLRs (its sizes checked before laspy parses them; a PatchcloudIOError if damaged)."""
+        raw = self.header_bytes
+        check_header_sizes(f"{self.path}: the input's header", raw[:375], len(raw), evlrs=False)
+        try:
+            header = laspy.LasHeader.read_from(io.BytesIO(raw), read_evlrs=False)
+        except Exception as exc:
+            raise PatchcloudIOError(f"{self.path}: the input's LAS header cannot be read ({exc})") from exc
+        if header.point_format.size != int(self.attrs["record_bytes"]) + 12:
+            raise PatchcloudIOError(f"{self.path}: the input's header has point records of {header.point_format.size} bytes, "
+                                    f"the file says {int(self.attrs['record_bytes']) + 12}")
+        return header
+
     def tiles_in(self, lo, hi) -> np.ndarray:
         """Positions of the tiles whose cube meets the box ``lo``..``hi`` (the grid's local frame, metres)."""
         T = self.tile_size
@@ -258,6 +289,8 @@ class PczFile:
         raw = bytes(self.root["evlrs"][...]) if count else b""
         if not raw:
             return VLRList()
+        if count * 60 > len(raw):
+            raise PatchcloudIOError(f"{self.path}: the input's header says {count:,} extended VLRs, the file holds {len(raw):,} bytes of them")
         try:
             return VLRList(VLRList.read_from(io.BytesIO(raw), count, extended=True))
         except Exception as exc:
@@ -268,6 +301,8 @@ class PczFile:
         """Tile ``t``'s quantised models (root = the tile), and its cells' classification and intensity."""
         s = slice(int(self.patch_start[t]), int(self.patch_start[t + 1]))
         c = slice(int(self.cell_start[t]), int(self.cell_start[t + 1]))
+        check_memory((s.stop - s.start) * PATCH_ROW_BYTES + (c.stop - c.start) * CELL_ROW_BYTES,
+                     f"{self.path}: tile {tile_name(self.tiles[t])}'s {s.stop - s.start:,} patches and {c.stop - c.start:,} cells")
         v = {name: self.root["patches"][name][s] for name, _, _ in _PATCH_ARRAYS}
         v.update({name: self.root["cells"][name][c] for name, _, _ in _CELL_ARRAYS})
         T = self.tile_size
@@ -290,8 +325,15 @@ class PczFile:
         B = int(self.attrs["record_bytes"])
         if n == 0:
             return np.zeros((0, 3), np.int32), np.zeros((0, B), np.uint8)
+        name = f"{self.path}: the residual points of tile {tile_name(self.tiles[t])}"
+        check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
+        raw = self.root["residual/laz"][s].tobytes()
+        check_header_sizes(name, raw[:375], len(raw))
+        said = _las_point_count(raw)
+        if said != n:
+            raise PatchcloudIOError(f"{name}: their LAZ header says {said:,} points, the index says {n:,}")
         try:
-            las = laspy.read(io.BytesIO(self.root["residual/laz"][s].tobytes()))
+            las = laspy.read(io.BytesIO(raw))
         except Exception as exc:
             raise PatchcloudIOError(f"{self.path}: the residual points of tile {tile_name(self.tiles[t])} cannot be read ({exc})") from exc
         raw = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
@@ -311,7 +353,13 @@ class PczFile:
 
 
 def open_pcz(path: str | os.PathLike) -> PczFile:
-    """Open a ``.pcz`` for reading; a PatchcloudIOError naming the file when it is not one this version reads."""
+    """Open a ``.pcz`` for reading; a PatchcloudIOError naming the file when it is not one this version reads.
+
+    Everything the file states is checked before it is used (see the module's
+    notes): a damaged or crafted file is one error naming it and what is
+    wrong, and no size it states is allocated beyond the memory budget
+    (a :class:`patchcloud.core.PatchcloudMemoryError`).
+    """
     from zarr.storage import ZipStore
 
     p = Path(path)
@@ -321,27 +369,163 @@ def open_pcz(path: str | os.PathLike) -> PczFile:
         raise PatchcloudIOError(f"{p}: not a patchcloud .pcz file (not a zip archive; truncated?)")
     try:
         with zipfile.ZipFile(p) as z:
+            _check_entries(p, z)
             bad = z.testzip()
-        if bad is not None:
-            raise PatchcloudIOError(f"{p}: damaged .pcz file (entry {bad} fails its checksum)")
+            if bad is not None:
+                raise PatchcloudIOError(f"{p}: damaged .pcz file (entry {bad} fails its checksum)")
+            chunks = {e.filename: _chunk_head(z, e) for e in z.infolist() if "/c/" in e.filename}
         store = ZipStore(str(p), mode="r")
         root = zarr.open_group(store, mode="r")
         a = dict(root.attrs)
-    except PatchcloudIOError:
+    except PatchcloudError:
         raise
     except Exception as exc:
         raise PatchcloudIOError(f"{p}: not a readable .pcz file ({exc})") from exc
-    if a.get("format") != FORMAT:
-        store.close()
-        raise PatchcloudIOError(f"{p}: not a patchcloud .pcz file (no '{FORMAT}' format mark)")
-    if a.get("version") != VERSION:
-        store.close()
-        raise PatchcloudIOError(f"{p}: .pcz version {a.get('version')} is not supported (this is version {VERSION})")
     try:
-        return PczFile(str(p), root, store)
+        if a.get("format") != FORMAT:
+            raise PatchcloudIOError(f"{p}: not a patchcloud .pcz file (no '{FORMAT}' format mark)")
+        if a.get("version") != VERSION:
+            raise PatchcloudIOError(f"{p}: .pcz version {a.get('version')!r} is not supported (this is version {VERSION})")
+        counts = _check_attrs(p, a)
+        largest = _check_arrays(p, root, chunks, counts)
+        return PczFile(str(p), root, store, largest)
+    except PatchcloudError:
+        store.close()
+        raise
     except Exception as exc:
         store.close()
         raise PatchcloudIOError(f"{p}: incomplete .pcz file ({exc})") from exc
+
+
+def _check_entries(p: Path, z: zipfile.ZipFile) -> None:
+    """Every zip entry's sizes against the file, :data:`MAX_ZIP_RATIO` and the memory budget, before any is read."""
+    size = p.stat().st_size
+    for e in z.infolist():
+        if e.compress_size > size or (e.compress_type == zipfile.ZIP_STORED and e.file_size != e.compress_size):
+            raise PatchcloudIOError(f"{p}: damaged .pcz file (entry {e.filename} claims {e.file_size:,} bytes, "
+                                    f"{e.compress_size:,} stored, in a file of {size:,})")
+        if e.file_size > max(MAX_ZIP_RATIO * e.compress_size, 1 << 20):
+            raise PatchcloudIOError(f"{p}: entry {e.filename} expands from {e.compress_size:,} to {e.file_size:,} bytes "
+                                    f"(more than {MAX_ZIP_RATIO} times: a zip bomb?)")
+        check_memory(e.file_size, f"{p}: entry {e.filename}")
+
+
+def _chunk_head(z: zipfile.ZipFile, entry: zipfile.ZipInfo) -> int | None:
+    """The size a chunk entry says it decodes to (its Blosc or Zstd header), None when it does not say."""
+    with z.open(entry) as f:
+        head = f.read(32)
+    return _decoded_size(head)
+
+
+def _decoded_size(head: bytes) -> int | None:
+    """The decoded size a Zstd frame header or a Blosc header states; None for neither, or a Zstd frame without it.
+
+    >>> import numcodecs
+    >>> _decoded_size(numcodecs.Zstd().encode(bytes(1000))), _decoded_size(numcodecs.Blosc().encode(bytes(300)))
+    (1000, 300)
+    """
+    if head[:4] == _ZSTD_MAGIC and len(head) >= 6:
+        d = head[4]
+        single = (d >> 5) & 1
+        pos = 5 + (0 if single else 1) + (0, 1, 2, 4)[d & 3]
+        n = (single, 2, 4, 8)[d >> 6]
+        if n == 0 or len(head) < pos + n:
+            return None
+        return int.from_bytes(head[pos:pos + n], "little") + (256 if n == 2 else 0)
+    if len(head) >= 16 and head[0] in (1, 2):  # Blosc 1: version, versionlz, flags, typesize, nbytes (u32), ...
+        return int.from_bytes(head[4:8], "little")
+    return None
+
+
+def _check_attrs(p: Path, a: dict) -> dict:
+    """The file's attributes, checked (finite, positive where they must be); returns its counts."""
+    try:
+        g = a["grid"]
+        max_error, tile_size = float(a["max_error"]), float(g["tile_size"])
+        vectors = [np.asarray(g[k], dtype=np.float64).reshape(3) for k in ("origin", "scale", "offset")]
+        counts = {k: a["counts"][k] for k in ("tiles", "patches", "cells", "residual", "points")}
+        record = a["record_bytes"]
+        source = a["source"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise PatchcloudIOError(f"{p}: incomplete .pcz file (attribute {exc} missing or malformed)") from exc
+    if not (np.isfinite(max_error) and max_error > 0 and np.isfinite(tile_size) and tile_size > 0
+            and all(np.isfinite(v).all() for v in vectors) and (vectors[1] > 0).all()):
+        raise PatchcloudIOError(f"{p}: damaged .pcz file (max error {max_error!r}, tile size {tile_size!r}, grid {g!r})")
+    if not all(type(v) is int and v >= 0 for v in counts.values()) or type(record) is not int or not 0 <= record <= 65535 - 12:
+        raise PatchcloudIOError(f"{p}: damaged .pcz file (counts {counts!r}, record bytes {record!r})")
+    if not isinstance(source, dict):
+        raise PatchcloudIOError(f"{p}: damaged .pcz file (source {source!r})")
+    return counts
+
+
+def _check_arrays(p: Path, root: zarr.Group, chunks: dict[str, int | None], counts: dict) -> int:
+    """Every array's type, shape and chunks against the layout, the tile index against them and the counts; returns
+    the most points a cell stands for."""
+    T = counts["tiles"]
+    rows = {"patches": counts["patches"], "cells": counts["cells"]}
+    _array(p, root, "tiles/ijk", np.int64, (3,), T, chunks)
+    starts = {}
+    for name in _STARTS:
+        s = _array(p, root, f"tiles/{name}", np.int64, (), T + 1, chunks)[...]
+        if s[0] != 0 or np.any(np.diff(s) < 0):
+            raise PatchcloudIOError(f"{p}: damaged .pcz file (tiles/{name} does not rise from 0)")
+        starts[name] = s
+    for group, arrays in (("patches", _PATCH_ARRAYS), ("cells", _CELL_ARRAYS)):
+        for name, dtype, tail in arrays:
+            _array(p, root, f"{group}/{name}", dtype, tail, rows[group], chunks)
+    laz = _array(p, root, "residual/laz", np.uint8, (), None, chunks)
+    for name, n, what in (("patch_start", counts["patches"], "patches"), ("cell_start", counts["cells"], "cells"),
+                          ("residual_start", counts["residual"], "residual points"),
+                          ("residual_byte_start", laz.shape[0], "residual bytes")):
+        if int(starts[name][-1]) != n:
+            raise PatchcloudIOError(f"{p}: damaged .pcz file (the tile index ends at {int(starts[name][-1]):,} {what}, "
+                                    f"the file holds {n:,})")
+    for name in ("header", "evlrs"):
+        _array(p, root, name, np.uint8, (), None, chunks)
+    C = counts["cells"]
+    check_memory(4 * (C + counts["patches"]), f"{p}: the counts of its {C:,} cells")
+    named = int(root["patches/cells"][...].sum(dtype=np.int64))
+    cell_counts = root["cells/count"][...]
+    stood = int(cell_counts.sum(dtype=np.int64))
+    if named != C or stood + counts["residual"] != counts["points"]:
+        raise PatchcloudIOError(f"{p}: damaged .pcz file (its patches name {named:,} cells of {C:,}; its cells stand for "
+                                f"{stood:,} points and its residual {counts['residual']:,}, the counts say {counts['points']:,})")
+    return int(cell_counts.max()) if C else 0
+
+
+def _array(p: Path, root: zarr.Group, name: str, dtype, tail: tuple, rows: int | None, chunks: dict) -> zarr.Array:
+    """Array ``name``, checked: its type, its shape (``rows`` rows if given, of shape ``tail``), codecs and chunks."""
+    try:
+        a = root[name]
+    except KeyError:
+        raise PatchcloudIOError(f"{p}: incomplete .pcz file (no {name} array)") from None
+    ok = isinstance(a, zarr.Array) and a.dtype == np.dtype(dtype) and a.shape[1:] == tail and len(a.shape) == 1 + len(tail)
+    if not ok or (rows is not None and a.shape[0] != rows):
+        raise PatchcloudIOError(f"{p}: damaged .pcz file (array {name} is {getattr(a, 'dtype', '?')} of shape "
+                                f"{getattr(a, 'shape', '?')}, not {np.dtype(dtype)} of {'N' if rows is None else rows} rows of {tail})")
+    m = a.metadata
+    codecs = [type(c).__name__ for c in m.codecs]
+    enc = m.chunk_key_encoding
+    if (codecs not in (["BytesCodec", "BloscCodec"], ["BytesCodec", "ZstdCodec"]) or m.storage_transformers
+            or type(enc).__name__ != "DefaultChunkKeyEncoding" or enc.separator != "/" or a.chunks[1:] != tail):
+        raise PatchcloudIOError(f"{p}: damaged .pcz file (array {name}: codecs {codecs}, chunks {a.chunks}: not this layout)")
+    whole = int(np.prod(a.chunks)) * a.dtype.itemsize
+    check_memory(whole, f"{p}: a chunk of {name}")
+    check_memory(int(np.prod(a.shape)) * a.dtype.itemsize if name.startswith("tiles/") else 0, f"{p}: {name}")
+    prefix = f"{name}/c/"
+    for key, size in chunks.items():
+        if key.startswith(prefix) and size != whole:
+            raise PatchcloudIOError(f"{p}: damaged .pcz file (chunk {key} decodes to "
+                                    f"{'an unstated size' if size is None else f'{size:,} bytes'}, its array's chunks to {whole:,})")
+    return a
+
+
+def _las_point_count(raw: bytes) -> int:
+    """The point count a LAS/LAZ header states (LAS 1.4's 64-bit count when set, else the legacy one)."""
+    legacy = int.from_bytes(raw[107:111], "little")
+    if raw[25] >= 4 and len(raw) >= 255:
+        return int.from_bytes(raw[247:255], "little") or legacy
+    return legacy
 
 
 def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets) -> bytes:

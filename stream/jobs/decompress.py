@@ -10,7 +10,6 @@ and no scheduler: one pass over the file.
 
 from __future__ import annotations
 
-import io
 import os
 import time
 from dataclasses import dataclass
@@ -20,9 +19,10 @@ import numpy as np
 
 from patchcloud.core import MASK_SIDE, PatchcloudValueError, dequantise_models, sample_models
 from patchcloud.stream.io import pcz
+from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.las import atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, with_writable_version
 
-__all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING"]
+__all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES"]
 
 
 @dataclass
@@ -45,6 +45,9 @@ class DecompressSummary:
 SAMPLE_BATCH = 8_000_000
 #: ``density`` may ask for at most this many times the points the ``.pcz`` stands for.
 MAX_UPSAMPLING = 100
+#: Bytes a sampled point takes while its batch is made, besides its record (coordinates, cell, integer coordinates, temporaries):
+#: a batch is checked against the memory budget (``--max-memory``) before it is sampled.
+SAMPLED_POINT_BYTES = 112
 
 
 def _batches(counts: np.ndarray, size: int) -> list[slice]:
@@ -126,7 +129,7 @@ def decompress(
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
-        header = with_writable_version(laspy.LasHeader.read_from(io.BytesIO(f.header_bytes), read_evlrs=False))
+        header = with_writable_version(f.las_header())
         evlrs = f.evlrs(header.number_of_evlrs if header.version.minor >= 4 else 0)
         header.vlrs = [v for v in header.vlrs if v.user_id not in ("laszip encoded", "copc")]  # LAS/LAZ out, not COPC
         if evlrs:
@@ -136,6 +139,9 @@ def decompress(
         origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
         tiles = range(len(f.tiles)) if box is None else f.tiles_in(box[:3] - origin, box[3:] - origin)
         L = header.point_format.size
+        per_point = SAMPLED_POINT_BYTES + L
+        if lod is not None or density is None:  # each cell's own count, or fewer: the largest cell, before writing
+            check_memory(per_point * (f.largest_cell // 4 ** (lod or 0)), f"{input}: a cell of {f.largest_cell:,} points")
         if density is not None:
             want = sum(int(_counts(dequantise_models(f.patches(int(t))[0]), density, None).sum()) for t in tiles)
             have = int(f.attrs["counts"]["points"])
@@ -165,6 +171,7 @@ def decompress(
                     for b, cells in enumerate(_batches(counts, SAMPLE_BATCH)):  # each batch written before the next
                         some = np.zeros_like(counts)
                         some[cells] = counts[cells]
+                        check_memory(per_point * int(some.sum()), f"{input}: tile {int(t)}'s batch of {int(some.sum()):,} points")
                         pts, k = sample_models(models, some, seed=seed + int(t) if b == 0 else [seed + int(t), b])
                         xyz = np.rint((pts + origin - offset) / scale).astype(np.int64)
                         sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)

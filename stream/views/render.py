@@ -51,6 +51,7 @@ import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
+from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.catalog import open_catalog
 from patchcloud.stream.io.las import LasSource, check_not_input, laz_backend, open_source, read_chunks
 
@@ -702,6 +703,9 @@ def robust_heights(src: LasSource) -> tuple[float, float]:
 
 #: Widest image (pixels): the per-pixel buffers take about 100 bytes a pixel (3.6 GB for a square image this wide).
 MAX_WIDTH = 6000
+#: Bytes a pixel takes (depth, index, filled masks, the gap-filling and RGB passes), besides 8 per channel and picture:
+#: a picture is checked against the memory budget (``--max-memory``) before its buffers are made.
+PIXEL_BYTES = 96
 #: Most gap-filling passes the default chooses.
 MAX_FILL = 8
 #: Most gap-filling passes that may be asked for (each pass widens the points by a pixel).
@@ -899,7 +903,10 @@ def render_arrays(
         d = None if color == "normals" else (COLOR_MODES[color][0] if COLOR_MODES[color] else "z")
         if d is not None and d not in value_dims:
             value_dims.append(d)
-    zb = ZBuffer(frame.height, frame.width, nval + len(value_dims))
+    channels = nval + len(value_dims)
+    check_memory(frame.height * frame.width * (PIXEL_BYTES + 8 * channels * len(colors)),
+                 f"a picture of {frame.width:,} x {frame.height:,} pixels")
+    zb = ZBuffer(frame.height, frame.width, channels)
     in_box = 0
     firsts = np.cumsum([0] + [s.point_count for s in sources])  # a point's index: its place in the catalog (ties: the first)
     chunks = ((int(first) + start, pts) for src, first in zip(sources, firsts) for start, pts in read_chunks(src, int(chunk)))
