@@ -47,6 +47,30 @@ def test_a_header_claiming_more_than_the_file_holds_is_one_error(scene, tmp_path
     assert r.exit_code == 2 and r.output.count("\n") == 1 and "Traceback" not in r.output
 
 
+def test_a_vlr_or_evlr_longer_than_the_file_holds_is_one_error(tmp_path):
+    import laspy
+    from laspy.vlrs.vlrlist import VLRList
+
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.vlrs.append(laspy.VLR("test", 2, "a VLR", b"y" * 50))
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = np.arange(100.0), np.arange(100.0), np.zeros(100)
+    las.evlrs = VLRList([laspy.VLR("test", 1, "an EVLR", b"x" * 100)])
+    las.write(tmp_path / "ok.las")
+    assert open_source(tmp_path / "ok.las").point_count == 100
+    raw = (tmp_path / "ok.las").read_bytes()
+    header_size, offset = struct.unpack_from("<HI", raw, 94)
+    start = struct.unpack_from("<Q", raw, 235)[0]
+    vlr = _patched(tmp_path / "ok.las", tmp_path / "vlr.las", header_size + 20, "<H", 60_000)
+    with pytest.raises(PatchcloudIOError, match=rf"vlr.las: VLR 1 of 1 \(60,000 bytes of data\) runs past the point data at byte {offset:,}"):
+        open_source(vlr)
+    evlr = _patched(tmp_path / "ok.las", tmp_path / "evlr.las", start + 20, "<Q", 2**62)
+    with pytest.raises(PatchcloudIOError, match=rf"EVLR 1 of 1 \([\d,]+ bytes of data\) runs past the end of the file at byte {len(raw):,}"):
+        open_source(evlr)
+    r = CliRunner().invoke(main, ["info", str(evlr)])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "Traceback" not in r.output
+
+
 def test_a_tile_size_leaving_almost_no_points_per_tile_is_refused(scene, tmp_path):
     with pytest.raises(PatchcloudValueError, match=r"a tile size of 0.0078125 m leaves about [\d.e-]+ points per tile .*at least 10 needed"):
         normals(scene, tmp_path / "out.las", tile_size=0.01, quiet=True)

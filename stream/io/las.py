@@ -25,6 +25,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "with_writable_version", "check_header_sizes",
+    "check_record_sizes",
 ]
 
 
@@ -121,9 +122,10 @@ def open_source(path: str | os.PathLike) -> LasSource:
     st = p.stat()
     with open(p, "rb") as f:
         head = f.read(375)
-    if head[:4] != b"LASF":
-        raise PatchcloudIOError(f"{p}: not a LAS/LAZ file (no 'LASF' signature)")
-    check_header_sizes(p, head, st.st_size)
+        if head[:4] != b"LASF":
+            raise PatchcloudIOError(f"{p}: not a LAS/LAZ file (no 'LASF' signature)")
+        check_header_sizes(p, head, st.st_size)
+        check_record_sizes(p, f, head, st.st_size)
     try:
         with laspy.open(p) as reader:
             h = reader.header
@@ -212,6 +214,36 @@ def check_header_sizes(path: str | os.PathLike, head: bytes, size: int, *, evlrs
             room = max(0, size - start) // EVLR_BYTES
             raise PatchcloudIOError(f"{path}: the header says {evlrs:,} EVLRs from byte {start:,}, but the file "
                                     f"({size:,} bytes) holds at most {room:,} there")
+
+
+def check_record_sizes(path: str | os.PathLike, f, head: bytes, size: int) -> None:
+    """Refuse a VLR running into the point data, or an EVLR running past the end of the file, before laspy reads them.
+
+    Walks the VLR headers from the end of the header (each states the
+    length of its record) and, for LAS 1.4, the EVLR headers from the first
+    EVLR; ``f``: the open file, ``head`` its first 375 bytes, already passed
+    by :func:`check_header_sizes`.  A crafted record length would otherwise
+    have laspy allocate it.
+
+    Raises
+    ------
+    PatchcloudIOError
+        Naming the file, the record and where it ends.
+    """
+    header_size, offset, vlrs = struct.unpack_from("<HII", head, 94)
+    walks = [("VLR", header_size, vlrs, VLR_BYTES, "<H", offset, "the point data at byte")]
+    if head[25] >= 4 and header_size >= 375 and len(head) == 375:
+        start, evlrs = struct.unpack_from("<QI", head, 235)
+        if evlrs:
+            walks.append(("EVLR", start, evlrs, EVLR_BYTES, "<Q", size, "the end of the file at byte"))
+    for kind, pos, count, head_bytes, length_format, end, what in walks:
+        for i in range(count):
+            f.seek(pos + 20)
+            raw = f.read(struct.calcsize(length_format))
+            length = struct.unpack(length_format, raw)[0] if len(raw) == struct.calcsize(length_format) else 0
+            pos += head_bytes + length
+            if pos > end:
+                raise PatchcloudIOError(f"{path}: {kind} {i + 1} of {count:,} ({length:,} bytes of data) runs past {what} {end:,}")
 
 
 def laz_point_range(path: str | os.PathLike, start: int, record: int, point_format: int) -> tuple[int, int] | None:
