@@ -43,3 +43,32 @@ def test_ctrl_c_is_one_line_and_exit_130(scene, tmp_path, monkeypatch):
     assert r.exit_code == 130
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: interrupted (the store ") and "is kept" in lines[0], r.output
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_a_terminal_with_worker_processes_is_one_line_and_resumes(tmp_path):
+    """SIGINT to the whole process group (what a terminal's Ctrl-C does): the workers print nothing, the run one line."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    src = tmp_path / "big.las"
+    write_scene(src, n=400_000, seed=4)
+    out = tmp_path / "out.las"
+    cmd = [sys.executable, "-c", "from patchcloud.stream.cli import main; main()", "normals", str(src), str(out),
+           "--scheduler", "processes", "--workers", "2", "--tile-size", "4"]
+    p = subprocess.Popen(cmd + ["-q"], stderr=subprocess.PIPE, text=True, start_new_session=True)
+    store = tmp_path / "out.las.store"
+    deadline = time.time() + 120
+    while not (store / "tiles").exists() and p.poll() is None and time.time() < deadline:
+        time.sleep(0.2)
+    time.sleep(2)
+    os.killpg(p.pid, signal.SIGINT)
+    err = p.communicate(timeout=120)[1]
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert p.returncode == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted (the store "), err
+    assert store.is_dir() and not out.exists()
+    r = subprocess.run(cmd + ["-q"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0 and out.exists() and not store.exists(), r.stderr

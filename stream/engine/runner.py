@@ -9,6 +9,7 @@ those calls.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import resource
@@ -178,8 +179,9 @@ class Runner:
             from dask.distributed import Client, LocalCluster
 
             processes = self.scheduler == "processes"
-            self.cluster = LocalCluster(
+            self.cluster = LocalCluster(  # workers log errors only: an interrupted run's cancelled tasks are no news
                 processes=processes, n_workers=n if processes else 1, threads_per_worker=1 if processes else n, dashboard_address=":0",
+                silence_logs=logging.ERROR, **({"preload": ["patchcloud.stream.engine.worker_setup"]} if processes else {}),
             )
             self._client = Client(self.cluster)
             self.ready_at = time.time()

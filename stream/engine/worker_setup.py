@@ -1,0 +1,19 @@
+"""Preloaded by the worker processes of a local cluster (``LocalCluster(preload=[__name__])``): what each needs set first.
+
+A terminal's Ctrl-C reaches every process of the foreground group, the
+workers too.  Each worker ignores it: the run's own process is
+interrupted, says so in one line and closes the cluster, which stops the
+workers, instead of every worker printing a ``KeyboardInterrupt``
+traceback.
+"""
+
+from __future__ import annotations
+
+import signal
+
+__all__ = ["dask_setup"]
+
+
+def dask_setup(worker) -> None:
+    """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT (see the module's notes)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
