@@ -191,8 +191,8 @@ def test_bad_catalogs_give_one_clear_error_and_write_nothing(cut, tmp_path):
                "give --out-dir", tmp_path)
     _cli_fails(["normals", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "no" / "r.html")],
                "does not exist", tmp_path)
-    _cli_fails(["compress", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "r.html")],
-               "a --report of them is not built yet", tmp_path)
+    _cli_fails(["compress", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "no" / "r.html")],
+               "does not exist", tmp_path)
 
 
 def test_compress_of_a_catalog_is_each_file_compressed_alone(cut, tmp_path):
@@ -200,9 +200,13 @@ def test_compress_of_a_catalog_is_each_file_compressed_alone(cut, tmp_path):
     from patchcloud.stream import decompress
 
     d, _ = cut
-    r = CliRunner().invoke(main, ["compress", str(d / "in"), "--out-dir", str(tmp_path / "o"), "-q"])
+    r = CliRunner().invoke(main, ["compress", str(d / "in"), "--out-dir", str(tmp_path / "o"), "-q", "--report", str(tmp_path / "r.html")])
     assert r.exit_code == 0, r.output
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [f"tile_{k}.pcz" for k in range(4)]
+    page = (tmp_path / "r.html").read_text()  # one report of the four files: totals, a table row per file
+    total = sum(laspy.read(str(d / "in" / f"tile_{k}.las")).header.point_count for k in range(4))
+    assert "patchcloud compress: 4 files" in page and f"{total:,}" in page
+    assert all(f"<td>tile_{k}.las</td>" in page for k in range(4)) and page.count("<img") == 2  # the map, bits per file
     alone = tmp_path / "alone.pcz"
     compress(d / "in" / "tile_2.las", alone, quiet=True)
     assert pcz_digests(alone) == pcz_digests(tmp_path / "o" / "tile_2.pcz")

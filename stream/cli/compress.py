@@ -42,16 +42,16 @@ def compress_command(paths, max_error, record_source, report, **run):
     """
     from patchcloud.stream import compress
 
-    from patchcloud.core import PatchcloudNotImplementedError
-
     run = options.run_options(run)
-    if run.out_dir is not None and report is not None:
-        raise PatchcloudNotImplementedError("compress --out-dir compresses each file on its own: a --report of them is not built yet")
     input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
     summary = compress(input, output, CompressOptions(max_error=max_error), run, record_source=record_source)
-    if isinstance(summary, list):  # a catalog, file by file (no --report: input_and_output refuses it)
+    if isinstance(summary, list):  # a catalog, file by file: each file's summary, then one report of them all
         for s in summary:
             options.finish_job(s, run.quiet, None, "report_compress")
+        if report is not None:
+            options.finish_job(summary, True, report, "report_compress_catalog")
+            if not run.quiet:
+                click.echo(f"  report          {report}")
     else:
         options.finish_job(summary, run.quiet, report, "report_compress")
 

@@ -58,7 +58,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "ReportFigure", "ReportTable", "Histogram", "NormalStatistics", "write_report", "check_report_path", "figure_png",
-    "report_normals", "report_don", "report_compress", "normals_rows", "don_rows", "compress_rows",
+    "report_normals", "report_don", "report_compress", "report_compress_catalog", "normals_rows", "don_rows", "compress_rows",
     "normal_statistics", "don_histogram", "segment_sizes", "segment_size_histogram", "pcz_parts", "pcz_tiles",
     "histogram_figure", "render_html", "REFERENCE_DIMS",
 ]
@@ -897,4 +897,54 @@ def report_compress(
     caption = "Tiles" + (f" (the {len(order):,} largest of {len(total):,}, by points)" if len(order) < len(total) else "")
     tables = [ReportTable(caption, ("tile i j k", "points", "patches", "on patches", "residual points", "residual LAZ bytes"), table_rows)]
     return write_report(path, title=f"patchcloud compress: {Path(s.input).name}", summary_rows=rows, figures=figures,
+                        notes=notes, tables=tables)
+
+
+def report_compress_catalog(
+    summaries: Sequence["CompressSummary"], path: str | os.PathLike, *, views: bool = True, view_width: int = VIEW_WIDTH,
+) -> Path:
+    """The HTML report of a ``compress --out-dir`` run: a catalog compressed file by file.
+
+    The totals (points, patches, residual, bytes in and out, bits per
+    point), a view of all the inputs as one map (by elevation), the bits
+    per point of each file, and the table of the files (each with its own
+    figures).  Parameters as :func:`report_compress`.
+    """
+    if not summaries:
+        raise PatchcloudValueError("a catalog report needs the summary of at least one file")
+    points = sum(s.points for s in summaries)
+    n = max(points, 1)
+    residual = sum(s.residual for s in summaries)
+    bytes_in, bytes_out = sum(s.input_bytes for s in summaries), sum(s.output_bytes for s in summaries)
+    seconds: dict[str, float] = {}
+    for s in summaries:
+        for step, t in s.seconds.items():
+            seconds[step] = seconds.get(step, 0.0) + t
+    rows = [
+        ("files", _n(len(summaries))), ("points", _n(points)), ("points on patches", _share(points - residual, points)),
+        ("patches", _n(sum(s.patches for s in summaries))), ("residual points (kept exactly)", _share(residual, points)),
+        ("error budget", ", ".join(sorted({f"{s.max_error:g} m" for s in summaries}))),
+        ("mean error of the modelled points", f"{sum(s.mean_error * (s.points - s.residual) for s in summaries) / max(points - residual, 1):.4f} m "
+         "(before quantisation, which adds at most half the budget)"),
+        ("input size", f"{bytes_in:,} bytes ({8 * bytes_in / n:.2f} bits/point)"),
+        ("output size", f"{bytes_out:,} bytes ({8 * bytes_out / n:.2f} bits/point)"),
+        ("compression ratio", f"{bytes_in / max(bytes_out, 1):.2f}"),
+    ] + _job_rows(seconds, points, max(s.peak_memory for s in summaries), None, None)
+    figures: list[ReportFigure] = []
+    notes: list[str] = []
+    if views:
+        f, notes = _views([s.input for s in summaries], [("elevation", "The inputs, as one map, coloured by elevation.")], view_width)
+        figures += f
+    names = [Path(s.input).name for s in summaries]
+    figures.append(ReportFigure(figure_png(_bars_figure(
+        names, [8 * s.output_bytes / max(s.points, 1) for s in summaries], title="Bits per point by file",
+        xlabel="bits per input point", fmt="{:.2f}")), "Each .pcz's bytes times 8, over its input's points.", "Figures"))
+    table_rows = tuple(
+        (Path(s.input).name, Path(s.output).name, f"{s.points:,}", f"{(s.points - s.residual) / max(s.points, 1):.1%}",
+         f"{s.patches:,}", f"{s.output_bytes:,}", f"{8 * s.output_bytes / max(s.points, 1):.2f}", f"{s.mean_error:.4f}")
+        for s in summaries
+    )
+    tables = [ReportTable("Files", ("input", "output", "points", "on patches", "patches", "bytes", "bits/point", "mean error (m)"),
+                          table_rows)]
+    return write_report(path, title=f"patchcloud compress: {len(summaries)} files", summary_rows=rows, figures=figures,
                         notes=notes, tables=tables)
