@@ -18,11 +18,14 @@ from . import options
               help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule.")
 @click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z", help="With --orient viewpoint, in the file's coordinates.")
 @click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
+@click.option("--principal-curvatures", is_flag=True,
+              help="Also write PrincipalCurvature1 >= PrincipalCurvature2 (1/m, positive where convex seen from the normal's side) "
+              "and the first's direction, PrincipalDirectionX/Y/Z (0 where a point has none).")
 @options.job_options
 @options.catalog_options
 @options.report_option
 @options.reports_errors
-def normals_command(paths, criterion, threshold, orient, viewpoint, no_blend, report, **run):
+def normals_command(paths, criterion, threshold, orient, viewpoint, no_blend, principal_curvatures, report, **run):
     """Normals and curvature of INPUT (LAS/LAZ/COPC, any size), written to OUTPUT.
 
     With --out-dir DIR every argument is an input (files, directories,
@@ -48,7 +51,7 @@ def normals_command(paths, criterion, threshold, orient, viewpoint, no_blend, re
     run = options.run_options(run)
     input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
     asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend)
-    summary = normals(input, output, asked, run)
+    summary = normals(input, output, asked, run, principal_curvatures=principal_curvatures)
     options.finish_job(summary, run.quiet, report, "report_normals")
 
 

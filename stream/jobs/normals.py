@@ -31,7 +31,7 @@ from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import normals_tiles
 from patchcloud.stream.jobs.seams import orient_tiles
 
-__all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "resolve_parameters", "global_patch_ids"]
+__all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "PRINCIPAL_DIMS", "resolve_parameters", "global_patch_ids"]
 
 #: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description.
 NORMALS_DIMS = (
@@ -41,6 +41,14 @@ NORMALS_DIMS = (
     ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)"),
     ("NormalMethod", np.uint8, Method.describe()),
     ("PatchId", np.uint32, "patchcloud patch id"),
+)
+#: What ``principal_curvatures`` adds (1/metre, signed w.r.t. the oriented normal; 0 and (0, 0, 0) where the point has none).
+PRINCIPAL_DIMS = (
+    ("PrincipalCurvature1", np.float32, "k1>=k2 1/m +convex to normal"),
+    ("PrincipalCurvature2", np.float32, "k2<=k1 1/m +convex to normal"),
+    ("PrincipalDirectionX", np.float32, "unit direction of k1, x"),
+    ("PrincipalDirectionY", np.float32, "unit direction of k1, y"),
+    ("PrincipalDirectionZ", np.float32, "unit direction of k1, z"),
 )
 
 
@@ -120,8 +128,9 @@ def global_patch_ids(store: Store, t: int, patch: np.ndarray) -> np.ndarray:
 class NormalsJob(Job):
     """The steps of ``normals`` on the scaffold (see :mod:`patchcloud.stream.engine.job`)."""
 
-    def __init__(self, options: NormalsOptions) -> None:
+    def __init__(self, options: NormalsOptions, principal_curvatures: bool = False) -> None:
         self.options = options
+        self.principal_curvatures = bool(principal_curvatures)
         self.params: dict = {}
         self.key = ""
 
@@ -140,6 +149,7 @@ class NormalsJob(Job):
             **resolve_parameters(st, o, ctx.runner),  # threshold, d_min, max_edge as resolved, and the spacing
         )
         self.params["halo"] = 2.0 * self.params["d_min"]
+        self.params["principal_curvatures"] = self.principal_curvatures  # the finish step writes them only when asked
         self.key = params_key(self.params)
         if st.attrs.get("params_key") != self.key:
             st.clear_tile_steps(["fit", "finish"])
@@ -167,7 +177,11 @@ class NormalsJob(Job):
             Column("method", ("NormalMethod",), np.uint8),
             Column("patch", ("PatchId",), np.uint32, per_tile=global_patch_ids),
         ]
-        return columns, NORMALS_DIMS
+        if not self.principal_curvatures:
+            return columns, NORMALS_DIMS
+        columns += [Column("principal", tuple(d[0] for d in PRINCIPAL_DIMS[:2]), np.float32),
+                    Column("direction", tuple(d[0] for d in PRINCIPAL_DIMS[2:]), np.float32)]
+        return columns, NORMALS_DIMS + PRINCIPAL_DIMS
 
     def summarise(self, ctx: JobContext) -> NormalsSummary:
         st = ctx.store
@@ -189,7 +203,7 @@ class NormalsJob(Job):
 
 def normals(
     input, output: str | os.PathLike | None = None, options: NormalsOptions | None = None, run: RunOptions | None = None,
-    **kwargs,
+    *, principal_curvatures: bool = False, **kwargs,
 ) -> NormalsSummary:
     """Normals and curvature of a LAS/LAZ/COPC file (or a catalog of them) of any size, written as a copy with extra dimensions.
 
@@ -211,6 +225,13 @@ def normals(
     run : RunOptions, optional
         How to run it (:class:`patchcloud.stream.RunOptions`: tile size,
         scheduler, workers, store, overwrite, quiet).
+    principal_curvatures : bool
+        Also write :data:`PRINCIPAL_DIMS`: PrincipalCurvature1 >= PrincipalCurvature2
+        (1/metre, of the fitted quadric at the point's projection, or of its
+        neighbourhood's for k-NN points; positive where the surface is
+        convex seen from the side the oriented normal points to) and the unit
+        direction of the first (PrincipalDirectionX/Y/Z; the second is
+        normal x first).  A point with none gets 0 and (0, 0, 0).
     **kwargs
         Any field of either, by name (``criterion="sigma3"``, ``workers=2``),
         overriding the objects given.
@@ -237,4 +258,4 @@ def normals(
     dtype('float32')
     """
     options, run = split_options(kwargs, options, NormalsOptions, run)
-    return run_job(NormalsJob(options), input, output, run)
+    return run_job(NormalsJob(options, principal_curvatures), input, output, run)
