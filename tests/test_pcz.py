@@ -130,5 +130,5 @@ def test_a_tile_whose_residual_disagrees_with_the_index_is_named_as_the_store_na
     with pcz.open_pcz(Path(__file__).parent / "data" / f"pcz-v{pcz.VERSION}.pcz") as f:
         t = next(k for k in range(len(f.tiles)) if f.residual(k)[0].shape[0])
         f.attrs["record_bytes"] += 1  # as a crafted header would say
-        with pytest.raises(PatchcloudIOError, match=r"tile t\+[01]\+0\+0 holds \d+ residual points of \d+ bytes, the index says"):
+        with pytest.raises(PatchcloudIOError, match=r"tile t\+[01]\+0\+0: their LAZ header says \d+ points of \d+ bytes, the index says"):
             f.residual(t)

@@ -329,9 +329,9 @@ class PczFile:
         check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
         raw = self.root["residual/laz"][s].tobytes()
         check_header_sizes(name, raw[:375], len(raw))
-        said = _las_point_count(raw)
-        if said != n:
-            raise PatchcloudIOError(f"{name}: their LAZ header says {said:,} points, the index says {n:,}")
+        said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
+        if said != n or record != B + 12:
+            raise PatchcloudIOError(f"{name}: their LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {B + 12}")
         try:
             las = laspy.read(io.BytesIO(raw))
         except Exception as exc:
