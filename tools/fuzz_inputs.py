@@ -128,6 +128,9 @@ TARGETS = ("las", "pcz")
 OK_EXIT_0, OK_EXIT_2 = "exit 0 consistent", "exit 2 one line"
 #: Decompressed points may lie this far outside the tiles the ``.pcz`` declares (metres; those of the seeds lie inside).
 BOUNDS_SLACK = 0.1
+#: ``decompress``'s promise: a sampled point lies within this share of its tile's edge of its tile
+#: (patchcloud.stream.jobs.decompress.TILE_SLACK); the slack judged is the larger of the two.
+TILE_SLACK = 0.25
 #: An output of more points than this is not read back: the case is inconsistent (the seeds hold a few thousand).
 MOST_POINTS_READ = 2_000_000
 #: What is kept of a command's stdout and stderr (characters).
@@ -1582,11 +1585,13 @@ def _check_normals(input: Path, output: Path) -> str:
     for axis in "XYZ":
         if not np.array_equal(np.asarray(src[axis]), np.asarray(las[axis])):
             return f"{axis} differs from the input's"
-    head = input.read_bytes()[:227]
+    # consistent with its own header: patchcloud accepts an input's points outside its header's (stale) bounds, and the
+    # output's header states the points' true bounds
+    head = output.read_bytes()[:227]
     maxs = struct.unpack_from("<d", head, 179) + struct.unpack_from("<d", head, 195) + struct.unpack_from("<d", head, 211)
     mins = struct.unpack_from("<d", head, 187) + struct.unpack_from("<d", head, 203) + struct.unpack_from("<d", head, 219)
     problem = _outside(np.column_stack([las.x, las.y, las.z]), mins, maxs, las.header.scales) if len(las.points) else ""
-    return f"points outside the input header's bounds: {problem}" if problem else ""
+    return f"points outside the output header's bounds: {problem}" if problem else ""
 
 
 def _pcz_declared(path: Path) -> dict:
@@ -1637,7 +1642,8 @@ def _check_decompress(input: Path, output: Path, options: tuple[str, ...]) -> st
     if n == 0:
         return ""
     xyz = np.column_stack([las.x, las.y, las.z])
-    outside = _outside_tiles(xyz, np.asarray(grid["origin"], float), float(grid["tile_size"]), d["ijk"], BOUNDS_SLACK)
+    outside = _outside_tiles(xyz, np.asarray(grid["origin"], float), float(grid["tile_size"]), d["ijk"],
+                             max(BOUNDS_SLACK, TILE_SLACK * float(grid["tile_size"])))
     if outside.any():
         return f"{int(outside.sum()):,} of {n:,} points in none of the declared tiles, e.g. {xyz[outside][0]}"
     return ""

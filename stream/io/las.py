@@ -25,7 +25,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "with_writable_version", "check_header_sizes",
-    "check_record_sizes",
+    "check_record_sizes", "check_header_values", "ascii_vlr", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET",
 ]
 
 
@@ -129,6 +129,7 @@ def open_source(path: str | os.PathLike) -> LasSource:
     try:
         with laspy.open(p) as reader:
             h = reader.header
+            check_header_values(p, h)
             compressed = bool(h.are_points_compressed)
             crs = None
             try:
@@ -210,10 +211,53 @@ def check_header_sizes(path: str | os.PathLike, head: bytes, size: int, *, evlrs
                                 f"point data hold at most {(offset - header_size) // VLR_BYTES:,}")
     if evlrs and minor >= 4 and header_size >= 375 and len(head) == 375:
         start, evlrs = struct.unpack_from("<QI", head, 235)
+        if evlrs and start < offset:
+            raise PatchcloudIOError(f"{path}: the header puts its {evlrs:,} EVLRs at byte {start:,}, before its point data "
+                                    f"(byte {offset:,})")
         if evlrs and (start > size or evlrs * EVLR_BYTES > size - start):
             room = max(0, size - start) // EVLR_BYTES
             raise PatchcloudIOError(f"{path}: the header says {evlrs:,} EVLRs from byte {start:,}, but the file "
                                     f"({size:,} bytes) holds at most {room:,} there")
+
+
+#: The largest scale and offset a header may state (metres or feet; a real file's are 0.01 to 1e-7, and a few million):
+#: beyond, coordinates overflow the arithmetic of a run, so such a header is refused as damaged.
+MAX_SCALE, MAX_OFFSET = 1e3, 1e12
+#: The newest point format each LAS 1.x version defines (1.0 and 1.1: 0 and 1; 1.2: 0 to 3; 1.3: 0 to 5; 1.4: 0 to 10).
+NEWEST_FORMAT = {0: 1, 1: 1, 2: 3, 3: 5, 4: 10}
+
+
+def check_header_values(path: str | os.PathLike, header: laspy.LasHeader) -> None:
+    """Refuse a header laspy parsed whose version, point format, scales, offsets or bounds no LAS file can have.
+
+    A LAS 1.0 to 1.4 version, a point format that version defines, positive
+    scales up to :data:`MAX_SCALE`, offsets within :data:`MAX_OFFSET`, finite bounds, each minimum at most
+    its maximum and within what the scales and offsets can reach: anything
+    else (a crafted or damaged header) is one error before any point is
+    read.  Points outside the header's bounds are accepted (writers leave
+    stale bounds): the tiles hold them, and outputs state their true bounds.
+
+    Raises
+    ------
+    PatchcloudIOError
+        Naming the file and the field.
+    """
+    v, fmt = header.version, header.point_format.id
+    if v.major != 1 or v.minor not in NEWEST_FORMAT:
+        raise PatchcloudIOError(f"{path}: LAS version {v.major}.{v.minor} does not exist (1.0 to 1.4)")
+    if fmt > NEWEST_FORMAT[v.minor]:
+        raise PatchcloudIOError(f"{path}: point format {fmt} does not exist in LAS {v.major}.{v.minor} "
+                                f"(0 to {NEWEST_FORMAT[v.minor]})")
+    scales, offsets = np.asarray(header.scales, dtype=np.float64), np.asarray(header.offsets, dtype=np.float64)
+    bounds = np.concatenate([np.asarray(header.mins, dtype=np.float64), np.asarray(header.maxs, dtype=np.float64)])
+    if not (np.isfinite(scales).all() and (scales > 0).all() and (scales <= MAX_SCALE).all() and np.isfinite(offsets).all()
+            and (np.abs(offsets) <= MAX_OFFSET).all() and np.isfinite(bounds).all()):
+        raise PatchcloudIOError(f"{path}: the header's scales {scales.tolist()}, offsets {offsets.tolist()} or bounds "
+                                f"{bounds.tolist()} are not scales in (0, {MAX_SCALE:g}], offsets within ±{MAX_OFFSET:g} and finite numbers")
+    reach = np.abs(offsets) + scales * 2.0**31  # no point's coordinate can be further from 0 than this
+    if np.any(bounds[:3] > bounds[3:]) or np.any(np.abs(bounds) > np.tile(reach, 2)):
+        raise PatchcloudIOError(f"{path}: the header's bounds {bounds[:3].tolist()} .. {bounds[3:].tolist()} are not bounds "
+                                f"of any points it can hold (a minimum above its maximum, or beyond its scales and offsets)")
 
 
 def check_record_sizes(path: str | os.PathLike, f, head: bytes, size: int) -> None:
@@ -377,10 +421,30 @@ def with_writable_version(header: laspy.LasHeader) -> laspy.LasHeader:
     return header
 
 
+def ascii_vlr(vlr):
+    r"""``vlr`` itself, or a copy of it (same ids and record bytes) whose user id and description have every character
+    that is not ASCII (as LAS requires; laspy cannot write others, and keeps undecodable ones as bytes) written as '?'.
+
+    >>> ascii_vlr(laspy.VLR("test", 1, b"caf\xe9", b"x")).description
+    'caf?'
+    """
+    def clean(text):
+        if isinstance(text, bytes):
+            text = text.decode("ascii", "replace").replace("\ufffd", "?")
+        return text if text.isascii() else text.encode("ascii", "replace").decode("ascii")
+
+    uid, desc = clean(vlr.user_id), clean(vlr.description)
+    if uid == vlr.user_id and desc == vlr.description:
+        return vlr
+    return laspy.VLR(uid, vlr.record_id, desc, vlr.record_data_bytes())
+
+
 def output_header(src: LasSource, dims) -> laspy.LasHeader:
     """The input's header (point format, version, scales, offsets, VLRs and EVLRs, CRS) with ``dims`` added.
 
-    COPC records are left out (:func:`without_copc`).
+    COPC records are left out (:func:`without_copc`); a VLR's user id or
+    description that is not ASCII text (as LAS requires) has its other
+    characters written as '?'.
 
     ``dims``: (name, numpy type, description[, no-data value]) of every
     dimension to add (each job declares its own, e.g.
@@ -392,6 +456,9 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
     """
     with laspy.open(src.path) as reader:
         header = with_writable_version(without_copc(reader.header))
+    header.vlrs = type(header.vlrs)([ascii_vlr(v) for v in header.vlrs])  # LAS texts are ASCII: laspy writes no other
+    if header.evlrs:
+        header.evlrs = type(header.evlrs)([ascii_vlr(v) for v in header.evlrs])
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
     for name, dtype, desc, *no_data in dims:

@@ -55,6 +55,7 @@ import os
 import shutil
 import tempfile
 import zipfile
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,7 +69,7 @@ from zarr.codecs import BloscCodec
 from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
 from .budget import check_memory
-from .las import check_header_sizes, writable_version
+from .las import check_header_sizes, check_header_values, writable_version
 from .store import tile_name
 
 __all__ = ["FORMAT", "VERSION", "ZIP_TIME", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
@@ -262,7 +263,15 @@ class PczFile:
 
     @property
     def header_bytes(self) -> bytes:
-        return bytes(self.root["header"][...])
+        return bytes(self._read("header"))
+
+    def _read(self, name: str, rows: slice | None = None) -> np.ndarray:
+        """Rows of array ``name`` (all of it by default); a chunk that cannot be decoded is a PatchcloudIOError naming it."""
+        try:
+            a = self.root[name]
+            return a[...] if rows is None else a[rows]
+        except Exception as exc:
+            raise PatchcloudIOError(f"{self.path}: damaged .pcz file (array {name} cannot be read: {exc})") from exc
 
     def las_header(self) -> laspy.LasHeader:
         """The input's LAS header and VLRs (its sizes checked before laspy parses them; a PatchcloudIOError if damaged)."""
@@ -272,6 +281,7 @@ class PczFile:
             header = laspy.LasHeader.read_from(io.BytesIO(raw), read_evlrs=False)
         except Exception as exc:
             raise PatchcloudIOError(f"{self.path}: the input's LAS header cannot be read ({exc})") from exc
+        check_header_values(f"{self.path}: the input's header", header)
         if header.point_format.size != int(self.attrs["record_bytes"]) + 12:
             raise PatchcloudIOError(f"{self.path}: the input's header has point records of {header.point_format.size} bytes, "
                                     f"the file says {int(self.attrs['record_bytes']) + 12}")
@@ -286,7 +296,7 @@ class PczFile:
 
     def evlrs(self, count: int) -> "VLRList":
         """The input's ``count`` extended VLRs (LAS 1.4), parsed; an empty list when it had none."""
-        raw = bytes(self.root["evlrs"][...]) if count else b""
+        raw = bytes(self._read("evlrs")) if count else b""
         if not raw:
             return VLRList()
         if count * 60 > len(raw):
@@ -303,8 +313,8 @@ class PczFile:
         c = slice(int(self.cell_start[t]), int(self.cell_start[t + 1]))
         check_memory((s.stop - s.start) * PATCH_ROW_BYTES + (c.stop - c.start) * CELL_ROW_BYTES,
                      f"{self.path}: tile {tile_name(self.tiles[t])}'s {s.stop - s.start:,} patches and {c.stop - c.start:,} cells")
-        v = {name: self.root["patches"][name][s] for name, _, _ in _PATCH_ARRAYS}
-        v.update({name: self.root["cells"][name][c] for name, _, _ in _CELL_ARRAYS})
+        v = {name: self._read(f"patches/{name}", s) for name, _, _ in _PATCH_ARRAYS}
+        v.update({name: self._read(f"cells/{name}", c) for name, _, _ in _CELL_ARRAYS})
         T = self.tile_size
         m = QuantisedModels(
             max_error=self.max_error, root_corner=self.tiles[t] * T, root_edge=T, scale=v["scale"],
@@ -327,7 +337,7 @@ class PczFile:
             return np.zeros((0, 3), np.int32), np.zeros((0, B), np.uint8)
         name = f"{self.path}: the residual points of tile {tile_name(self.tiles[t])}"
         check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
-        raw = self.root["residual/laz"][s].tobytes()
+        raw = self._read("residual/laz", s).tobytes()
         check_header_sizes(name, raw[:375], len(raw))
         said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
         if said != n or record != B + 12:
@@ -400,6 +410,9 @@ def open_pcz(path: str | os.PathLike) -> PczFile:
 def _check_entries(p: Path, z: zipfile.ZipFile) -> None:
     """Every zip entry's sizes against the file, :data:`MAX_ZIP_RATIO` and the memory budget, before any is read."""
     size = p.stat().st_size
+    twice = sorted(n for n, k in Counter(e.filename for e in z.infolist()).items() if k > 1)
+    if twice:
+        raise PatchcloudIOError(f"{p}: damaged .pcz file (entries {', '.join(twice[:3])} appear more than once)")
     for e in z.infolist():
         if e.compress_size > size or (e.compress_type == zipfile.ZIP_STORED and e.file_size != e.compress_size):
             raise PatchcloudIOError(f"{p}: damaged .pcz file (entry {e.filename} claims {e.file_size:,} bytes, "
@@ -441,6 +454,9 @@ def _check_attrs(p: Path, a: dict) -> dict:
     """The file's attributes, checked (finite, positive where they must be); returns its counts."""
     try:
         g = a["grid"]
+        numbers = [a["max_error"], g["tile_size"], *(v for k in ("origin", "scale", "offset") for v in g[k])]
+        if not all(type(v) in (int, float) for v in numbers):
+            raise TypeError(f"max_error and grid: {numbers!r} are not all numbers")
         max_error, tile_size = float(a["max_error"]), float(g["tile_size"])
         vectors = [np.asarray(g[k], dtype=np.float64).reshape(3) for k in ("origin", "scale", "offset")]
         counts = {k: a["counts"][k] for k in ("tiles", "patches", "cells", "residual", "points")}

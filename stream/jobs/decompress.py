@@ -17,12 +17,13 @@ from dataclasses import dataclass
 import laspy
 import numpy as np
 
-from patchcloud.core import MASK_SIDE, PatchcloudValueError, dequantise_models, sample_models
+from patchcloud.core import MASK_SIDE, PatchcloudIOError, PatchcloudValueError, dequantise_models, sample_models
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.budget import check_memory
+from patchcloud.stream.io.store import tile_name
 from patchcloud.stream.io.las import atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, with_writable_version
 
-__all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES"]
+__all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile"]
 
 
 @dataclass
@@ -45,6 +46,9 @@ class DecompressSummary:
 SAMPLE_BATCH = 8_000_000
 #: ``density`` may ask for at most this many times the points the ``.pcz`` stands for.
 MAX_UPSAMPLING = 100
+#: Sampled points may lie this share of the tile's edge outside their tile (a patch's extent box, rotated, may poke out
+#: of its cell); beyond, or not finite, the models were damaged or crafted: the file is refused.
+TILE_SLACK = 0.25
 #: Bytes a sampled point takes while its batch is made, besides its record (coordinates, cell, integer coordinates, temporaries):
 #: a batch is checked against the memory budget (``--max-memory``) before it is sampled.
 SAMPLED_POINT_BYTES = 112
@@ -60,6 +64,17 @@ def _batches(counts: np.ndarray, size: int) -> list[slice]:
     cuts = np.unique(np.searchsorted(total, np.arange(size, int(total[-1]) if total.size else 0, size), side="right"))
     edges = [0] + [int(c) for c in cuts if 0 < c < counts.size] + [counts.size]
     return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def check_in_tile(path, points: np.ndarray, ijk: np.ndarray, tile_size: float) -> None:
+    """Refuse sampled ``points`` ((M, 3), the grid's frame) that are not finite or lie further than :data:`TILE_SLACK`
+    of the tile's edge outside tile ``ijk``: a damaged or crafted ``.pcz`` (PatchcloudIOError naming the tile)."""
+    lo = np.asarray(ijk, dtype=np.float64) * tile_size - TILE_SLACK * tile_size
+    hi = lo + (1 + 2 * TILE_SLACK) * tile_size
+    ok = np.isfinite(points).all(axis=1) & np.all((points >= lo) & (points <= hi), axis=1)
+    if not ok.all():
+        raise PatchcloudIOError(f"{path}: damaged .pcz file (tile {tile_name(ijk)}'s patches put {int((~ok).sum()):,} points "
+                                f"outside it)")
 
 
 def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
@@ -137,6 +152,9 @@ def decompress(
         header.add_extra_dims([laspy.ExtraBytesParams(name="Reconstructed", type=np.uint8, description="1 from a patch, 0 residual")])
         g = f.attrs["grid"]
         origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
+        if not (np.array_equal(scale, header.scales) and np.array_equal(offset, header.offsets)):
+            raise PatchcloudIOError(f"{input}: damaged .pcz file (the grid's scale {scale.tolist()} and offset {offset.tolist()} "
+                                    f"are not the header's {list(header.scales)} and {list(header.offsets)})")
         tiles = range(len(f.tiles)) if box is None else f.tiles_in(box[:3] - origin, box[3:] - origin)
         L = header.point_format.size
         per_point = SAMPLED_POINT_BYTES + L
@@ -166,6 +184,9 @@ def decompress(
                             laz_backend=laz_backend()) as writer:
                 for t in tiles:
                     q, cls, inten = f.patches(int(t))
+                    if header.point_format.id < 6 and cls.size and int(cls.max()) > 31:
+                        raise PatchcloudIOError(f"{input}: damaged .pcz file (class {int(cls.max())} in point format "
+                                                f"{header.point_format.id}, whose classes end at 31)")
                     models = dequantise_models(q)
                     counts = _counts(models, density, lod)
                     for b, cells in enumerate(_batches(counts, SAMPLE_BATCH)):  # each batch written before the next
@@ -173,7 +194,12 @@ def decompress(
                         some[cells] = counts[cells]
                         check_memory(per_point * int(some.sum()), f"{input}: tile {int(t)}'s batch of {int(some.sum()):,} points")
                         pts, k = sample_models(models, some, seed=seed + int(t) if b == 0 else [seed + int(t), b])
-                        xyz = np.rint((pts + origin - offset) / scale).astype(np.int64)
+                        check_in_tile(input, pts, f.tiles[int(t)], f.tile_size)
+                        xyz = np.rint((pts + origin - offset) / scale)
+                        if xyz.size and (xyz.min() < -(2**31) or xyz.max() >= 2**31):
+                            raise PatchcloudIOError(f"{input}: damaged .pcz file (tile {tile_name(f.tiles[int(t)])} lies beyond "
+                                                    "what LAS coordinates can hold)")
+                        xyz = xyz.astype(np.int64)
                         sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
                         sampled["X"], sampled["Y"], sampled["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
                         sampled["classification"] = cls[k]
@@ -181,6 +207,7 @@ def decompress(
                         sampled["Reconstructed"] = np.ones(len(xyz), np.uint8)
                         write(writer, sampled, False)
                     rxyz, rrec = f.residual(int(t))
+                    check_in_tile(input, rxyz * scale + offset - origin, f.tiles[int(t)], f.tile_size)
                     resid = laspy.PackedPointRecord.zeros(len(rxyz), header.point_format)
                     raw = resid.array.view(np.uint8).reshape(len(rxyz), L)
                     raw[:, :12] = rxyz.astype("<i4").view(np.uint8).reshape(len(rxyz), 12)

@@ -82,8 +82,10 @@ def _block_path(level: int, block: tuple) -> str:
     return f"seams/L{level}/{tile_name(block)}"
 
 
-def _block_of(t, level: int, bits: int) -> tuple:
-    return tuple(int(v) >> (bits * level) for v in t)
+def _block_of(t, level: int, bits: int, low: tuple = (0, 0, 0)) -> tuple:
+    """The block of ``2**(bits * level)`` tiles a side holding tile ``t``, counted from tile ``low`` (at most 0 on
+    each axis: tiles of negative index, from points below the header's bounds, shift as a whole)."""
+    return tuple((int(v) - int(lo)) >> (bits * level) for v, lo in zip(t, low))
 
 
 # -- tasks -------------------------------------------------------------------
@@ -230,8 +232,9 @@ def orient_tiles(store: Store, runner: Runner, orient: str, bits: int = BLOCK_BI
     pairs = tile_pairs(tiles)
     counts = runner.map(face_links, [((url, a, b, axis), {}) for a, b, axis in pairs], "seams: faces") if pairs else []
     # 2. up: tiles, then blocks of 2**bits a side, until one block holds every tile
+    low = tuple(min(0, min(int(t[k]) for t in tiles)) for k in range(3))
     top = 0
-    while len({_block_of(t, top, bits) for t in tiles}) > 1:
+    while len({_block_of(t, top, bits, low) for t in tiles}) > 1:
         top += 1
     faces: dict[tuple, list] = {t: [] for t in tiles}
     for a, b, axis in pairs:
@@ -242,12 +245,12 @@ def orient_tiles(store: Store, runner: Runner, orient: str, bits: int = BLOCK_BI
     for level in range(1, top + 1):
         blocks: dict[tuple, dict] = {}
         for t in tiles:
-            b = blocks.setdefault(_block_of(t, level, bits), dict(children=set(), pairs=[], tiles=[]))
-            b["children"].add(_block_of(t, level - 1, bits))
+            b = blocks.setdefault(_block_of(t, level, bits, low), dict(children=set(), pairs=[], tiles=[]))
+            b["children"].add(t if level == 1 else _block_of(t, level - 1, bits, low))  # a tile's own name at level 0
             b["tiles"].append(t)
         for a, b_, axis in pairs:
-            if _block_of(a, level - 1, bits) != _block_of(b_, level - 1, bits) and _block_of(a, level, bits) == _block_of(b_, level, bits):
-                blocks[_block_of(a, level, bits)]["pairs"].append((_face_path(a, axis), offset_of[a], offset_of[b_]))
+            if _block_of(a, level - 1, bits, low) != _block_of(b_, level - 1, bits, low) and _block_of(a, level, bits, low) == _block_of(b_, level, bits, low):
+                blocks[_block_of(a, level, bits, low)]["pairs"].append((_face_path(a, axis), offset_of[a], offset_of[b_]))
         calls = [
             ((url, level, k, sorted(v["children"]), v["pairs"], v["tiles"], [offset_of[t] for t in v["tiles"]], rule, bits, flip), {})
             for k, v in sorted(blocks.items())
@@ -255,10 +258,12 @@ def orient_tiles(store: Store, runner: Runner, orient: str, bits: int = BLOCK_BI
         runner.map(reduce_block, calls, f"seams: level {level}")
     # 3. down: each block reads its parent's signs
     def parent(b: tuple, level: int) -> tuple | None:
-        return None if level == top else tuple(v >> bits for v in b)
+        if level == top:
+            return None
+        return _block_of(b, 1, bits, low) if level == 0 else tuple(v >> bits for v in b)
 
     for level in range(top, 0, -1):
-        calls = [((url, level, b, parent(b, level)), {}) for b in sorted({_block_of(t, level, bits) for t in tiles})]
+        calls = [((url, level, b, parent(b, level)), {}) for b in sorted({_block_of(t, level, bits, low) for t in tiles})]
         runner.map(expand_block, calls, f"seams: down {level}")
     ruled = runner.map(expand_block, [((url, 0, t, parent(t, 0)), {}) for t in tiles], "seams: signs")
     store.remove_blobs("seams")
