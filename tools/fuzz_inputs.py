@@ -1268,10 +1268,13 @@ def _invoke(main, argv: list[str]) -> dict:
             os.dup2(saved[1], 2)
             os.close(saved[0])
             os.close(saved[1])
+        from patchcloud.core import PatchcloudMemoryError  # a refusal before allocating (the budget), not a MemoryError
+
         chain = list(_chain(exc))
         return {
             "argv": argv, "exit": code, "stdout": _text(out), "stderr": _text(err), "seconds": round(time.perf_counter() - t0, 3),
-            "escaped": escaped, "memory": any(isinstance(e, MemoryError) for e in chain), "timeout": _EXPIRED or code is None,
+            "escaped": escaped, "timeout": _EXPIRED or code is None,
+            "memory": any(isinstance(e, MemoryError) and not isinstance(e, PatchcloudMemoryError) for e in chain),
             "exception": " <- ".join(f"{type(e).__name__}" for e in chain if not isinstance(e, SystemExit)),
         }
 

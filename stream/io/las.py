@@ -25,7 +25,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "with_writable_version", "check_header_sizes",
-    "check_record_sizes", "check_header_values", "ascii_vlr", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET",
+    "check_record_sizes", "check_header_values", "ascii_text", "ascii_vlr", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET",
 ]
 
 
@@ -421,6 +421,17 @@ def with_writable_version(header: laspy.LasHeader) -> laspy.LasHeader:
     return header
 
 
+def ascii_text(text: str | bytes) -> str:
+    r"""``text`` with every character that is not ASCII written as '?' (bytes: decoded as ASCII the same way).
+
+    >>> ascii_text("Géo"), ascii_text(b"G\xe9o")
+    ('G?o', 'G?o')
+    """
+    if isinstance(text, bytes):
+        text = text.decode("ascii", "replace").replace("\ufffd", "?")
+    return text if text.isascii() else text.encode("ascii", "replace").decode("ascii")
+
+
 def ascii_vlr(vlr):
     r"""``vlr`` itself, or a copy of it (same ids and record bytes) whose user id and description have every character
     that is not ASCII (as LAS requires; laspy cannot write others, and keeps undecodable ones as bytes) written as '?'.
@@ -428,12 +439,7 @@ def ascii_vlr(vlr):
     >>> ascii_vlr(laspy.VLR("test", 1, b"caf\xe9", b"x")).description
     'caf?'
     """
-    def clean(text):
-        if isinstance(text, bytes):
-            text = text.decode("ascii", "replace").replace("\ufffd", "?")
-        return text if text.isascii() else text.encode("ascii", "replace").decode("ascii")
-
-    uid, desc = clean(vlr.user_id), clean(vlr.description)
+    uid, desc = ascii_text(vlr.user_id), ascii_text(vlr.description)
     if uid == vlr.user_id and desc == vlr.description:
         return vlr
     return laspy.VLR(uid, vlr.record_id, desc, vlr.record_data_bytes())
@@ -457,6 +463,8 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
     with laspy.open(src.path) as reader:
         header = with_writable_version(without_copc(reader.header))
     header.vlrs = type(header.vlrs)([ascii_vlr(v) for v in header.vlrs])  # LAS texts are ASCII: laspy writes no other
+    header.system_identifier = ascii_text(header.system_identifier)
+    header.generating_software = ascii_text(header.generating_software)
     if header.evlrs:
         header.evlrs = type(header.evlrs)([ascii_vlr(v) for v in header.evlrs])
     existing = {d.name: d for d in header.point_format.dimensions}

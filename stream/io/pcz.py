@@ -89,6 +89,8 @@ CODEC = BloscCodec(cname="zstd", clevel=9, shuffle="shuffle")
 MAX_ZIP_RATIO = 100
 #: Bytes a tile's rows take in memory as they are read, per patch and per cell (the stored types, their int64 copies).
 PATCH_ROW_BYTES, CELL_ROW_BYTES = 3 * (1 + 12 + 12 + 48 + 4 + 4), 3 * (1 + 12 + 4 + 16 + 8 + 1 + 2)
+#: The smallest and largest tile edge a file may state (metres): beyond, its arithmetic under- or overflows.
+TILE_SIZES = (2.0**-20, 2.0**24)
 _STARTS = ("patch_start", "cell_start", "residual_start", "residual_byte_start")
 _ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 
@@ -464,7 +466,7 @@ def _check_attrs(p: Path, a: dict) -> dict:
         source = a["source"]
     except (KeyError, TypeError, ValueError) as exc:
         raise PatchcloudIOError(f"{p}: incomplete .pcz file (attribute {exc} missing or malformed)") from exc
-    if not (np.isfinite(max_error) and max_error > 0 and np.isfinite(tile_size) and tile_size > 0
+    if not (np.isfinite(max_error) and 0 < max_error <= tile_size and TILE_SIZES[0] <= tile_size <= TILE_SIZES[1]
             and all(np.isfinite(v).all() for v in vectors) and (vectors[1] > 0).all()):
         raise PatchcloudIOError(f"{p}: damaged .pcz file (max error {max_error!r}, tile size {tile_size!r}, grid {g!r})")
     if not all(type(v) is int and v >= 0 for v in counts.values()) or type(record) is not int or not 0 <= record <= 65535 - 12:
