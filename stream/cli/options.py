@@ -202,7 +202,7 @@ def reports_errors(func):
                        "`patchcloud --debug ...` shows the traceback; please report it)", err=True)
             sys.exit(2)
         except KeyboardInterrupt as exc:
-            click.echo(f"error: {exc or 'interrupted'}", err=True)
+            click.echo(f"error: {str(exc) or 'interrupted'}", err=True)
             sys.exit(130)
 
     return wrapper
