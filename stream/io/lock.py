@@ -103,8 +103,12 @@ class RunLock:
             return False
         except OSError as exc:
             raise PatchcloudIOError(f"{lock}: cannot create the run's lock ({exc.strerror})") from exc
-        with os.fdopen(fd, "w") as f:
-            f.write(self._info())
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(self._info())
+        except OSError as exc:  # a full disk: an empty lock left here would stop the next run for a minute
+            lock.unlink(missing_ok=True)
+            raise PatchcloudIOError(f"{lock}: cannot create the run's lock ({exc.strerror})") from exc
         return True
 
     def _take_over(self, lock: Path, info: dict | None, why: str) -> bool:

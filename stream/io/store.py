@@ -153,6 +153,20 @@ def array_to_table(a: np.ndarray, corner: np.ndarray, edge: float) -> PatchTable
     )
 
 
+def _set_attrs(group, attrs: dict) -> None:
+    """Add ``attrs`` to the attributes of ``group`` in one write of its metadata.
+
+    zarr's ``group.attrs.update(a=..., b=...)`` writes the group's metadata
+    once per key: a run killed between two of those writes would leave, say,
+    a tile's step marked done without the results recorded with it, and the
+    rerun would stop on the missing key.
+    """
+    if isinstance(group, memory_group.MemoryGroup):
+        group.attrs.update(attrs)
+    else:
+        group.update_attributes(attrs)
+
+
 def _zarr():
     """zarr, imported on first use: runs in memory never import it."""
     import zarr
@@ -191,7 +205,7 @@ class Store:
                 g = _zarr().open_group(url, mode="w" if overwrite else "w-")
         except Exception as exc:
             raise PatchcloudIOError(f"{url}: cannot create a store there ({exc})") from exc
-        g.attrs.update(format=FORMAT, version=VERSION, uid=uuid.uuid4().hex, steps={})
+        _set_attrs(g, dict(format=FORMAT, version=VERSION, uid=uuid.uuid4().hex, steps={}))
         return cls(g, url)
 
     @classmethod
@@ -241,7 +255,7 @@ class Store:
 
     def update(self, **kw) -> None:
         kw = json.loads(json.dumps(kw))
-        self.group.attrs.update(**kw)
+        _set_attrs(self.group, kw)
         self._attrs = None
 
     @property
@@ -305,7 +319,7 @@ class Store:
         """Mark ``step`` done on tile ``ijk``, storing ``attrs`` with it in one write."""
         done = self.tile_attrs(ijk).get("done", {})
         done[step] = value
-        self.tile(ijk).attrs.update(done=done, **json.loads(json.dumps(attrs)))
+        _set_attrs(self.tile(ijk), dict(json.loads(json.dumps(attrs)), done=done))
 
     def mark_failed(self, ijk, task: str, message: str | None) -> None:
         """Record that ``task`` raised on tile ``ijk`` (``message``), or clear that record (None)."""
@@ -316,13 +330,13 @@ class Store:
             failed.pop(task)
         else:
             failed[task] = str(message)[:2000]
-        self.tile(ijk).attrs.update(failed=failed)
+        _set_attrs(self.tile(ijk), dict(failed=failed))
 
     def clear_tile_steps(self, steps: list[str]) -> None:
         for ijk in self.tiles:
             done = self.tile_attrs(ijk).get("done", {})
             if any(s in done for s in steps):
-                self.tile(ijk).attrs.update(done={k: v for k, v in done.items() if k not in steps})
+                _set_attrs(self.tile(ijk), dict(done={k: v for k, v in done.items() if k not in steps}))
 
     def write(self, ijk, name: str, values: np.ndarray, chunk: int | None = None) -> None:
         """Write (replace) array ``name`` of tile ``ijk``."""
@@ -423,7 +437,7 @@ class Store:
 
     def set_group_attrs(self, path: str, **attrs) -> None:
         """Set attributes of the group at ``path`` (made if needed)."""
-        self.group.require_group(path).attrs.update(**json.loads(json.dumps(attrs)))
+        _set_attrs(self.group.require_group(path), json.loads(json.dumps(attrs)))
 
     def remove(self, path: str) -> None:
         """Remove the group or array at ``path`` if there."""

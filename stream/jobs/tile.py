@@ -10,6 +10,7 @@ from patchcloud.stream.engine.ingest import ensure_tiled
 from patchcloud.stream.engine.job import RunOptions
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io.las import open_source
+from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import Store
 
 __all__ = ["tile"]
@@ -40,10 +41,14 @@ def tile(
     """
     run = RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, overwrite=overwrite, quiet=quiet, chunk=chunk)
     src = open_source(input)
-    if Store.exists(store) and overwrite:
-        Store.create(store, overwrite=True)
-    elif not Store.exists(store) and _exists_nonempty(store):
-        raise PatchcloudIOError(f"{store}: exists and is not a patchcloud store")
-    with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
-        s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk)
+    local = "://" not in store
+    if local:
+        Path(store).parent.mkdir(parents=True, exist_ok=True)  # as zarr makes it; the store's lock goes beside it
+    with RunLock([store] if local else []):  # as a job on the store does (stream.io.lock): never two writers
+        if Store.exists(store) and overwrite:
+            Store.create(store, overwrite=True)
+        elif not Store.exists(store) and _exists_nonempty(store):
+            raise PatchcloudIOError(f"{store}: exists and is not a patchcloud store")
+        with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
+            s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk)
     return s
