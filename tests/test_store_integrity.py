@@ -91,7 +91,7 @@ def kept(tmp_path_factory):
     return d
 
 
-@pytest.mark.parametrize("damage", ["delete", "flip"])
+@pytest.mark.parametrize("damage", ["delete", "flip", "moved"])
 def test_a_rerun_on_a_damaged_kept_store_stops_with_one_line_naming_the_tile(kept, tmp_path, damage):
     store = tmp_path / "s.zarr"
     shutil.copytree(kept / "s.zarr", store)
@@ -100,6 +100,10 @@ def test_a_rerun_on_a_damaged_kept_store_stops_with_one_line_naming_the_tile(kep
     f = _chunk_files(victim / "normal")[0]
     if damage == "delete":
         f.unlink()
+    elif damage == "moved":  # another tile's normals, with their own checksums, from the same store
+        donor = next(t for t in tiles if t != victim)
+        shutil.rmtree(victim / "normal")
+        shutil.copytree(donor / "normal", victim / "normal")
     else:
         raw = bytearray(f.read_bytes())
         raw[-5] ^= 0x01

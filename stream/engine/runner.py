@@ -179,9 +179,9 @@ class Runner:
             from dask.distributed import Client, LocalCluster
 
             processes = self.scheduler == "processes"
-            self.cluster = LocalCluster(  # workers log errors only: an interrupted run's cancelled tasks are no news
+            self.cluster = LocalCluster(  # workers log nothing but critical: a task's error reaches the user as one line
                 processes=processes, n_workers=n if processes else 1, threads_per_worker=1 if processes else n, dashboard_address=":0",
-                silence_logs=logging.ERROR, **({"preload": ["patchcloud.stream.engine.worker_setup"]} if processes else {}),
+                silence_logs=logging.CRITICAL, **({"preload": ["patchcloud.stream.engine.worker_setup"]} if processes else {}),
             )
             self._client = Client(self.cluster)
             self.ready_at = time.time()

@@ -53,7 +53,6 @@ from __future__ import annotations
 import io
 import os
 import shutil
-import tempfile
 import zipfile
 from collections import Counter
 from collections.abc import Iterable
@@ -165,7 +164,8 @@ def write_pcz(
 ) -> dict:
     """Write a ``.pcz`` from tile parts, in the order given; memory: a chunk per array, not the file.
 
-    The store is built in a temporary directory beside ``path`` and zipped
+    The store is built in the directory ``path + ".build"`` (one a killed
+    run left is removed first: callers hold the output's lock) and zipped
     to ``path + ".partial"``, which is renamed to ``path`` when complete.
 
     Returns the file's counts (tiles, patches, residual points, points).
@@ -175,7 +175,9 @@ def write_pcz(
         raise PatchcloudIOError(f"{out}: exists (use --overwrite to replace it)")
     if not out.parent.exists():
         raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
-    work = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))
+    work = out.with_name(out.name + ".build")  # a fixed name (the run holds OUT's lock): a killed run's is removed here
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir()
     tmp = out.with_name(out.name + ".partial")
     try:
         root = zarr.open_group(str(work / "store"), mode="w")

@@ -24,10 +24,11 @@ tile's face is an octree face.  Coordinates stay exact: the LAS integers
 are stored; the float64 local frame is ``X * scale + offset - origin``.
 
 Integrity: every array on disk carries, in its attributes, the crc32 of
-each of its chunks' data and the store's ``uid``; every read checks the
+each of its chunks' data, the store's ``uid`` and its own path; every read checks the
 chunks it touches (:meth:`Store.read`, :meth:`Store.get`), and every blob
 ends in its crc32.  A chunk altered or deleted (zarr reads a deleted chunk
-as zeros), an array missing, or one copied from another store is a
+as zeros), an array missing, one copied from another store or moved from
+another tile or name is a
 :class:`PatchcloudStoreError` naming the tile and the array, never a
 silent zero.  Stores held in memory are not checked.
 """
@@ -54,8 +55,8 @@ __all__ = [
 ]
 
 FORMAT = "patchcloud-store"
-#: 2: arrays carry chunk checksums and the store's uid.
-VERSION = 2
+#: 2: arrays carry chunk checksums and the store's uid; 3: and their own path (an array moved to another tile is refused).
+VERSION = 3
 #: What a damaged store's error tells the user to do.
 START_OVER = "remove the store to start over"
 #: The grid origin is a multiple of this (metres), so grids of every power-of-two tile size up to it align.
@@ -165,6 +166,16 @@ def _set_attrs(group, attrs: dict) -> None:
         group.attrs.update(attrs)
     else:
         group.update_attributes(attrs)
+
+
+def a_path(group, name: str) -> str:
+    """The path (within its store) of array ``name`` of ``group``, as zarr's ``Array.path`` states it.
+
+    >>> import zarr
+    >>> a_path(zarr.open_group(zarr.storage.MemoryStore()).require_group("tiles/t+0+0+0"), "xyz")
+    'tiles/t+0+0+0/xyz'
+    """
+    return f"{group.path}/{name}" if group.path else name
 
 
 def _zarr():
@@ -370,7 +381,7 @@ class Store:
         else:
             sums = chunk_checksums(values, rows)
             a = group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True,
-                                   attributes={"crc32": sums, "store": self.uid})
+                                   attributes={"crc32": sums, "store": self.uid, "path": a_path(group, name)})
         if values.size:
             a[...] = values
 
@@ -382,6 +393,8 @@ class Store:
         sums = attrs.get("crc32")
         if attrs.get("store") != self.uid or sums is None:
             raise self._damaged(where, "written by another store")
+        if attrs.get("path") != a.path:
+            raise self._damaged(where, f"written as {attrs.get('path')!r}, moved here")
         n = a.shape[0]
         start, stop, step = (0, n, 1) if rows is None else rows.indices(n)
         if step != 1:
