@@ -29,9 +29,8 @@ KNOWN_FAST = {
     ("pcz", "chunk-header"): "the kept LAS header's point format changed (6 -> 0) so that its records hold undescribed bytes "
                              "beside described extra bytes: the output is written, but laspy cannot read it back",
 }
-#: Mutation kinds with failing cases among SLOW's: those of FAST and these.
-KNOWN_SLOW = {
-    **KNOWN_FAST,
+#: Mutation kinds with failing cases among SLOW's.
+KNOWN_SLOW = {  # (seed 1's cases of the kept header all pass now)
     ("las", "point-format"): "point format 3 -> 2: records with undescribed bytes beside described extra bytes; the output is "
                              "written, but laspy cannot read it back (a real IGN file has one undescribed byte: such files "
                              "are not refused)",
