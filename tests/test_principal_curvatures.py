@@ -86,3 +86,23 @@ def test_in_memory_and_on_disk_write_the_same_principal_curvatures(surfaces, tmp
     a, b = laspy.read(str(tmp_path / "mem.las")), laspy.read(str(tmp_path / "disk.las"))
     for name, _, _ in PRINCIPAL_DIMS:
         assert np.array_equal(np.asarray(a[name]), np.asarray(b[name])), name
+
+
+def test_asking_for_them_on_a_kept_store_redoes_the_finish_only(surfaces, tmp_path, monkeypatch):
+    from patchcloud.stream.jobs import normals_tiles
+
+    d, _, _ = surfaces
+    run = dict(tile_size=8, scheduler="synchronous", store=str(tmp_path / "s.zarr"), quiet=True)
+    normals(d / "saddle.las", tmp_path / "plain.las", **run)
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the fit does not depend on the principal curvatures")
+
+    monkeypatch.setattr(normals_tiles, "fit_one_tile", no_fit)
+    normals(d / "saddle.las", tmp_path / "kept.las", principal_curvatures=True, **run)
+    monkeypatch.undo()
+    normals(d / "saddle.las", tmp_path / "fresh.las", principal_curvatures=True, tile_size=8, in_memory=False,
+            scheduler="synchronous", quiet=True)
+    a, b = laspy.read(str(tmp_path / "kept.las")), laspy.read(str(tmp_path / "fresh.las"))
+    for name, _, _ in PRINCIPAL_DIMS:
+        assert np.array_equal(np.asarray(a[name]), np.asarray(b[name])), name

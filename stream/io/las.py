@@ -25,7 +25,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "with_writable_version", "check_header_sizes",
-    "check_record_sizes", "check_header_values", "ascii_text", "ascii_vlr", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET",
+    "check_record_sizes", "check_header_values", "header_record_fields", "ascii_text", "ascii_vlr", "ascii_texts", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET",
 ]
 
 
@@ -199,8 +199,7 @@ def check_header_sizes(path: str | os.PathLike, head: bytes, size: int, *, evlrs
     """
     if len(head) < 227:
         raise PatchcloudIOError(f"{path}: truncated: {len(head)} bytes, less than a LAS header (227)")
-    minor = head[25]
-    header_size, offset, vlrs = struct.unpack_from("<HII", head, 94)
+    header_size, offset, vlrs, start, count = header_record_fields(head)
     if not 227 <= header_size <= min(size, 65535):
         raise PatchcloudIOError(f"{path}: the header says it is {header_size:,} bytes long, in a file of {size:,} bytes")
     if not header_size <= offset <= size:
@@ -209,15 +208,27 @@ def check_header_sizes(path: str | os.PathLike, head: bytes, size: int, *, evlrs
     if vlrs * VLR_BYTES > offset - header_size:
         raise PatchcloudIOError(f"{path}: the header says {vlrs:,} VLRs, but the {offset - header_size:,} bytes before the "
                                 f"point data hold at most {(offset - header_size) // VLR_BYTES:,}")
-    if evlrs and minor >= 4 and header_size >= 375 and len(head) == 375:
-        start, evlrs = struct.unpack_from("<QI", head, 235)
-        if evlrs and start < offset:
-            raise PatchcloudIOError(f"{path}: the header puts its {evlrs:,} EVLRs at byte {start:,}, before its point data "
-                                    f"(byte {offset:,})")
-        if evlrs and (start > size or evlrs * EVLR_BYTES > size - start):
-            room = max(0, size - start) // EVLR_BYTES
-            raise PatchcloudIOError(f"{path}: the header says {evlrs:,} EVLRs from byte {start:,}, but the file "
-                                    f"({size:,} bytes) holds at most {room:,} there")
+    if evlrs and count and start < offset:
+        raise PatchcloudIOError(f"{path}: the header puts its {count:,} EVLRs at byte {start:,}, before its point data "
+                                f"(byte {offset:,})")
+    if evlrs and count and (start > size or count * EVLR_BYTES > size - start):
+        room = max(0, size - start) // EVLR_BYTES
+        raise PatchcloudIOError(f"{path}: the header says {count:,} EVLRs from byte {start:,}, but the file "
+                                f"({size:,} bytes) holds at most {room:,} there")
+
+
+def header_record_fields(head: bytes) -> tuple[int, int, int, int, int]:
+    """Header size, offset to the point data, VLR count, start of the first EVLR and EVLR count of a LAS header's
+    first bytes (``head``, at least 227); the EVLR fields are 0 where the header has none (before LAS 1.4, or cut short).
+
+    >>> header_record_fields(b"LASF" + bytes(90) + (375).to_bytes(2, "little") + (400).to_bytes(4, "little") + bytes(131))
+    (375, 400, 0, 0, 0)
+    """
+    header_size, offset, vlrs = struct.unpack_from("<HII", head, 94)
+    if head[25] >= 4 and header_size >= 375 and len(head) >= 375:
+        start, count = struct.unpack_from("<QI", head, 235)
+        return header_size, offset, vlrs, start, count
+    return header_size, offset, vlrs, 0, 0
 
 
 #: The largest scale and offset a header may state (metres or feet; a real file's are 0.01 to 1e-7, and a few million):
@@ -274,12 +285,10 @@ def check_record_sizes(path: str | os.PathLike, f, head: bytes, size: int) -> No
     PatchcloudIOError
         Naming the file, the record and where it ends.
     """
-    header_size, offset, vlrs = struct.unpack_from("<HII", head, 94)
+    header_size, offset, vlrs, start, evlrs = header_record_fields(head)
     walks = [("VLR", header_size, vlrs, VLR_BYTES, "<H", offset, "the point data at byte")]
-    if head[25] >= 4 and header_size >= 375 and len(head) == 375:
-        start, evlrs = struct.unpack_from("<QI", head, 235)
-        if evlrs:
-            walks.append(("EVLR", start, evlrs, EVLR_BYTES, "<Q", size, "the end of the file at byte"))
+    if evlrs:
+        walks.append(("EVLR", start, evlrs, EVLR_BYTES, "<Q", size, "the end of the file at byte"))
     for kind, pos, count, head_bytes, length_format, end, what in walks:
         for i in range(count):
             f.seek(pos + 20)
@@ -445,6 +454,17 @@ def ascii_vlr(vlr):
     return laspy.VLR(uid, vlr.record_id, desc, vlr.record_data_bytes())
 
 
+def ascii_texts(header: laspy.LasHeader) -> laspy.LasHeader:
+    """``header`` (changed in place) with its system identifier, generating software, VLRs and EVLRs in ASCII
+    (:func:`ascii_text`, :func:`ascii_vlr`): LAS texts are ASCII, and laspy writes no other."""
+    header.system_identifier = ascii_text(header.system_identifier)
+    header.generating_software = ascii_text(header.generating_software)
+    header.vlrs = type(header.vlrs)([ascii_vlr(v) for v in header.vlrs])
+    if header.evlrs:
+        header.evlrs = type(header.evlrs)([ascii_vlr(v) for v in header.evlrs])
+    return header
+
+
 def output_header(src: LasSource, dims) -> laspy.LasHeader:
     """The input's header (point format, version, scales, offsets, VLRs and EVLRs, CRS) with ``dims`` added.
 
@@ -462,11 +482,7 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
     """
     with laspy.open(src.path) as reader:
         header = with_writable_version(without_copc(reader.header))
-    header.vlrs = type(header.vlrs)([ascii_vlr(v) for v in header.vlrs])  # LAS texts are ASCII: laspy writes no other
-    header.system_identifier = ascii_text(header.system_identifier)
-    header.generating_software = ascii_text(header.generating_software)
-    if header.evlrs:
-        header.evlrs = type(header.evlrs)([ascii_vlr(v) for v in header.evlrs])
+    ascii_texts(header)
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
     for name, dtype, desc, *no_data in dims:

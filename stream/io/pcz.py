@@ -531,7 +531,8 @@ def _array(p: Path, root: zarr.Group, name: str, dtype, tail: tuple, rows: int |
         raise PatchcloudIOError(f"{p}: damaged .pcz file (array {name}: codecs {codecs}, chunks {a.chunks}: not this layout)")
     whole = int(np.prod(a.chunks)) * a.dtype.itemsize
     check_memory(whole, f"{p}: a chunk of {name}")
-    check_memory(int(np.prod(a.shape)) * a.dtype.itemsize if name.startswith("tiles/") else 0, f"{p}: {name}")
+    if name.startswith("tiles/"):  # read whole as the file opens
+        check_memory(int(np.prod(a.shape)) * a.dtype.itemsize, f"{p}: {name}")
     prefix = f"{name}/c/"
     for key, size in chunks.items():
         if key.startswith(prefix) and size != whole:

@@ -21,7 +21,7 @@ from patchcloud.core import MASK_SIDE, PatchcloudIOError, PatchcloudValueError, 
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.store import tile_name
-from patchcloud.stream.io.las import ascii_text, ascii_vlr, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, with_writable_version
+from patchcloud.stream.io.las import ascii_texts, ascii_vlr, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, with_writable_version
 
 __all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile"]
 
@@ -146,9 +146,8 @@ def decompress(
     with pcz.open_pcz(input) as f:
         header = with_writable_version(f.las_header())
         evlrs = f.evlrs(header.number_of_evlrs if header.version.minor >= 4 else 0)
-        header.vlrs = [ascii_vlr(v) for v in header.vlrs if v.user_id not in ("laszip encoded", "copc")]  # LAS/LAZ out, not COPC
-        header.system_identifier = ascii_text(header.system_identifier)
-        header.generating_software = ascii_text(header.generating_software)
+        header.vlrs = [v for v in header.vlrs if v.user_id not in ("laszip encoded", "copc")]  # LAS/LAZ out, not COPC
+        ascii_texts(header)
         if evlrs:
             evlrs = type(evlrs)([ascii_vlr(v) for v in evlrs if v.user_id != "copc"])
         header.add_extra_dims([laspy.ExtraBytesParams(name="Reconstructed", type=np.uint8, description="1 from a patch, 0 residual")])

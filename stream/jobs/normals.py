@@ -149,12 +149,17 @@ class NormalsJob(Job):
             **resolve_parameters(st, o, ctx.runner),  # threshold, d_min, max_edge as resolved, and the spacing
         )
         self.params["halo"] = 2.0 * self.params["d_min"]
-        self.params["principal_curvatures"] = self.principal_curvatures  # the finish step writes them only when asked
         self.key = params_key(self.params)
         if st.attrs.get("params_key") != self.key:
             st.clear_tile_steps(["fit", "finish"])
             st.mark_step("seams", None)
             st.update(params=self.params, params_key=self.key)
+        # what only the finish step depends on: asking for the principal curvatures redoes that step, not the fit
+        self.params["principal_curvatures"] = self.principal_curvatures
+        finish_key = params_key(self.params)
+        if st.attrs.get("finish_key") != finish_key:
+            st.clear_tile_steps(["finish"])
+            st.update(finish_key=finish_key)
 
     def fit(self, ctx: JobContext) -> None:
         todo = [t for t in ctx.store.tiles if not ctx.store.tile_done(t, "fit")]
