@@ -161,8 +161,7 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     records, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel)
     n = len(records)
     out = laspy.PackedPointRecord.zeros(n, header.point_format)
-    old = records.dtype.itemsize
-    out.array.view(np.uint8).reshape(n, out.array.dtype.itemsize)[:, :old] = records.view(np.uint8).reshape(n, old)
+    las_output.copy_records(records, out.array)
     for col, v in zip(columns, values):
         if col.renumber:
             known, number = store.get(f"export/{col.array}_ids"), store.get(f"export/{col.array}_numbers")

@@ -25,7 +25,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "with_writable_version", "check_header_sizes",
-    "check_record_sizes", "check_header_values", "header_record_fields", "ascii_text", "ascii_vlr", "ascii_texts", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET",
+    "check_record_sizes", "check_header_values", "header_record_fields", "ascii_text", "ascii_vlr", "ascii_texts", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR",
 ]
 
 
@@ -299,6 +299,50 @@ def check_record_sizes(path: str | os.PathLike, f, head: bytes, size: int) -> No
                 raise PatchcloudIOError(f"{path}: {kind} {i + 1} of {count:,} ({length:,} bytes of data) runs past {what} {end:,}")
 
 
+def check_chunk_table(path: str | os.PathLike, f, start: int, size: int, record: int) -> int:
+    """Refuse a LAZ chunk table that the file cannot hold, before lazrs reads it; return its offset (bytes).
+
+    The point data at ``start`` begins with the table's offset (-1: the
+    offset is in the file's last 8 bytes, as LASzip writes it when it cannot
+    seek back); the table opens with its version and number of chunks.  A
+    chunk holds at least one point, whose record (``record`` bytes) LASzip
+    stores raw, so the bytes between the offset and the table bound the
+    number of chunks.  lazrs allocates the table before reading it: a
+    corrupt count would otherwise abort the process (a failed allocation
+    in Rust is not an exception).  ``f``: the file, open for reading.
+
+    Raises
+    ------
+    PatchcloudIOError
+        The offset lies outside the point data or the table lists more chunks than that data can hold.
+    """
+    f.seek(start)
+    raw = f.read(8)
+    if len(raw) < 8:
+        raise PatchcloudIOError(f"{path}: truncated: the LAZ point data ends before its chunk table's offset")
+    at = struct.unpack("<q", raw)[0]
+    if at == -1 and size >= start + 16:
+        f.seek(size - 8)
+        at = struct.unpack("<q", f.read(8))[0]
+    if at > size - 8 >= start + 8:
+        raise PatchcloudIOError(f"{path}: truncated or damaged LAZ file (its chunk table's offset, byte {at:,}, lies past its "
+                                f"end, byte {size:,})")
+    if not start + 8 <= at <= size - 8:
+        raise PatchcloudIOError(f"{path}: damaged LAZ file (its chunk table's offset, byte {at:,}, lies outside its point "
+                                f"data, bytes {start + 8:,} to {size:,})")
+    f.seek(at)
+    _, count = struct.unpack("<II", f.read(8))
+    data = at - start - 8
+    if count > data // max(record, 1) + 1:
+        raise PatchcloudIOError(f"{path}: damaged LAZ file (its chunk table lists {count:,} chunks, more than its "
+                                f"{data:,} bytes of point data can hold)")
+    return at
+
+
+#: LASzip's compressor of points one by one, not in chunks (no chunk table).
+POINTWISE_COMPRESSOR = 1
+
+
 def laz_point_range(path: str | os.PathLike, start: int, record: int, point_format: int) -> tuple[int, int] | None:
     """The fewest and the most points the LAZ point data at ``start`` can hold, by its chunk table: (n, n) when exact.
 
@@ -310,31 +354,48 @@ def laz_point_range(path: str | os.PathLike, start: int, record: int, point_form
     (a LAZ written without one, or cut short: the reading then fails).
 
     ``record``: the point record's size (bytes).
+
+    Raises
+    ------
+    PatchcloudIOError
+        A chunk table the file cannot hold (:func:`check_chunk_table`), or
+        chunks whose bytes run past the table.
     """
-    try:
-        with open(path, "rb") as f:
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        try:
             vlrs = laspy.LasHeader.read_from(f).vlrs.get("LasZipVlr")
             if not vlrs:
                 return None
             vlr = lazrs.LazVlr(vlrs[0].record_data)
+            if struct.unpack("<H", bytes(vlrs[0].record_data[:2]))[0] == POINTWISE_COMPRESSOR:
+                return None
+        except Exception:
+            return None
+        at = check_chunk_table(path, f, start, size, record)
+        try:
             f.seek(start)
             table = lazrs.read_chunk_table(f, vlr)
-            if not table:
-                return None
-            if vlr.uses_variable_size_chunks():
-                n = sum(int(c[0]) for c in table)
-                return n, n
-            size, k = int(vlr.chunk_size()), len(table)
-            if point_format < 6:
-                return size * (k - 1) + 1, size * k
-            f.seek(start + 8 + sum(int(c[1]) for c in table[:-1]) + record)  # the last chunk's first point, raw, then its count
-            last = f.read(4)
-            if len(last) < 4:
-                return None
-            n = size * (k - 1) + struct.unpack("<I", last)[0]
+        except Exception:
+            return None
+        if not table:
+            return None
+        data = sum(int(c[1]) for c in table)
+        if data > at - start - 8:
+            raise PatchcloudIOError(f"{path}: damaged LAZ file (its chunk table gives its chunks {data:,} bytes, more than "
+                                    f"the {at - start - 8:,} before the table)")
+        if vlr.uses_variable_size_chunks():
+            n = sum(int(c[0]) for c in table)
             return n, n
-    except Exception:
-        return None
+        size, k = int(vlr.chunk_size()), len(table)
+        if point_format < 6:
+            return size * (k - 1) + 1, size * k
+        f.seek(start + 8 + sum(int(c[1]) for c in table[:-1]) + record)  # the last chunk's first point, raw, then its count
+        last = f.read(4)
+        if len(last) < 4:
+            return None
+        n = size * (k - 1) + struct.unpack("<I", last)[0]
+        return n, n
 
 
 def read_range(src: LasSource, first: int, count: int, parallel: bool = False) -> laspy.ScaleAwarePointRecord:
@@ -495,6 +556,35 @@ def output_header(src: LasSource, dims) -> laspy.LasHeader:
         new.append(laspy.ExtraBytesParams(name=name, type=dtype, description=desc, no_data=no_data or None))
     if new:
         header.add_extra_dims(new)
+    return undescribed_last(header)
+
+
+#: The name and description laspy gives the bytes of a record that no extra-bytes VLR entry describes.
+UNDESCRIBED_NAME, UNDESCRIBED_DESCRIPTION = "ExtraBytes", "Un-registered ExtraBytes"
+
+
+def undescribed_last(header: laspy.LasHeader) -> laspy.LasHeader:
+    """``header`` with the input's undescribed extra bytes last in each record and left undescribed, as they came.
+
+    A record may end in bytes that no extra-bytes VLR entry describes
+    (a real IGN file has one).  laspy reads them as one dimension named
+    ``ExtraBytes`` and, on adding dimensions, describes it in the VLR as an
+    entry of "undocumented extra bytes" (data type 0) whose ``options``
+    field holds their count, which its own reader then takes for option
+    bits (a count of 8 reads as "scaled").  Kept after the added
+    dimensions and out of the VLR, they are read back as they were read.
+    """
+    pf = header.point_format
+    tail = [d for d in pf.dimensions if d.name == UNDESCRIBED_NAME and d.description == UNDESCRIBED_DESCRIPTION]
+    vlrs = header.vlrs.get("ExtraBytesVlr")
+    if not tail or not vlrs:
+        return header
+    pf.dimensions.remove(tail[0])
+    pf.dimensions.append(tail[0])
+    structs = vlrs[0].extra_bytes_structs
+    structs[:] = [st for st in structs if st.format_name() != UNDESCRIBED_NAME or st.data_type != 0]
+    if not structs:
+        header.vlrs.pop(header.vlrs.index("ExtraBytesVlr"))
     return header
 
 

@@ -33,7 +33,7 @@ import lazrs
 import numpy as np
 from laspy.vlrs.known import LasZipVlr
 
-__all__ = ["LAZ_CHUNK", "PointStats", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "finish",
+__all__ = ["LAZ_CHUNK", "PointStats", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "finish",
            "fragments_dir", "remove_partial"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
@@ -66,6 +66,25 @@ def prepare_header(header: laspy.LasHeader, compressed: bool) -> laspy.LasHeader
         pf = h.point_format
         h.vlrs.append(LasZipVlr(lazrs.LazVlr.new_for_compression(pf.id, pf.num_extra_bytes).record_data()))
     return h
+
+
+def copy_records(records: np.ndarray, out: np.ndarray) -> None:
+    """Copy the input ``records`` into the output records ``out`` (structured arrays of one length), field by field.
+
+    The fields at the same byte offsets in both (all but the input's
+    undescribed bytes, which :func:`~patchcloud.stream.io.las.undescribed_last`
+    moves to the end) are copied as one block of bytes; the others by name.
+    """
+    n, a, b = len(records), records.dtype, out.dtype
+    same = [name for name in a.names if name in b.fields and b.fields[name][1] == a.fields[name][1]]
+    prefix = a.itemsize
+    for name in a.names:
+        if name not in same:
+            prefix = min(prefix, a.fields[name][1])
+    out.view(np.uint8).reshape(n, b.itemsize)[:, :prefix] = records.view(np.uint8).reshape(n, a.itemsize)[:, :prefix]
+    for name in a.names:
+        if a.fields[name][1] >= prefix:
+            out[name] = records[name]
 
 
 def _eb_structs(h: laspy.LasHeader) -> list:
@@ -130,6 +149,8 @@ def _merge(header: laspy.LasHeader, parts: list[PointStats]) -> laspy.LasHeader:
         by_return += s.by_return
         count += s.count
         for st, a, b in zip(structs, s.eb_min, s.eb_max):
+            if st.data_type == 0:  # undocumented bytes: no range (their options field is their count, not flags)
+                continue
             n, t = st.num_elements(), st._long_type()
             if st.min_is_relevant():
                 raw = st._raw_min()

@@ -68,7 +68,7 @@ from zarr.codecs import BloscCodec
 from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
 from .budget import check_memory
-from .las import check_header_sizes, check_header_values, writable_version
+from .las import check_header_sizes, check_header_values, undescribed_last, writable_version
 from .store import tile_name
 
 __all__ = ["FORMAT", "VERSION", "ZIP_TIME", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
@@ -556,6 +556,7 @@ def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: 
     las = laspy.LasData(h)
     rows = np.frombuffer(np.ascontiguousarray(records).tobytes(), dtype=point_format.dtype()).copy()
     las.points = laspy.PackedPointRecord(rows, point_format)
+    undescribed_last(las.header)  # undescribed bytes stay so: laspy cannot read back its own description of them
     buf = io.BytesIO()
     las.write(buf, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
     return buf.getvalue()

@@ -34,7 +34,7 @@ from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_pa
 from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile", "pcz_source"]
+__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -78,6 +78,21 @@ class CompressSummary:
         ])
 
 
+def extra_dim(d) -> dict:
+    """One extra dimension of a laspy point format (its ``DimensionInfo``), as JSON: name, element type, count, description."""
+    t = np.dtype(d.dtype)
+    return {"name": d.name, "type": t.base.str, "count": int(d.num_elements), "description": d.description}
+
+
+def point_format(id: int, extra_dims: list[dict]) -> laspy.PointFormat:
+    """The point format ``id`` with the ``extra_dims`` (:func:`extra_dim`'s) in order: the input records' layout."""
+    pf = laspy.PointFormat(id)
+    for d in extra_dims:
+        t = np.dtype(d["type"]) if d["count"] == 1 else np.dtype((d["type"], (d["count"],)))
+        pf.add_extra_dimension(laspy.ExtraBytesParams(name=d["name"], type=t, description=d["description"]))
+    return pf
+
+
 def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     """Patch models of one tile within the budget, quantised; its residual points; stored as the tile's ``pcz_*`` arrays."""
     store = Store.open(url)
@@ -99,9 +114,7 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
         n = xyz.shape[0]
         models, cell, residual, err = PatchModels.empty(corner, T), np.full(n, -1), np.arange(n), np.zeros(n)
     q = quantise_models(models, budget)
-    pf = laspy.PointFormat(params["point_format"])
-    for name in params["extra_dims"]:
-        pf.add_extra_dimension(laspy.ExtraBytesParams(name=name["name"], type=np.dtype(name["type"])))
+    pf = point_format(params["point_format"], params["extra_dims"])
     rec = laspy.PackedPointRecord(np.ascontiguousarray(in_order).view(pf.dtype()).reshape(-1), pf)
     on = cell >= 0
     C = q.count.shape[0]
@@ -180,7 +193,7 @@ class CompressJob(Job):
         self.params = dict(
             max_error=self.options.max_error, d_min=3.0 * spacing if spacing > 0 else st.grid.tile_size / 2.0**21,
             max_edge=MAX_EDGE_SPACINGS * spacing if spacing > 0 else float("inf"), point_format=pf.id, version=src.version,
-            extra_dims=[{"name": d.name, "type": np.dtype(d.dtype).str} for d in pf.extra_dimensions],
+            extra_dims=[extra_dim(d) for d in pf.extra_dimensions],
         )
         self.params["key"] = params_key(self.params)
         self.infos = ctx.map_tiles(compress_tile, label="compress", params=self.params)

@@ -21,7 +21,9 @@ from patchcloud.core import MASK_SIDE, PatchcloudIOError, PatchcloudValueError, 
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.store import tile_name
-from patchcloud.stream.io.las import ascii_texts, ascii_vlr, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, with_writable_version
+from patchcloud.stream.io.las import (ascii_texts, ascii_vlr, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name,
+                                      laz_backend, undescribed_last, with_writable_version)
+from patchcloud.stream.io.las_output import copy_records
 
 __all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile"]
 
@@ -150,7 +152,9 @@ def decompress(
         ascii_texts(header)
         if evlrs:
             evlrs = type(evlrs)([ascii_vlr(v) for v in evlrs if v.user_id != "copc"])
+        kept = header.point_format.dtype()  # the input's records, as the residual blocks hold them
         header.add_extra_dims([laspy.ExtraBytesParams(name="Reconstructed", type=np.uint8, description="1 from a patch, 0 residual")])
+        undescribed_last(header)
         g = f.attrs["grid"]
         origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
         if not (np.array_equal(scale, header.scales) and np.array_equal(offset, header.offsets)):
@@ -209,10 +213,12 @@ def decompress(
                         write(writer, sampled, False)
                     rxyz, rrec = f.residual(int(t))
                     check_in_tile(input, rxyz * scale + offset - origin, f.tiles[int(t)], f.tile_size)
-                    resid = laspy.PackedPointRecord.zeros(len(rxyz), header.point_format)
-                    raw = resid.array.view(np.uint8).reshape(len(rxyz), L)
+                    records = np.zeros(len(rxyz), kept)
+                    raw = records.view(np.uint8).reshape(len(rxyz), kept.itemsize)
                     raw[:, :12] = rxyz.astype("<i4").view(np.uint8).reshape(len(rxyz), 12)
                     raw[:, 12 : 12 + rrec.shape[1]] = rrec
+                    resid = laspy.PackedPointRecord.zeros(len(rxyz), header.point_format)
+                    copy_records(records, resid.array)
                     write(writer, resid, True)
                 if evlrs:
                     writer.write_evlrs(evlrs)

@@ -1,0 +1,148 @@
+"""Valid but unusual point records and LAZ chunk tables (issue 16).
+
+Records may end in bytes that no extra-bytes VLR entry describes (a real IGN
+file has one): they are kept, byte for byte, undescribed and last in each
+record, so that laspy reads the output back as it read the input.  A LAZ
+chunk table listing more chunks than the file can hold is one error line,
+before lazrs allocates it (a failed allocation in Rust aborts the process).
+"""
+
+import struct
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from test_stream import write_scene
+
+from patchcloud.core import PatchcloudIOError
+from patchcloud.stream.cli import main
+from patchcloud.stream.io.las import UNDESCRIBED_NAME, open_source
+
+#: Byte 104 of a LAS header: the point data format.
+POINT_FORMAT_AT = 104
+
+
+@pytest.fixture(scope="module")
+def undescribed(tmp_path_factory):
+    """A LAS 1.4 file of point format 2 whose 38-byte records end in 8 bytes no VLR entry describes.
+
+    Written as point format 3 (34 bytes) with one described extra dimension
+    (TrueNormal, 4 bytes); its format byte then set to 2 (26 bytes): the
+    described dimension now covers bytes 26 to 29 and bytes 30 to 37 are
+    undescribed.  8 is the count laspy misreads as option bits.
+    """
+    d = tmp_path_factory.mktemp("odd")
+    src = d / "pf3.las"
+    write_scene(src, n=6_000, seed=4, point_format=3, extra=True)
+    raw = bytearray(src.read_bytes())
+    raw[POINT_FORMAT_AT] = 2
+    path = d / "undescribed.las"
+    path.write_bytes(bytes(raw))
+    las = laspy.read(str(path))
+    assert las.point_format.id == 2 and las.point_format.size == 38
+    assert np.asarray(las[UNDESCRIBED_NAME]).shape == (len(las), 8)
+    return path
+
+
+def _described(las) -> list[str]:
+    vlrs = las.header.vlrs.get("ExtraBytesVlr")
+    return [st.format_name() for st in vlrs[0].extra_bytes_structs] if vlrs else []
+
+
+@pytest.mark.parametrize("name", ["out.las", "out.laz"])
+def test_undescribed_bytes_are_kept_last_and_undescribed(undescribed, tmp_path, name):
+    out = tmp_path / name
+    r = CliRunner().invoke(main, ["normals", str(undescribed), str(out), "-q", "--scheduler", "synchronous"])
+    assert r.exit_code == 0, r.output
+    a, b = laspy.read(str(undescribed)), laspy.read(str(out))
+    names = list(a.point_format.dimension_names)
+    for dim in names:
+        assert np.array_equal(np.asarray(a[dim]), np.asarray(b[dim])), dim
+    assert list(b.point_format.dimension_names)[-1] == UNDESCRIBED_NAME
+    assert _described(b) == ["TrueNormal", "NormalX", "NormalY", "NormalZ", "Curvature", "NormalMethod", "PatchId"]
+    assert b.point_format.size == a.point_format.size + 3 * 4 + 4 + 1 + 4
+    n = np.column_stack([b.NormalX, b.NormalY, b.NormalZ])
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+
+
+def test_undescribed_bytes_survive_compress_and_decompress(undescribed, tmp_path):
+    pcz, out = tmp_path / "c.pcz", tmp_path / "d.las"
+    for args in (["compress", str(undescribed), str(pcz)], ["decompress", str(pcz), str(out)]):
+        r = CliRunner().invoke(main, [*args, "-q"])
+        assert r.exit_code == 0, r.output
+    a, b = laspy.read(str(undescribed)), laspy.read(str(out))
+    assert list(b.point_format.dimension_names) == [*a.point_format.dimension_names][:-1] + ["Reconstructed", UNDESCRIBED_NAME]
+    assert _described(b) == ["TrueNormal", "Reconstructed"]
+    resid = np.asarray(b.Reconstructed) == 0
+    assert resid.any()
+    # a residual point keeps its record: match them by their coordinates
+    key = lambda las, m: {(int(x), int(y), int(z)): bytes(e) for x, y, z, e in  # noqa: E731
+                          zip(las.X[m], las.Y[m], las.Z[m], np.asarray(las[UNDESCRIBED_NAME])[m])}
+    kept, orig = key(b, resid), key(a, np.ones(len(a), bool))
+    assert all(orig[k] == v for k, v in kept.items())
+
+
+def _laz_with_chunks(tmp_path, chunks: int):
+    """The scene as LAZ with its chunk table's number of chunks set to ``chunks``."""
+    path = tmp_path / "scene.laz"
+    write_scene(path, n=3_000, seed=5, point_format=6, extra=False)
+    raw = bytearray(path.read_bytes())
+    start = struct.unpack_from("<I", raw, 96)[0]
+    table = struct.unpack_from("<q", raw, start)[0]
+    struct.pack_into("<I", raw, table + 4, chunks)
+    bad = tmp_path / "bad.laz"
+    bad.write_bytes(bytes(raw))
+    return bad, table - start - 8
+
+
+def test_a_laz_chunk_table_the_file_cannot_hold_is_one_error_line(tmp_path):
+    bad, data = _laz_with_chunks(tmp_path, 2_466_250_753)
+    with pytest.raises(PatchcloudIOError, match=rf"bad.laz: damaged LAZ file \(its chunk table lists 2,466,250,753 chunks, "
+                                                 rf"more than its {data:,} bytes of point data can hold\)"):
+        open_source(bad)
+    for args in (["info", str(bad)], ["normals", str(bad), str(tmp_path / "o.las")]):
+        r = CliRunner().invoke(main, args)
+        assert r.exit_code == 2 and r.output.count("\n") == 1 and "damaged LAZ file" in r.output, r.output
+    assert not (tmp_path / "o.las").exists()
+
+
+def test_a_laz_chunk_table_past_the_end_is_truncation(tmp_path):
+    path = tmp_path / "scene.laz"
+    write_scene(path, n=3_000, seed=5, point_format=6, extra=False)
+    raw = path.read_bytes()
+    table = struct.unpack_from("<q", raw, struct.unpack_from("<I", raw, 96)[0])[0]
+    cut = tmp_path / "cut.laz"
+    cut.write_bytes(raw[: table + 4])
+    with pytest.raises(PatchcloudIOError, match=r"cut.laz: truncated or damaged LAZ file \(its chunk table's offset, byte "
+                                                 rf"{table:,}, lies past its end"):
+        open_source(cut)
+
+
+def test_a_plausible_chunk_count_is_read(tmp_path):
+    """One chunk (the file's own count) passes the check: the bound is not too tight."""
+    bad, _ = _laz_with_chunks(tmp_path, 1)
+    assert open_source(bad).point_count == len(laspy.read(str(tmp_path / "scene.laz")))
+
+
+def test_an_array_extra_dimension_survives_compress_and_decompress(tmp_path):
+    """Extra bytes of array type (3 float64: LAS 1.4's deprecated types 21-30, which laspy reads) are kept."""
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = np.array([0.001] * 3), np.array([650000.0, 6860000.0, 0.0])
+    h.add_extra_dims([laspy.ExtraBytesParams("Velocity", "3f8")])
+    rng = np.random.default_rng(2)
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = 650000.0 + rng.uniform(0, 30, 400), 6860000.0 + rng.uniform(0, 30, 400), rng.uniform(0, 30, 400)
+    las.Velocity = rng.normal(size=(400, 3))
+    src, pcz, out = tmp_path / "v.las", tmp_path / "v.pcz", tmp_path / "v2.las"
+    las.write(str(src))
+    for args in (["compress", str(src), str(pcz)], ["decompress", str(pcz), str(out)]):
+        r = CliRunner().invoke(main, [*args, "-q"])
+        assert r.exit_code == 0, r.output
+    b = laspy.read(str(out))
+    resid = np.asarray(b.Reconstructed) == 0
+    a = laspy.read(str(src))
+    by_xyz = {(int(x), int(y), int(z)): v.tobytes() for x, y, z, v in zip(a.X, a.Y, a.Z, np.asarray(a.Velocity))}
+    got = [(int(x), int(y), int(z)) for x, y, z in zip(b.X[resid], b.Y[resid], b.Z[resid])]
+    assert len(got) > 0
+    assert all(by_xyz[k] == v.tobytes() for k, v in zip(got, np.asarray(b.Velocity)[resid]))
