@@ -74,3 +74,108 @@ def test_tile_releases_its_lock_and_makes_the_store_directory(tmp_path):
     store = tmp_path / "new" / "s.zarr"
     s = tile(SAMPLE, str(store), tile_size=64, scheduler="synchronous", quiet=True)
     assert len(s.tiles) == 4 and not lock_path(store).exists()
+
+
+# -- a run killed while it removes its store, or between recording its output and renaming it ------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_las(tmp_path_factory):
+    from test_stream import write_scene
+
+    path = tmp_path_factory.mktemp("kill") / "in.las"
+    write_scene(path, n=8_000, seed=3, point_format=6, extra=False)
+    return path
+
+
+def _normals(src, out, *extra):
+    from click.testing import CliRunner
+
+    from patchcloud.stream.cli import main
+
+    return CliRunner().invoke(main, ["normals", str(src), str(out), "--on-disk", "--scheduler", "synchronous", "-q",
+                                     "--tile-size", "16", *extra])
+
+
+def test_a_store_is_removed_through_a_removing_name_with_its_records_last(tmp_path, monkeypatch):
+    from patchcloud.stream.io import store as store_module
+
+    s = Store.create(str(tmp_path / "s.zarr"))
+    s.write((0, 0, 0), "v", np.arange(3))
+    s.set_group_attrs("outputs", **{"0": {"path": "x"}})
+    removed = []
+    unlink, rmtree = store_module.Path.unlink, store_module.shutil.rmtree
+    monkeypatch.setattr(store_module.Path, "unlink", lambda self, **kw: (removed.append(self.name), unlink(self, **kw))[1])
+    monkeypatch.setattr(store_module.shutil, "rmtree", lambda p, **kw: (removed.append(os.path.basename(p)), rmtree(p, **kw))[1])
+    Store.discard(str(tmp_path / "s.zarr"))
+    assert not (tmp_path / "s.zarr").exists() and not (tmp_path / "s.zarr.removing").exists()
+    assert removed[0] == "s.zarr.removing"  # a leftover of an earlier removal, if any
+    assert removed[-3:] == ["outputs", "zarr.json", "s.zarr.removing"] and "tiles" in removed[1:-3]
+
+
+def test_a_run_killed_while_removing_its_store_is_finished_by_the_same_command(small_las, tmp_path):
+    out = tmp_path / "out.las"
+    assert _normals(small_las, out, "--keep-store").exit_code == 0
+    clean = out.read_bytes()
+    store = tmp_path / "out.las.store"
+    os.replace(store, tmp_path / "out.las.store.removing")  # what Store.discard does first, then its removal, cut short
+    import shutil
+
+    shutil.rmtree(tmp_path / "out.las.store.removing" / "tiles")
+    r = _normals(small_las, out)
+    assert r.exit_code == 0, r.output
+    assert out.read_bytes() == clean
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.las"]
+
+
+def test_a_removing_store_that_does_not_record_the_output_does_not_allow_replacing_it(small_las, tmp_path):
+    out = tmp_path / "out.las"
+    out.write_bytes(b"someone else's file")
+    (tmp_path / "out.las.store.removing").mkdir()
+    r = _normals(small_las, out)
+    assert r.exit_code == 2 and "exists" in r.output and out.read_bytes() == b"someone else's file"
+    assert not (tmp_path / "out.las.store.removing").exists()
+
+
+def test_a_run_killed_between_recording_its_output_and_renaming_it_writes_it_again(small_las, tmp_path):
+    out = tmp_path / "out.las"
+    assert _normals(small_las, out, "--keep-store").exit_code == 0
+    clean = out.read_bytes()
+    os.replace(out, tmp_path / "out.las.partial")  # the store records out.las; the rename did not happen
+    r = _normals(small_las, out)
+    assert r.exit_code == 0, r.output
+    assert out.read_bytes() == clean
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.las"]
+
+
+def test_an_output_is_recorded_before_it_is_renamed(small_las, tmp_path, monkeypatch):
+    """The record holds the size and modification time the renamed file keeps."""
+    out = tmp_path / "out.las"
+    seen = []
+    replace = type(out).replace
+
+    def spy(self, target):
+        if self.name == "out.las.partial":
+            seen.append(Store.open(str(tmp_path / "out.las.store"), mode="r").group_attrs("outputs").get("0"))
+        return replace(self, target)
+
+    monkeypatch.setattr(type(out), "replace", spy)
+    assert _normals(small_las, out, "--keep-store").exit_code == 0
+    rec = [r for r in seen if r is not None]
+    assert rec and rec[-1]["path"] == str(out.resolve()) and rec[-1]["size"] == out.stat().st_size
+    assert rec[-1]["mtime_ns"] == out.stat().st_mtime_ns
+
+
+@pytest.mark.parametrize("damage", ["removed", "garbage"])
+def test_a_store_whose_root_metadata_is_gone_is_one_line_saying_remove_it(small_las, tmp_path, damage):
+    out = tmp_path / "out.las"
+    assert _normals(small_las, out, "--keep-store").exit_code == 0
+    root = tmp_path / "out.las.store" / "zarr.json"
+    if damage == "removed":
+        root.unlink()
+    else:
+        root.write_bytes(b"\x00garbage{")
+    r = _normals(small_las, tmp_path / "out2.las", "--store", str(tmp_path / "out.las.store"))
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert "not a patchcloud store" in r.output and "remove the store to start over" in r.output
+    assert (tmp_path / "out.las.store" / "tiles").exists()  # nothing of it removed

@@ -293,23 +293,8 @@ def pcz_being_built(out: Path) -> Callable[[], bool]:
 
 
 def store_being_removed(store: Path) -> Callable[[], bool]:
-    """A trigger: the store records its output, then one of its entries (or tiles) is gone: the run is removing it."""
-    first: list[set[str]] = []
-
-    def entries() -> set[str]:
-        return set(os.listdir(store)) | {f"tiles/{t}" for t in os.listdir(store / "tiles")}
-
-    def trigger() -> bool:
-        try:
-            if not first:
-                if attrs(store / "outputs"):
-                    first.append(entries())
-                return False
-            return entries() != first[0]
-        except OSError:
-            return bool(first)
-
-    return trigger
+    """A trigger: the run is removing its store (renamed ``STORE.removing`` first, then removed entry by entry)."""
+    return Path(str(store) + ".removing").exists
 
 
 def disk_bytes(path: Path) -> int:
@@ -665,22 +650,23 @@ def kill_9(lab: Lab) -> list[Case]:
              lambda d, job=job, scheduler=scheduler, trigger=trigger: _kill_case(lab, d, job, scheduler, trigger))
         for name, job, scheduler, trigger in KILL_POINTS
     ] + [
-        Case("output renamed, not yet recorded in the store (that state made by hand)",
-             f"{command} --keep-store; rm -r OUT.store/outputs; {command}", lambda d: _unrecorded_case(lab, d)),
+        Case("output recorded in the store, not yet renamed (that state made by hand)",
+             f"{command} --keep-store; mv OUT OUT.partial; {command}", lambda d: _unrenamed_case(lab, d)),
     ]
 
 
-def _unrecorded_case(lab: Lab, d: Path) -> tuple[list[str], str]:
-    """What a run killed between the rename of its output and the store's record of it leaves (a window of about a
-    millisecond, which no trigger here hits reliably): made by a run keeping its store, whose record is then removed."""
+def _unrenamed_case(lab: Lab, d: Path) -> tuple[list[str], str]:
+    """What a run killed between the store's record of its output and the rename of OUT.partial to OUT leaves (a window
+    of about a millisecond, which no trigger here hits reliably; the record comes first, so that a run killed after the
+    rename finds its output complete): made by a run keeping its store, whose output is then moved back."""
     ref = lab.reference("normals")
     out = d / ref.path.name
     argv = lab.argv("normals", out)
     r = lab.run(argv + ["--keep-store"], d, "first")
     if success_problems(r) or same_bytes_problems(out, ref):
         return ["the first run failed: " + "; ".join(success_problems(r) + same_bytes_problems(out, ref))], ""
-    shutil.rmtree(default_store(out) / "outputs")
-    return resume(lab, argv, d, out, ref), "a complete output, its store without the record of it"
+    os.replace(out, partial(out))
+    return resume(lab, argv, d, out, ref), "the store records the output; OUT.partial not yet renamed"
 
 
 def _kill_case(lab: Lab, d: Path, job: str, scheduler: str, trigger) -> tuple[list[str], str]:

@@ -269,8 +269,10 @@ def export_columns(
                 mine = results.pop(f)
                 las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None,
                                   source=cat.sources[f].path)
+                # recorded before the rename (which keeps size and modification time): a run killed between the two
+                # finds its output complete, not a file it may not replace
+                store.set_group_attrs("outputs", **{str(f): dict(_file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key)})
                 Path(tmps[f]).replace(outs[f])
-                store.set_group_attrs("outputs", **{str(f): dict(_file_record(outs[f]), key=key)})
 
         runner.map(export_part, calls, "export", on_result=finish)
     finally:

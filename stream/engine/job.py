@@ -62,7 +62,7 @@ from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
 from patchcloud.stream.io.budget import check_memory, max_memory
 from patchcloud.stream.io.lock import RunLock
-from patchcloud.stream.io.store import PatchcloudStoreError, Store
+from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store_dir, removing_path
 
 __all__ = [
     "IN_MEMORY_POINTS", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
@@ -366,15 +366,22 @@ def _store_url(run: RunOptions, catalog: Catalog, default_store: str) -> tuple[s
     return run.store or default_store, False
 
 
-def _writable(catalog: Catalog, outs: list[Path], url: str, in_memory: bool, overwrite: bool) -> list[Path]:
-    """Check each output can be written: absent, or ``overwrite``, or completed by an earlier run on this store
-    (:func:`~patchcloud.stream.engine.export.complete_outputs`: the export then keeps it)."""
-    done = [False] * len(outs)
-    if not in_memory and Store.exists(url):
+def _complete(catalog: Catalog, outs: list[Path], url: str) -> list[bool]:
+    """For each output, whether the store at ``url``, made from the same files, records it as complete and unchanged
+    (:func:`~patchcloud.stream.engine.export.complete_outputs`)."""
+    if Store.exists(url):
         st = Store.open(url, mode="r")
         if st.attrs.get("catalog") and catalog.same_files(st.attrs["catalog"]):
-            done = complete_outputs(st, outs)
-    return [Path(o) if d else check_writable(o, overwrite) for o, d in zip(outs, done)]
+            return complete_outputs(st, outs)
+    return [False] * len(outs)
+
+
+def _writable(catalog: Catalog, outs: list[Path], url: str, in_memory: bool, overwrite: bool, ours: list[bool]) -> list[Path]:
+    """Check each output can be written: absent, or ``overwrite``, or completed by an earlier run on this store
+    (:func:`~patchcloud.stream.engine.export.complete_outputs`: the export then keeps it), or ``ours`` (completed by a run
+    killed while removing its store: written again)."""
+    done = [False] * len(outs) if in_memory else _complete(catalog, outs, url)
+    return [Path(o) if d or mine else check_writable(o, overwrite) for o, d, mine in zip(outs, done, ours)]
 
 
 def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catalog, list[Path], Path, str, bool]:
@@ -391,8 +398,7 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
         catalog = Catalog.of(open_source(input))
         _check_inputs_kept(catalog, [output], run.store)
         url, in_memory = _store_url(run, catalog, default_store_path(output))
-        out = _writable(catalog, [Path(output)], url, in_memory, run.overwrite)[0]
-        return catalog, [out], out, url, in_memory
+        return catalog, [Path(output)], Path(output), url, in_memory
     if output is not None:
         raise PatchcloudValueError(f"{output}: with out_dir (--out-dir) every argument is an input; the outputs go to {run.out_dir}")
     paths = expand_inputs(input)
@@ -404,8 +410,6 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
     catalog = open_catalog(paths, run.assume_crs)
     _check_inputs_kept(catalog, outs, run.store)
     url, in_memory = _store_url(run, catalog, str(out_dir / "patchcloud.store"))
-    if out_dir.exists():  # else no output can be there yet: the directory is made only once everything is checked
-        outs = _writable(catalog, outs, url, in_memory, run.overwrite)
     out_dir.mkdir(exist_ok=True)
     return catalog, outs, out_dir, url, in_memory
 
@@ -433,8 +437,26 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
     locked = [out if run.out_dir is None else out / "patchcloud"]  # a catalog: OUT_DIR/patchcloud.lock
     if run.store is not None and "://" not in run.store:
         locked.append(run.store)
-    with RunLock(locked):
+    with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
+        ours = _left_complete(catalog, outs, url, in_memory)
+        outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours)
+        if any(ours):  # written by a run killed while removing its store: written again, the same bytes
+            run = dataclasses.replace(run, overwrite=True)
         return _run_locked(job, catalog, outs, out, url, in_memory, run)
+
+
+def _left_complete(catalog: Catalog, outs: list[Path], url: str, in_memory: bool) -> list[bool]:
+    """For each output, whether a run killed while removing its store (:meth:`Store.discard`) had completed it, by that
+    store's record; the rest of that store is removed.  All False when there is no such store."""
+    left = removing_path(url)
+    if in_memory or "://" in url or not os.path.isdir(left):
+        return [False] * len(outs)
+    try:
+        return _complete(catalog, outs, left)
+    except PatchcloudError:  # its record already removed, or unreadable: it proves nothing
+        return [False] * len(outs)
+    finally:
+        remove_store_dir(left)
 
 
 def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, in_memory: bool, run: RunOptions) -> Any:

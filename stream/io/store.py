@@ -36,11 +36,13 @@ silent zero.  Stores held in memory are not checked.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import struct
 import uuid
 import zlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -51,7 +53,7 @@ from .catalog import Catalog
 
 __all__ = [
     "Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name", "PatchcloudStoreError",
-    "chunk_checksums",
+    "chunk_checksums", "REMOVING_SUFFIX", "removing_path", "remove_store_dir",
 ]
 
 FORMAT = "patchcloud-store"
@@ -185,6 +187,29 @@ def _zarr():
     return zarr
 
 
+#: What a store being removed is renamed to first (its path plus this).
+REMOVING_SUFFIX = ".removing"
+
+
+def removing_path(url: str) -> str:
+    """Where the local store ``url`` goes while :meth:`Store.discard` removes it."""
+    return url.rstrip("/\\") + REMOVING_SUFFIX
+
+
+def remove_store_dir(path: str | os.PathLike) -> None:
+    """Remove a store's directory: its tiles and working arrays first, its record of the outputs and root metadata last."""
+    p = Path(path)
+    if not p.is_dir():
+        return
+    last = ("outputs", "zarr.json")
+    for child in sorted(p.iterdir(), key=lambda c: (c.name in last, c.name == "zarr.json", c.name)):
+        if child.is_dir() and not child.is_symlink():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
+    shutil.rmtree(p, ignore_errors=True)
+
+
 class Store:
     """A tiled cloud in a zarr group (or a :class:`~.memory_group.MemoryGroup` for ``memory://`` URLs).
 
@@ -209,6 +234,9 @@ class Store:
     @classmethod
     def create(cls, url: str, overwrite: bool = False) -> "Store":
         """A new, empty store at ``url`` (replacing what is there when ``overwrite``)."""
+        if not overwrite and "://" not in url and os.path.isdir(url) and os.listdir(url):
+            raise PatchcloudStoreError(f"{url}: exists but is not a patchcloud store (its root metadata, zarr.json, is missing or "
+                                       f"damaged): {START_OVER}, or give another store")
         try:
             if memory_group.is_memory_url(url):
                 g = memory_group.create(url, overwrite)
@@ -245,11 +273,24 @@ class Store:
 
     @classmethod
     def discard(cls, url: str) -> None:
-        """Remove the store at ``url``: an in-memory one, or a local directory (an fsspec URL is left as it is)."""
+        """Remove the store at ``url``: an in-memory one, or a local directory (an fsspec URL is left as it is).
+
+        A directory is first renamed to :func:`removing_path` (at once: no
+        run takes a half-removed store for a damaged one), then removed with
+        its record of the outputs and its root metadata last, so that a run
+        killed meanwhile leaves a directory that still says which outputs it
+        completed (the next run on the same output reads it, then removes it).
+        """
         if memory_group.is_memory_url(url):
             memory_group.drop(url)
-        elif "://" not in url:
-            shutil.rmtree(url, ignore_errors=True)
+        elif "://" not in url and os.path.isdir(url):
+            gone = removing_path(url)
+            shutil.rmtree(gone, ignore_errors=True)
+            try:
+                os.replace(url, gone)
+            except OSError:
+                gone = url
+            remove_store_dir(gone)
 
     @property
     def in_memory(self) -> bool:
