@@ -385,6 +385,7 @@ class Lab:
 
     def __init__(self, workdir: Path, points: int, tile_size: float, keep: bool = False) -> None:
         self.workdir = workdir
+        self.made: set[Path] = set()  # what this run made once in the work directory
         self.points = points
         self.tile_size = tile_size
         self.keep = keep
@@ -858,10 +859,12 @@ def corrupt_store(lab: Lab) -> list[Case]:
 
 
 def _kept_stores(lab: Lab) -> tuple[Path, Path]:
-    """A finished normals run's kept store, and another store of the same input (``patchcloud tile``), made once."""
+    """A finished normals run's kept store, and another store of the same input (``patchcloud tile``), made once a run
+    (a store left in the work directory by an earlier version of patchcloud is not reused)."""
     base = lab.workdir / "corrupt-store" / "base"
     store, other = base / "s.zarr", base / "other.zarr"
-    if not store.exists() or not other.exists():
+    if base not in lab.made or not store.exists() or not other.exists():
+        lab.made.add(base)
         shutil.rmtree(base, ignore_errors=True)
         base.mkdir(parents=True)
         r = lab.run(lab.argv("normals", base / "out.laz", extra=("--store", str(store))), base)
