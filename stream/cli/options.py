@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import functools
+import logging
 import os
 import sys
+import warnings
 
 import click
 
@@ -203,6 +205,10 @@ def reports_errors(func):
             sys.exit(2)
         except KeyboardInterrupt as exc:
             click.echo(f"error: {str(exc) or 'interrupted'}", err=True)
+            # zarr's event loop may still hold tasks and coroutines the interrupt cut short: asyncio would log each
+            # one at exit, and Python warn of each coroutine never awaited
+            logging.getLogger("asyncio").setLevel(logging.CRITICAL)
+            warnings.simplefilter("ignore")
             sys.exit(130)
 
     return wrapper
