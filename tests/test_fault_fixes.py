@@ -179,3 +179,18 @@ def test_a_store_whose_root_metadata_is_gone_is_one_line_saying_remove_it(small_
     assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
     assert "not a patchcloud store" in r.output and "remove the store to start over" in r.output
     assert (tmp_path / "out.las.store" / "tiles").exists()  # nothing of it removed
+
+
+@pytest.mark.parametrize("what", ["directory", "file"])
+def test_tile_refuses_a_path_holding_something_else_and_touches_nothing(tmp_path, what):
+    from patchcloud.stream.io.store import PatchcloudStoreError
+
+    store = tmp_path / "s.zarr"
+    if what == "directory":
+        store.mkdir()
+        (store / "notes.txt").write_text("mine")
+    else:
+        store.write_text("mine")
+    with pytest.raises(PatchcloudStoreError, match=r"s.zarr: exists and is not a patchcloud store .*remove the store to start over"):
+        tile(SAMPLE, str(store), tile_size=64, scheduler="synchronous", quiet=True)
+    assert (store / "notes.txt" if what == "directory" else store).read_text() == "mine"

@@ -390,7 +390,7 @@ def laz_point_range(path: str | os.PathLike, start: int, record: int, point_form
         size, k = int(vlr.chunk_size()), len(table)
         if point_format < 6:
             return size * (k - 1) + 1, size * k
-        f.seek(start + 8 + sum(int(c[1]) for c in table[:-1]) + record)  # the last chunk's first point, raw, then its count
+        f.seek(start + 8 + data - int(table[-1][1]) + record)  # the last chunk's first point, raw, then its count
         last = f.read(4)
         if len(last) < 4:
             return None

@@ -76,11 +76,8 @@ def copy_records(records: np.ndarray, out: np.ndarray) -> None:
     moves to the end) are copied as one block of bytes; the others by name.
     """
     n, a, b = len(records), records.dtype, out.dtype
-    same = [name for name in a.names if name in b.fields and b.fields[name][1] == a.fields[name][1]]
-    prefix = a.itemsize
-    for name in a.names:
-        if name not in same:
-            prefix = min(prefix, a.fields[name][1])
+    moved = [a.fields[name][1] for name in a.names if name not in b.fields or b.fields[name][1] != a.fields[name][1]]
+    prefix = min(moved, default=a.itemsize)
     out.view(np.uint8).reshape(n, b.itemsize)[:, :prefix] = records.view(np.uint8).reshape(n, a.itemsize)[:, :prefix]
     for name in a.names:
         if a.fields[name][1] >= prefix:

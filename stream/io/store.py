@@ -187,6 +187,14 @@ def _zarr():
     return zarr
 
 
+def _occupied(url: str) -> bool:
+    """Whether a local path (or ``file://`` URL) holds a file or a non-empty directory; False for other URLs."""
+    if "://" in url and not url.startswith("file://"):
+        return False
+    p = Path(url.removeprefix("file://"))
+    return p.exists() and (p.is_file() or any(p.iterdir()))
+
+
 #: What a store being removed is renamed to first (its path plus this).
 REMOVING_SUFFIX = ".removing"
 
@@ -234,9 +242,8 @@ class Store:
     @classmethod
     def create(cls, url: str, overwrite: bool = False) -> "Store":
         """A new, empty store at ``url`` (replacing what is there when ``overwrite``)."""
-        if not overwrite and "://" not in url and os.path.isdir(url) and os.listdir(url):
-            raise PatchcloudStoreError(f"{url}: exists but is not a patchcloud store (its root metadata, zarr.json, is missing or "
-                                       f"damaged): {START_OVER}, or give another store")
+        if not overwrite:
+            cls.check_new(url)
         try:
             if memory_group.is_memory_url(url):
                 g = memory_group.create(url, overwrite)
@@ -260,6 +267,20 @@ class Store:
         if a.get("version") != VERSION:
             raise PatchcloudStoreError(f"{url}: store version {a.get('version')} is not supported (this is version {VERSION}): {START_OVER}")
         return cls(g, url)
+
+    @classmethod
+    def check_new(cls, url: str) -> None:
+        """Refuse ``url`` when something other than a patchcloud store is there: a file, or a directory (local or
+        ``file://``) that is not empty but holds no readable store (its root metadata missing or damaged).
+
+        Raises
+        ------
+        PatchcloudStoreError
+            Naming ``url`` and saying to remove it; nothing there is touched.
+        """
+        if _occupied(url) and not cls.exists(url):
+            raise PatchcloudStoreError(f"{url}: exists and is not a patchcloud store (no readable root metadata, zarr.json): "
+                                       f"{START_OVER}, or give another store")
 
     @classmethod
     def exists(cls, url: str) -> bool:

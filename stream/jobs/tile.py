@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from patchcloud.core import PatchcloudIOError
 from patchcloud.stream.engine.ingest import ensure_tiled
 from patchcloud.stream.engine.job import RunOptions
 from patchcloud.stream.engine.runner import Runner
@@ -14,13 +13,6 @@ from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import Store
 
 __all__ = ["tile"]
-
-
-def _exists_nonempty(url: str) -> bool:
-    if "://" in url and not url.startswith("file://"):
-        return False
-    p = Path(url.removeprefix("file://"))
-    return p.exists() and (p.is_file() or any(p.iterdir()))
 
 
 def tile(
@@ -45,10 +37,10 @@ def tile(
     if local:
         Path(store).parent.mkdir(parents=True, exist_ok=True)  # as zarr makes it; the store's lock goes beside it
     with RunLock([store] if local else []):  # as a job on the store does (stream.io.lock): never two writers
-        if Store.exists(store) and overwrite:
+        if overwrite and Store.exists(store):
             Store.create(store, overwrite=True)
-        elif not Store.exists(store) and _exists_nonempty(store):
-            raise PatchcloudIOError(f"{store}: exists and is not a patchcloud store")
+        else:
+            Store.check_new(store)  # before any worker starts
         with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
             s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk)
     return s
