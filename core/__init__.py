@@ -37,7 +37,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.checks': ('MODES',),
     '.radius': ('check_points', 'default_viewpoint', 'halo_width', 'radius_normals'),
     '.threads': ('single_threaded',),
-    '.tiles': ('Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
+    '.tiles': ('SKIN_HALO', 'Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
 }
 
 __all__ = [
@@ -93,6 +93,7 @@ __all__ = [
     "cross_face_pairs",
     "link_agreements",
     # .tiles
+    "SKIN_HALO",
     "Skin",
     "fit_tile",
     "finish_tile",

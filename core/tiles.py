@@ -32,6 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import _kernels
 from .blend import blend_across_faces
@@ -53,8 +54,13 @@ from .orient import (
 from .patches import PatchTable
 from .quadric import NodeFit, turn_over
 
-__all__ = ["TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile"]
+__all__ = ["SKIN_HALO", "TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile"]
 
+#: Width of a tile's skin, in ``d_min``: the points of the neighbouring tiles
+#: within this distance of its faces.  A k-NN normal's sign comes from patch
+#: normals no farther than this from its point (:func:`finish_tile`), so that a
+#: tiled run orients it as a run on the whole cloud does.
+SKIN_HALO = 2.0
 
 
 @dataclass(frozen=True)
@@ -101,7 +107,8 @@ class Skin:
     ----------
     points : (S, 3) float64, caller's frame
     normals : (S, 3) float64
-        Their oriented normals where known (points of surface patches), else zeros.
+        Their oriented normals where known (points of surface patches: the
+        normal of their patch's quadric, not blended), else zeros.
     oriented : (S,) bool
         Where ``normals`` holds an oriented normal.
     """
@@ -293,10 +300,21 @@ def finish_tile(
         The oriented patch tables of the tiles across faces -x, +x, -y, +y,
         -z, +z (caller's frame), for blending across the tile's faces.
     skin : Skin, optional
-        Neighbouring tiles' points near this tile's faces, for the k-NN
-        normals of edge and sparse points.
+        Neighbouring tiles' points within ``SKIN_HALO * d_min`` of this
+        tile's faces, for the k-NN normals of edge and sparse points.
 
     Returns
+
+    Notes
+    -----
+    A k-NN normal is oriented by patch normals only (the quadric normals of
+    surface points, before blending), in this order: towards the sum of the
+    patch normals among its k neighbours; else towards the sum of the (at
+    most k) nearest patch normals within ``SKIN_HALO * d_min``; else by the
+    global rule on its own.  Every step looks no farther than the skin
+    reaches, and no k-NN normal depends on another's sign, so a point gets
+    the same sign in a tiled run as in a run on the whole cloud (unless its
+    k-th neighbour lies beyond the skin, where its neighbours differ).
     -------
     TileNormals
     """
@@ -314,6 +332,7 @@ def finish_tile(
         tree.local, tree.start, tree.count, surface, tree.centroid, frames, coeffs, tree.fit.sigma3, normals, scalars, dir1
     )
     method = np.repeat(np.where(surface, Method.QUADRIC, 0).astype(np.uint8), tree.count)
+    patch_normals = normals.copy() if not surface.all() else normals  # what orients the k-NN normals
     if blend:
         was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1, outside=outside, corner=corner)
         method[was] = Method.BLENDED
@@ -323,25 +342,30 @@ def finish_tile(
         skin = Skin(skin.points - corner, skin.normals, skin.oriented)
     else:
         skin = None
-    _fallback(tree, normals, scalars, dir1, method, k_fallback, orient, vp, ctr, skin)
+    _fallback(tree, normals, scalars, dir1, method, patch_normals, k_fallback, SKIN_HALO * d_min, orient, vp, ctr, skin)
     return TileNormals(normals, scalars, dir1, method, tree.point_leaf(), oriented)
 
 
-def _fallback(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centre, skin: Skin | None, rounds: int = 4) -> None:
-    """k-NN PCA normals for points of edge and sparse leaves, oriented by their neighbours, in place."""
+def _fallback(tree: Octree, normals, scalars, dir1, method, patch_normals, k, reach, orient, vp, centre, skin: Skin | None) -> None:
+    """k-NN PCA normals for points of edge and sparse leaves, oriented by patch normals near them, in place.
+
+    ``patch_normals`` holds the oriented quadric normal of every surface
+    point (rows where ``method != 0``); ``reach`` is the farthest a patch
+    normal may lie and still orient a k-NN normal (metres).
+    """
     query = np.flatnonzero(method == 0)
     if query.size == 0:
         return
-    n = tree.local.shape[0]
+    voters = method != 0
     if skin is None:
         points, grid = tree.local, (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level)
-        all_normals, oriented = normals, method != 0
+        votes = patch_normals
     else:  # the neighbours' skin points take part in the search; one tree over both
         points, grid = np.concatenate([tree.local, skin.points]), None
-        all_normals = np.concatenate([normals, skin.normals])
-        oriented = np.concatenate([method != 0, skin.oriented])
+        votes = np.concatenate([patch_normals, skin.normals])
+        voters = np.concatenate([voters, skin.oriented])
     nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grid=grid)
-    all_normals[query] = nrm
+    normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])
     # the quadric's k1 direction lies in the quadric's tangent plane at the point;
     # keep it tangent to the PCA normal that is reported
@@ -351,21 +375,35 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, k, orient, vp, centr
     t[flat] = np.cross(nrm[flat], np.where(np.abs(nrm[flat, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
     dir1[query] = t / np.linalg.norm(t, axis=1)[:, None]
     method[query] = Method.KNN
+    # 1. towards the patch normals among the point's k neighbours
     todo = np.ones(query.size, dtype=bool)
-    sign = np.empty(query.size)
-    for _ in range(rounds):
-        # each round orients the points that have oriented neighbours, from the state before the round
-        if _kernels.neighbour_signs(query, nb, all_normals, oriented, todo, sign) == 0:
-            break
-        done = todo & (sign != 0)
-        _turn(all_normals, scalars, dir1, query[done], sign[done])
-        oriented[query[done]] = True
-        todo &= ~done
-    rest = query[todo]
+    sign = np.zeros(query.size)
+    probe = votes.copy()  # patch normals, and the (unoriented) k-NN normals of the queries
+    probe[query] = nrm
+    _kernels.neighbour_signs(query, nb, probe, voters, todo, sign)
+    # 2. towards the nearest patch normals within reach
+    todo = sign == 0
+    if todo.any() and voters.any():
+        sign[todo] = _nearby_signs(points, votes, voters, query[todo], nrm[todo], k, reach)
+    done = sign != 0
+    _turn(normals, scalars, dir1, query[done], sign[done])
+    # 3. the global rule, point by point
+    rest = query[~done]
     if rest.size and orient != "none":
-        _turn(all_normals, scalars, dir1, rest, point_rule_signs(orient, all_normals[rest], tree.local[rest], vp, centre))
-    if all_normals is not normals:
-        normals[:] = all_normals[:n]
+        _turn(normals, scalars, dir1, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
+
+
+def _nearby_signs(points, votes, voters, query, nrm, k: int, reach: float) -> np.ndarray:
+    """+1/-1 turning each normal ``nrm`` towards the sum of the nearest (at most ``k``) voters' normals within ``reach``; 0 where none."""
+    rows = np.flatnonzero(voters)
+    kk = int(min(k, rows.size))
+    tree = cKDTree(points[rows], balanced_tree=False, compact_nodes=False)
+    _, idx = tree.query(points[query], k=kk, distance_upper_bound=reach, workers=-1)
+    idx = idx.reshape(query.size, kk)
+    found = idx < rows.size
+    total = (votes[rows[np.where(found, idx, 0)]] * found[..., None]).sum(axis=1)
+    dot = np.einsum("ij,ij->i", total, nrm)
+    return np.where(found.any(axis=1) & (np.einsum("ij,ij->i", total, total) > 0), np.where(dot < 0, -1.0, 1.0), 0.0)
 
 
 def _turn(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:

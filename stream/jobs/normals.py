@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from patchcloud.core import MAX_DEPTH, Method, NormalsOptions, PatchKind
+from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchKind
 from patchcloud.stream.engine.export import Column
 from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines
 from patchcloud.stream.engine.ingest import occupancy_spacing
@@ -148,7 +148,7 @@ class NormalsJob(Job):
             viewpoint_local=None if o.viewpoint is None else (np.asarray(o.viewpoint, dtype=float) - origin).tolist(),
             **resolve_parameters(st, o, ctx.runner),  # threshold, d_min, max_edge as resolved, and the spacing
         )
-        self.params["halo"] = 2.0 * self.params["d_min"]
+        self.params["halo"] = SKIN_HALO * self.params["d_min"]
         self.key = params_key(self.params)
         if st.attrs.get("params_key") != self.key:
             st.clear_tile_steps(["fit", "finish"])
