@@ -28,7 +28,8 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.codes': ('Method', 'PatchKind'),
     '.normals': ('NormalsParameters', 'NormalsResult', 'estimate_normals'),
     '.options': ('CompressOptions', 'DonOptions', 'NormalsOptions', 'SegmentOptions', 'options_with'),
-    '.octree': ('FLOOR_FACTOR', 'NOISE_FACTOR', 'max_level_for', 'point_keys', 'sort_points'),
+    '.octree': ('max_level_for', 'point_keys', 'sort_points'),
+    '.calibration': ('rmse_histograms', 'threshold_from_histograms'),
     '.forest': ('Expansion', 'ForestLinks', 'ForestNodes', 'concat_links', 'expand_signs', 'forest_links', 'forest_nodes', 'lookup', 'merge_nodes', 'reduce_forest'),
     '.orient': ('MIN_RELIABILITY', 'LeafSet', 'cross_face_pairs', 'link_agreements'),
     '.patches': ('PatchTable',),
@@ -75,13 +76,14 @@ __all__ = [
     "MAX_DEPTH",
     "decode",
     # .octree
-    "FLOOR_FACTOR",
-    "NOISE_FACTOR",
     "max_level_for",
     "point_keys",
     "sort_points",
     # .moments
     "cell_moments",
+    # .calibration
+    "rmse_histograms",
+    "threshold_from_histograms",
     # .quadric
     "fit_nodes",
     "surface_normals",

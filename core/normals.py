@@ -25,6 +25,7 @@ import numpy as np
 
 from . import _kernels
 from .errors import PatchcloudValueError
+from .calibration import rmse_histograms, threshold_from_histograms
 from .octree import estimate_spacing, sort_points
 from .options import NormalsOptions, options_with
 from .patches import PatchTable
@@ -187,6 +188,8 @@ def estimate_normals(
         max_edge = 256.0 * spacing if spacing > 0 else np.inf
     if threshold is None and criterion == "sigma3":
         threshold = 0.005
+    elif threshold is None:  # the scanner noise, on cells anchored at the root cube's corner (the stream: its grid's origin)
+        threshold = threshold_from_histograms(rmse_histograms(local, d_min, n_min), d_min, spacing)
     centre = corner + local.mean(axis=0)
     fit = fit_tile(
         pts, corner, edge, criterion=criterion, threshold=threshold, d_min=d_min, max_edge=max_edge, n_min=n_min,

@@ -15,13 +15,14 @@ from functools import cached_property
 
 import numpy as np
 
+from .calibration import rmse_histograms, threshold_from_histograms
 from . import _kernels
 from .codes import PatchKind
 from .morton import MAX_DEPTH, containing, decode, key_range
 from .moments import EXPONENTS, shift_entries
 from .quadric import NodeFit, fit_nodes
 
-__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "max_level_for", "point_keys", "NOISE_FACTOR", "FLOOR_FACTOR"]
+__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "max_level_for", "point_keys"]
 
 #: Leaf kinds: a smooth patch modelled by its quadric, a sharp feature or 3D curve, too few points.
 
@@ -203,31 +204,6 @@ def _bottom_up(local, keys, edge, max_level) -> list[_Level]:
     return levels
 
 
-#: Default RMSE threshold = NOISE_FACTOR x the median fit RMSE of the smallest nodes.
-NOISE_FACTOR = 2.0
-#: ... and at least FLOOR_FACTOR x the point spacing (noise-free data).
-FLOOR_FACTOR = 0.02
-
-
-def default_max_rmse(moments: np.ndarray, half_edge: float, n_min: int, spacing: float) -> float:
-    """Default RMSE threshold (metres) from the fits of the smallest nodes.
-
-    At the finest level most nodes hold a smooth piece of surface, so the
-    median of their quadric fit RMSE measures the scanner noise; NOISE_FACTOR times
-    that (or FLOOR_FACTOR times the point spacing on noise-free data, whichever
-    is larger) separates noise from geometry.
-    """
-    keep = np.flatnonzero(moments[:, 0] >= n_min)
-    if keep.size > 8000:  # a deterministic subsample is enough for a median
-        keep = keep[:: keep.size // 8000]
-    sample = moments[keep]
-    noise = 0.0
-    if sample.shape[0]:
-        fit = fit_nodes(sample, np.full(sample.shape[0], half_edge))
-        noise = float(np.median(fit.rmse))
-    return max(NOISE_FACTOR * noise, FLOOR_FACTOR * spacing)
-
-
 def build_octree(
     local: np.ndarray,
     edge: float,
@@ -253,7 +229,8 @@ def build_octree(
         Uniformity test: quadric fit RMSE (metres) or surface variation.
     threshold : float or None
         A node is uniform when its measure is at most this; None picks
-        :func:`default_max_rmse` for "rmse".
+        the default of :mod:`.calibration` for "rmse", from these points
+        (cells anchored at the root cube's corner).
     d_min : float
         No leaf has an edge below this (metres).
     n_min : int
@@ -274,7 +251,7 @@ def build_octree(
     if threshold is None:
         if criterion != "rmse":
             raise ValueError("threshold None is only resolved for the rmse criterion")
-        threshold = default_max_rmse(levels[max_level].moments, edge / 2.0 ** (max_level + 1), n_min, spacing)
+        threshold = threshold_from_histograms(rmse_histograms(local, d_min, n_min), d_min, spacing)
 
     # levels whose nodes are larger than max_edge are never leaves (unless sparse)
     min_level = int(np.clip(np.ceil(np.log2(edge / max_edge)), 0, max_level)) if np.isfinite(max_edge) else 0

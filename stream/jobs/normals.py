@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchKind
+from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchKind, threshold_from_histograms
 from patchcloud.stream.engine.export import Column
 from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines
 from patchcloud.stream.engine.ingest import occupancy_spacing
@@ -91,9 +91,12 @@ class NormalsSummary:
 def resolve_parameters(store: Store, options: NormalsOptions, runner) -> dict:
     """Spacing, d_min, max_edge and threshold of the whole cloud: the options' values, or the defaults from the data.
 
-    The defaults are those of :func:`patchcloud.core.estimate_normals` on
-    the whole cloud, computed from per-tile statistics on absolutely
-    positioned cells, so they do not depend on the tiling.
+    The defaults follow the rules of :func:`patchcloud.core.estimate_normals`,
+    computed from per-tile statistics on cells of the grid's absolute
+    frame, so they do not depend on the tiling: the spacing from occupied
+    cells, the RMSE threshold from :func:`patchcloud.core.rmse_histograms`
+    (the in-memory function anchors those cells at its root cube's corner,
+    so its threshold is about, not exactly, the same).
     """
     a = store.attrs
     n = int(sum(a["tile_counts"]))
@@ -109,13 +112,13 @@ def resolve_parameters(store: Store, options: NormalsOptions, runner) -> dict:
         if options.criterion == "sigma3":
             threshold = 0.005
         else:
-            key = {"d_min": d_min, "n_min": options.n_min}
+            key = {"d_min": d_min, "n_min": options.n_min, "cells": "absolute, 1.5 d_min"}
             cached = a.get("calibration")
             if cached and cached.get("key") == key:
                 threshold = cached["threshold"]
             else:
                 hists = map_tiles(normals_tiles.calibrate_tile, store, runner=runner, label="calibrate", d_min=d_min, n_min=options.n_min)
-                threshold = normals_tiles.threshold_from_histogram(np.sum(list(hists.values()), axis=0), spacing)
+                threshold = threshold_from_histograms(np.sum(list(hists.values()), axis=0), d_min, spacing)
                 store.update(calibration={"key": key, "threshold": threshold})
     return dict(spacing=float(spacing), d_min=float(d_min), max_edge=float(max_edge), threshold=float(threshold))
 

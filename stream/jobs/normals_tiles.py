@@ -12,64 +12,25 @@ from __future__ import annotations
 import numpy as np
 
 from patchcloud.core import (
-    FLOOR_FACTOR, MAX_DEPTH, NOISE_FACTOR, LeafSet, PatchKind, Skin, cell_moments, cross_face_pairs, decode, finish_tile,
-    fit_nodes, fit_tile, link_agreements, max_level_for, point_keys, surface_normals,
+    LeafSet, PatchKind, Skin, cross_face_pairs, finish_tile, fit_tile, link_agreements, point_keys, rmse_histograms,
+    surface_normals,
 )
 
 from patchcloud.stream.io.store import Store, table_to_array
 
-__all__ = ["calibrate_tile", "threshold_from_histogram", "fit_one_tile", "seam_links", "finish_one_tile", "RMSE_BINS"]
-
-#: log10 bin edges of the fit-RMSE histograms (metres) behind the default threshold: 0.25 % wide.
-RMSE_BINS = np.linspace(-7.0, 2.0, 9 * 400 + 1)
-#: Finest cells used for the default threshold: those whose hash falls in 1 of this many.
-CALIBRATION_STRIDE = 8
-
+__all__ = ["calibrate_tile", "fit_one_tile", "seam_links", "finish_one_tile"]
 
 def calibrate_tile(url: str, ijk: tuple, d_min: float, n_min: int) -> np.ndarray:
-    """Histogram (over :data:`RMSE_BINS`) of the quadric-fit RMSE of the finest cells of a tile.
+    """The tile's share of the default threshold's histograms (:func:`patchcloud.core.rmse_histograms`).
 
-    The cells are those of edge ``d_min`` rounded as the octree does, with
-    at least ``n_min`` points, and one in :data:`CALIBRATION_STRIDE` of them
-    chosen by a hash of their absolute position: the same cells whatever
-    the tiling, so the median over all tiles, like the in-memory default
-    (``patchcloud.core.estimate_normals``' default threshold), measures the scanner
-    noise of the whole cloud.
+    Cells of the absolute grid, so the sum over the tiles is the whole
+    cloud's, whatever the tiling (tiles at least twice the calibration
+    cells), and :func:`patchcloud.core.estimate_normals` resolves the same
+    threshold on the same points.
     """
     store = Store.open(url)
     grid = store.grid
-    T = grid.tile_size
-    local = grid.local(store.read(ijk, "xyz")) - grid.corner(ijk)
-    _, keys = point_keys(local, T)
-    level = max_level_for(T, d_min)
-    c = keys >> np.uint64(3 * (MAX_DEPTH - level))
-    starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
-    counts = np.diff(np.r_[starts, c.size])
-    cells = decode(c[starts])
-    absolute = cells + np.asarray(ijk, dtype=np.int64) * (1 << level)
-    h = (absolute * np.array([73856093, 19349663, 83492791])).sum(axis=1)
-    keep = (counts >= n_min) & (np.mod(h, CALIBRATION_STRIDE) == 0)
-    hist = np.zeros(RMSE_BINS.size - 1, dtype=np.int64)
-    if not keep.any():
-        return hist
-    edge = T / 2.0**level
-    centres = (cells + 0.5) * edge
-    moments = np.empty((starts.size, 35))
-    cell_moments(local, starts, centres, moments)
-    fit = fit_nodes(moments[keep], np.full(int(keep.sum()), edge / 2.0))
-    rmse = np.maximum(fit.rmse, 10.0 ** RMSE_BINS[0])
-    hist += np.histogram(np.log10(rmse), bins=RMSE_BINS)[0]
-    return hist
-
-
-def threshold_from_histogram(hist: np.ndarray, spacing: float) -> float:
-    """The default RMSE threshold (metres): NOISE_FACTOR x the histogram's median, at least FLOOR_FACTOR x spacing."""
-    total = int(hist.sum())
-    noise = 0.0
-    if total:
-        k = int(np.searchsorted(np.cumsum(hist), (total + 1) // 2))
-        noise = float(10.0 ** (0.5 * (RMSE_BINS[k] + RMSE_BINS[k + 1])))
-    return max(NOISE_FACTOR * noise, FLOOR_FACTOR * spacing)
+    return rmse_histograms(grid.local(store.read(ijk, "xyz")), d_min, n_min, origin=grid.origin)
 
 
 def fit_one_tile(url: str, ijk: tuple, params: dict) -> dict:
