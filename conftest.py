@@ -26,18 +26,31 @@ def _alias_packages() -> None:
     class (an error raised by one is not the other's), and numba kernels
     cached under a module name that does not exist outside pytest.  Each
     module of the two packages is imported once, by its real name, and
-    registered under pytest's name too.
+    registered under pytest's name too.  ``stream/patchcloud/`` is the top
+    package ``patchcloud`` itself (pyproject's package-dir), not a
+    sub-package of the stream: pytest's ``stream.patchcloud`` is ``patchcloud``.
     """
     import importlib
     import pkgutil
     import sys
 
-    for short in ("core", "stream"):
-        package = importlib.import_module(f"patchcloud.{short}")
+    top = importlib.import_module("patchcloud")
+    sys.modules.setdefault("stream.patchcloud", top)
+
+    def walk(package, short: str) -> None:
         sys.modules.setdefault(short, package)
-        for info in pkgutil.walk_packages(package.__path__, prefix=f"patchcloud.{short}."):
+        for info in pkgutil.iter_modules(package.__path__, prefix=package.__name__ + "."):
+            if info.name == "patchcloud.stream.patchcloud":
+                continue
             module = importlib.import_module(info.name)
-            sys.modules.setdefault(short + info.name[len(f"patchcloud.{short}"):], module)
+            alias = short + info.name[len(package.__name__):]
+            if info.ispkg:
+                walk(module, alias)
+            else:
+                sys.modules.setdefault(alias, module)
+
+    for short in ("core", "stream"):
+        walk(importlib.import_module(f"patchcloud.{short}"), short)
 
 
 _alias_packages()

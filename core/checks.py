@@ -11,7 +11,7 @@ import numpy as np
 from .errors import PatchcloudValueError
 
 __all__ = [
-    "CRITERIA", "ORIENT_RULES", "MODES", "check_positive", "check_radius", "check_viewpoint", "check_mode",
+    "coordinates", "CRITERIA", "ORIENT_RULES", "MODES", "check_positive", "check_radius", "check_viewpoint", "check_mode",
     "check_cluster_sizes", "check_budget",
 ]
 
@@ -21,6 +21,32 @@ CRITERIA = ("rmse", "sigma3")
 ORIENT_RULES = ("up", "viewpoint", "outward", "none")
 #: Valid values of ``mode`` (radius neighbourhoods).
 MODES = ("exact", "fast")
+
+
+def coordinates(points):
+    """What the functions taking a cloud read its coordinates from: ``points`` itself, or a ``laspy.LasData``'s ``xyz``.
+
+    A ``laspy.LasData`` (anything with ``xyz``, ``header`` and
+    ``point_format``: laspy is not imported here) gives its scaled
+    coordinates, ``X * scale + offset`` as (N, 3) float64 in the file's
+    coordinates (metres), in the file's point order; exact to about 1e-9 m
+    for coordinates of a few million metres.  The functions then work in a
+    local frame of their own (the root cube's corner, each query point), so
+    that a viewpoint or a patch is in the file's coordinates as well.
+
+    Examples
+    --------
+    >>> import laspy
+    >>> las = laspy.read(sample)
+    >>> xyz = coordinates(las)
+    >>> xyz.shape, xyz.dtype, bool((xyz.min(axis=0) == las.header.mins).all())
+    ((60653, 3), dtype('float64'), True)
+    >>> coordinates([[0, 1, 2]])
+    [[0, 1, 2]]
+    """
+    if hasattr(points, "xyz") and hasattr(points, "header") and hasattr(points, "point_format"):
+        return points.xyz
+    return points
 
 
 def check_positive(name: str, value, integer: bool = False):

@@ -79,7 +79,7 @@ def euclidean_clusters(
 
     Parameters
     ----------
-    points : (N, 3) array
+    points : (N, 3) array, or laspy.LasData
         Coordinates (metres).
     tolerance : float
         Largest step (metres) between two points of one cluster.

@@ -35,7 +35,7 @@ def difference_of_normals(
 
     Parameters
     ----------
-    points : (N, 3) array
+    points : (N, 3) array, or laspy.LasData
         Coordinates (metres).
     r_small, r_large : float
         Support radii (metres), ``r_small < r_large``.

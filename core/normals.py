@@ -126,7 +126,7 @@ def estimate_normals(
 
     Parameters
     ----------
-    points : (N, 3) array_like of float or int
+    points : (N, 3) array_like of float or int, or laspy.LasData
         Coordinates (metres, or any unit: the defaults scale with the data).
         Large offsets such as UTM are fine: everything is computed in float64
         relative to the root cube's corner.

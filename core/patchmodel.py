@@ -317,7 +317,7 @@ def fit_models(
 
     Parameters
     ----------
-    points : (N, 3) array
+    points : (N, 3) array, or laspy.LasData
         Coordinates (metres); any order.
     max_error : float
         The error budget (metres): the octree splits a leaf until its

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _kernels
-from .checks import check_positive
+from .checks import check_positive, coordinates
 from .errors import PatchcloudValueError
 
 __all__ = ["validate_points", "root_cube"]
@@ -22,8 +22,8 @@ def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    points : (N, 3) array_like of float or int
-        Coordinates.
+    points : (N, 3) array_like of float or int, or laspy.LasData
+        Coordinates (a ``LasData``'s: :func:`~patchcloud.core.checks.coordinates`).
 
     Returns
     -------
@@ -44,7 +44,7 @@ def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     >>> pts.dtype, lo.tolist(), hi.tolist()
     (dtype('float64'), [0.0, -1.0, 2.0], [3.0, 1.0, 5.0])
     """
-    arr = np.asarray(points)
+    arr = np.asarray(coordinates(points))
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise PatchcloudValueError(f"points must be a real numeric array (float or int), got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 3:

@@ -30,15 +30,16 @@ from __future__ import annotations
 import numpy as np
 
 from . import _radius_kernels as _rk
-from .checks import check_mode, check_radius, check_viewpoint
+from .checks import check_mode, check_radius, check_viewpoint, coordinates
 from .errors import PatchcloudValueError
 from .grid import CellGrid
 
 __all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "check_points"]
 
 def check_points(points, name: str = "points") -> np.ndarray:
-    """``points`` as a C-contiguous (N, 3) float64 array of finite values, or a PatchcloudValueError."""
-    p = np.asarray(points)
+    """``points`` (an array, or a ``laspy.LasData``: :func:`~patchcloud.core.checks.coordinates`) as a C-contiguous
+    (N, 3) float64 array of finite values, or a PatchcloudValueError."""
+    p = np.asarray(coordinates(points))
     if p.ndim != 2 or p.shape[1] != 3:
         raise PatchcloudValueError(f"{name} must be an (N, 3) array, got shape {p.shape}")
     if not np.issubdtype(p.dtype, np.number):
@@ -192,7 +193,7 @@ def radius_normals(
 
     Parameters
     ----------
-    points : (N, 3) array
+    points : (N, 3) array, or laspy.LasData
         Coordinates (metres), any order; large projected values are fine.
     radius : float
         Support radius (metres).

@@ -11,7 +11,12 @@ d. ``stream/`` has at most :data:`MAX_STREAM_TOP` modules at its top besides
    ``__init__.py``;
 e. no ``doctest: +SKIP`` in the sources;
 f. ``patchcloud.stream`` imports from ``patchcloud.core`` itself only, and
-   only names of ``patchcloud.core.__all__``.
+   only names of ``patchcloud.core.__all__``;
+g. the top package ``patchcloud`` (its ``__init__.py`` is in
+   ``stream/patchcloud/``, pyproject's package-dir) re-exports: it defines
+   no function or class, imports from ``patchcloud.core`` and
+   ``patchcloud.stream`` only (the packages, names of their ``__all__``),
+   and every name of its ``__all__`` but ``__version__`` is one of theirs.
 
 Imports anywhere count: at module level, inside functions and under
 ``if TYPE_CHECKING:``.  Every test lists all its offenders as
@@ -32,7 +37,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: Dotted name of each package -> its directory.
-PACKAGES = {"patchcloud.core": ROOT / "core", "patchcloud.stream": ROOT / "stream"}
+PACKAGES = {"patchcloud.core": ROOT / "core", "patchcloud.stream": ROOT / "stream", "patchcloud": ROOT / "stream" / "patchcloud"}
+#: The top package's directory, inside stream/ but no part of ``patchcloud.stream``.
+TOP = PACKAGES["patchcloud"]
 
 #: The most modules ``stream/`` may hold at its top, ``__init__.py`` aside.
 MAX_STREAM_TOP = 6
@@ -62,12 +69,12 @@ class Module:
 
 
 def discover() -> list[Module]:
-    """Every ``.py`` module of the two packages, recursively."""
+    """Every ``.py`` module of the three packages, recursively (the top package's directory counted once, as itself)."""
     out = []
     for pkg, directory in PACKAGES.items():
         for path in sorted(directory.rglob("*.py")):
             rel = path.relative_to(directory)
-            if "__pycache__" in rel.parts:
+            if "__pycache__" in rel.parts or (pkg != "patchcloud" and path.is_relative_to(TOP)):
                 continue
             parts = list(rel.with_suffix("").parts)
             is_package = parts[-1] == "__init__"
@@ -277,14 +284,35 @@ def skip_violations(mod: Module) -> list[str]:
     ]
 
 
-def core_all() -> frozenset[str]:
-    """``patchcloud.core.__all__``, read from core/__init__.py without importing it."""
-    tree = ast.parse((PACKAGES["patchcloud.core"] / "__init__.py").read_text(encoding="utf-8"))
+def literal(package: str, name: str):
+    """The literal value a package's ``__init__.py`` assigns to ``name``, read without importing it."""
+    tree = ast.parse((PACKAGES[package] / "__init__.py").read_text(encoding="utf-8"))
     for node in tree.body:
         targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
-        if any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets):
-            return frozenset(ast.literal_eval(node.value))
-    raise AssertionError("core/__init__.py has no literal __all__")
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            return ast.literal_eval(node.value)
+    raise AssertionError(f"{package}'s __init__.py has no literal {name}")
+
+
+def core_all() -> frozenset[str]:
+    """``patchcloud.core.__all__``, read from core/__init__.py without importing it."""
+    return frozenset(literal("patchcloud.core", "__all__"))
+
+
+def top_violations(mod: Module, exported: dict[str, frozenset[str]], known=KNOWN) -> list[str]:
+    """Rule (g) for the top package: ``exported`` maps each package it may import from to that package's ``__all__``."""
+    out = []
+    for e in edges(mod, known):
+        if not under(e.source, "patchcloud") and not under(e.target, "patchcloud"):
+            continue
+        if e.source not in exported or e.name is None:
+            out.append(_report(mod, e.line, e.text, "the top package imports from patchcloud.core and patchcloud.stream only"))
+        elif e.name not in exported[e.source]:
+            out.append(_report(mod, e.line, e.text, f"{e.name} is not in {e.source}.__all__"))
+    for node in ast.walk(mod.tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.append(_report(mod, node.lineno, f"{type(node).__name__} {node.name}", "the top package re-exports, it defines nothing"))
+    return out
 
 
 def core_interface_violations(mod: Module, exported: frozenset[str], known=KNOWN) -> list[str]:
@@ -317,7 +345,8 @@ def _in(prefix: str) -> list[Module]:
 
 def test_tree_is_found():
     names = {m.name for m in MODULES}
-    assert {"patchcloud.core", "patchcloud.core.normals", "patchcloud.core._kernels", "patchcloud.stream"} <= names
+    assert {"patchcloud", "patchcloud.core", "patchcloud.core.normals", "patchcloud.core._kernels", "patchcloud.stream"} <= names
+    assert "patchcloud.stream.patchcloud" not in names  # stream/patchcloud/ is the top package, not a part of the stream
     assert any(m.name.startswith("patchcloud.stream.") for m in MODULES)
 
 
@@ -347,6 +376,30 @@ def test_stream_uses_only_the_core_interface():
     exported = core_all()
     found = [v for m in _in("patchcloud.stream") for v in core_interface_violations(m, exported)]
     _fail("(f) patchcloud.stream imports from patchcloud.core other than names of patchcloud.core.__all__", found)
+
+
+def test_the_top_package_only_re_exports():
+    (top,) = [m for m in MODULES if m.name == "patchcloud"]
+    exported = {p: frozenset(literal(p, "__all__")) for p in ("patchcloud.core", "patchcloud.stream")}
+    _fail("(g) the top package patchcloud", top_violations(top, exported))
+    sources = literal("patchcloud", "_SOURCES")
+    assert set(sources) == set(exported), sources
+    wrong = [f"{n} (from {p})" for p, names in sources.items() for n in names if n not in exported[p]]
+    assert not wrong, f"(g) re-exported names missing from their package's __all__: {wrong}"
+    public = set(literal("patchcloud", "__all__")) - {"__version__"}
+    assert public == {n for names in sources.values() for n in names}, "(g) the top package's __all__ and its sources differ"
+
+
+def test_checker_top_package():
+    exported = {"patchcloud.core": frozenset({"estimate_normals", "lazy_exports"}), "patchcloud.stream": frozenset({"normals"})}
+    top = lambda src: top_violations(snippet("patchcloud", src, is_package=True), exported, SNIPPET_KNOWN)  # noqa: E731
+    assert top("from patchcloud.core import lazy_exports\nfrom importlib.metadata import version\n") == []
+    (v,) = top("from patchcloud.core.normals import estimate_normals\n")
+    assert "imports from patchcloud.core and patchcloud.stream only" in v
+    (v,) = top("from patchcloud.stream import Store\n")
+    assert "Store is not in patchcloud.stream.__all__" in v
+    (v,) = top("def estimate_normals(points):\n    return points\n")
+    assert "FunctionDef estimate_normals" in v and "defines nothing" in v
 
 
 def test_core_all_names_exist():

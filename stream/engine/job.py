@@ -19,7 +19,9 @@ records, or its own :meth:`Job.write`) and its **summary**.
    parameters or calibration reruns what depends on it;
 5. the output is written under a temporary name and renamed when complete;
 6. the summary (times per step, peak memory), then the default store is
-   removed (a store the user named is kept).
+   removed (a store the user named is kept);
+7. the dask cluster and client are closed, and the threads the run
+   started stopped (:mod:`~patchcloud.stream.engine.background`).
 
 How a job runs (tile size, scheduler, workers, store, ...) is one
 :class:`RunOptions`, the same for every job; what it computes is its own
@@ -52,6 +54,7 @@ from typing import Any
 
 
 from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with, os_error_line
+from patchcloud.stream.engine.background import stops_what_it_starts
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner, check_scheduler
@@ -433,6 +436,12 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
         Another run is writing the same output or store
         (:mod:`patchcloud.stream.io.lock`).
     """
+    with stops_what_it_starts():  # no thread of the run's left running (stream.engine.background)
+        return _run_job(job, input, output, run)
+
+
+def _run_job(job: Job, input, output, run: RunOptions) -> Any:
+    """run_job, within :func:`~patchcloud.stream.engine.background.stops_what_it_starts`."""
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
     locked = [out if run.out_dir is None else out / "patchcloud"]  # a catalog: OUT_DIR/patchcloud.lock
     if run.store is not None and "://" not in run.store:

@@ -24,6 +24,7 @@ from patchcloud.stream.io.store import tile_name
 from patchcloud.stream.io.las import (ascii_texts, ascii_vlr, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name,
                                       laz_backend, undescribed_last, with_writable_version)
 from patchcloud.stream.io.las_output import copy_records
+from patchcloud.stream.engine.background import stops_what_it_starts
 
 __all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile"]
 
@@ -90,6 +91,7 @@ def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
     return models.count.astype(np.int64)
 
 
+@stops_what_it_starts()  # no thread of the run's left running (stream.engine.background)
 def decompress(
     input: str | os.PathLike, output: str | os.PathLike, *, density: float | None = None, lod: int | None = None,
     bbox=None, seed: int = 0, overwrite: bool = False,

@@ -13,10 +13,12 @@ from patchcloud.core import PatchcloudIOError
 from patchcloud.stream.io.las import open_source
 from patchcloud.stream.io.pcz import open_pcz
 from patchcloud.stream.io.store import Store
+from patchcloud.stream.engine.background import stops_what_it_starts
 
 __all__ = ["info", "format_info"]
 
 
+@stops_what_it_starts()  # no thread of the run's left running (stream.engine.background)
 def info(path: str | os.PathLike) -> dict:
     """A description of a LAS/LAZ file (header), a store (source, grid, tiles, steps done) or a .pcz (counts).
 

@@ -11,10 +11,12 @@ from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io.las import open_source
 from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import Store
+from patchcloud.stream.engine.background import stops_what_it_starts
 
 __all__ = ["tile"]
 
 
+@stops_what_it_starts()  # no thread of the run's left running (stream.engine.background)
 def tile(
     input: str | os.PathLike, store: str, *, tile_size: float | None = None, scheduler: str = "auto",
     workers: int | None = None, overwrite: bool = False, quiet: bool = False, chunk: int | None = None,
