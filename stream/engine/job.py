@@ -55,6 +55,7 @@ from typing import Any
 
 from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with, os_error_line
 from patchcloud.stream.engine.background import stops_what_it_starts
+from patchcloud.stream.engine.compiling import CompileClock, announce_on_stderr, compiling_line, merge_intervals, seconds_within
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner, check_scheduler
@@ -228,15 +229,22 @@ def default_store_path(output: str | os.PathLike) -> str:
     return str(output) + ".store"
 
 
-def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: int, scheduler: str) -> list[str]:
-    """The last two lines of a job's summary: time per step and in all, and the peak memory.
+def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: int, scheduler: str, compile_seconds: float = 0.0) -> list[str]:
+    """The last lines of a job's summary: numba's compiling, if any; time per step and in all; the peak memory.
+
+    ``seconds`` leave the compiling out (:func:`_run`), so the points per
+    second are the job's own; ``compile_seconds`` (a first run's) is said on
+    a line of its own.
 
     >>> print("\\n".join(time_and_memory_lines({"tile": 1.0, "fit": 3.0}, 8_000_000, 2**30, "threads")))
       time            tile 1.0 s, fit 3.0 s; total 4.0 s (2,000,000 points/s)
       peak memory     1,024 MiB (all processes, scheduler threads)
+    >>> print(time_and_memory_lines({"fit": 3.0}, 60_000, 2**30, "in memory", compile_seconds=12.5)[0])
+      compiling       kernels, once: 12.5 s (numba, first run after installing; cached for later runs; not in the times below)
     """
     total = sum(seconds.values())
     return [
+        *compiling_line(compile_seconds),
         "  time            " + ", ".join(f"{s} {t:.1f} s" for s, t in seconds.items())
         + f"; total {total:.1f} s ({points / max(total, 1e-9):,.0f} points/s)",
         f"  peak memory     {peak_memory / 2**20:,.0f} MiB "
@@ -267,7 +275,8 @@ class JobContext:
     ``catalog`` is the input files taken as one cloud (one file: a catalog
     of one), ``source`` its first file, ``outputs`` one output per file and
     ``output`` the output (one file) or the output directory (a catalog).
-    ``seconds`` gets each step's wall time; ``peak_memory`` (bytes, all
+    ``seconds`` gets each step's wall time, numba's compiling (a first
+    run's) not counted: that is ``compile_seconds``; ``peak_memory`` (bytes, all
     processes) is set before the summary is made; ``kept_store`` is the
     store's URL when it is kept after the job, else "".
     """
@@ -280,6 +289,7 @@ class JobContext:
     catalog: Catalog | None = None
     outputs: list[Path] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
+    compile_seconds: float = 0.0
     peak_memory: int = 0
     kept_store: str = ""
 
@@ -501,20 +511,34 @@ def kept_store_note(url: str) -> str:
 
 
 def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep: bool, run: RunOptions) -> Any:
-    """Tile, run the steps, write the outputs: run_job once what is read and written is checked and the store chosen."""
+    """Tile, run the steps, write the outputs: run_job once what is read and written is checked and the store chosen.
+
+    numba's compiling (a first run's) is timed apart (:mod:`~patchcloud.stream.engine.compiling`):
+    taken out of each step's time, it is the context's ``compile_seconds``.
+    """
     started = time.time()
-    with Runner(run.scheduler, run.workers, quiet=run.quiet, points=catalog.point_count) as runner:
+    windows: dict[str, list[tuple[float, float]]] = {}  # each step's wall-clock spans
+    with CompileClock(announce=None if run.quiet else announce_on_stderr) as clock, \
+            Runner(run.scheduler, run.workers, quiet=run.quiet, points=catalog.point_count) as runner:
+        w0 = time.time()
         store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk)
+        windows["tile"] = [(w0, time.time())]
         ctx = JobContext(source=catalog.sources[0], output=out, store=store, runner=runner, run=run, catalog=catalog, outputs=outs,
                          kept_store=url if keep else "")
         ctx.seconds["tile"] = tile_seconds
         for name, step in job.steps():
-            t0 = time.perf_counter()
+            t0, w0 = time.perf_counter(), time.time()
             step(ctx)
             ctx.seconds[name] = ctx.seconds.get(name, 0.0) + time.perf_counter() - t0
-        t0 = time.perf_counter()
+            windows.setdefault(name, []).append((w0, time.time()))
+        t0, w0 = time.perf_counter(), time.time()
         job.write(ctx)
         ctx.seconds[job.write_step] = time.perf_counter() - t0
+        windows[job.write_step] = [(w0, time.time())]
+        compiling = merge_intervals(clock.intervals + runner.compile_intervals)
+        for name, spans in windows.items():
+            ctx.seconds[name] = max(0.0, ctx.seconds[name] - sum(seconds_within(compiling, a, b) for a, b in spans))
+        ctx.compile_seconds = sum(b - a for a, b in compiling)
         ctx.peak_memory = runner.peak_memory()
         summary = job.summarise(ctx)
         if run.profile:

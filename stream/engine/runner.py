@@ -22,6 +22,7 @@ from typing import Any
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, single_threaded
 
+from patchcloud.stream.engine.compiling import CompileClock
 from patchcloud.stream.engine.progress import Progress
 
 __all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "ADDRESS_SCHEMES", "resolve_scheduler", "check_scheduler", "scheduler_from_file"]
@@ -78,24 +79,26 @@ def scheduler_from_file(path) -> str:
 AUTO_PROCESSES_POINTS = 2_000_000
 
 
-def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> tuple[Any, tuple[float, float, str]]:
+def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> tuple[Any, tuple[float, float, str], list]:
     """Run ``func`` with numba limited to ``numba_threads`` threads (the tasks themselves run in parallel).
 
     With one thread, the kernels run their sequential, GIL-free versions
     (:func:`patchcloud.core.single_threaded`): tasks on threads then compute
-    side by side.  Returns the result and when and where the task ran
-    (start and end, seconds since the epoch; host:process:thread).
+    side by side.  Returns the result, when and where the task ran
+    (start and end, seconds since the epoch; host:process:thread), and
+    when, within it, numba compiled kernels (:class:`~patchcloud.stream.engine.compiling.CompileClock`).
     """
     import numba
 
     t0 = time.time()
-    if numba_threads <= 1:
-        with single_threaded():
+    with CompileClock(this_thread=True) as clock:
+        if numba_threads <= 1:
+            with single_threaded():
+                out = func(*args, **kwargs)
+        else:
+            numba.set_num_threads(max(1, min(numba_threads, numba.config.NUMBA_NUM_THREADS)))
             out = func(*args, **kwargs)
-    else:
-        numba.set_num_threads(max(1, min(numba_threads, numba.config.NUMBA_NUM_THREADS)))
-        out = func(*args, **kwargs)
-    return out, (t0, time.time(), f"{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}")
+    return out, (t0, time.time(), f"{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}"), clock.intervals
 
 
 def _peak_rss_bytes() -> int:
@@ -143,6 +146,8 @@ class Runner:
         self.scheduler = resolve_scheduler(check_scheduler(scheduler or "auto"), points)
         #: Every task run: (label, start, end, host:process:thread), times in seconds since the epoch.
         self.tasks: list[tuple[str, float, float, str]] = []
+        #: When the tasks' numba compiled kernels, wherever they ran: (start, end), seconds since the epoch.
+        self.compile_intervals: list[tuple[float, float]] = []
         self.quiet = quiet
         self._client = None
         self.cluster = None
@@ -219,8 +224,9 @@ class Runner:
         results: list = [None] * len(calls)
         if self.client is None:
             for k, (args, kwargs) in enumerate(calls):
-                results[k], when = _call(func, self.numba_threads, args, kwargs)
+                results[k], when, compiling = _call(func, self.numba_threads, args, kwargs)
                 self.tasks.append((label, *when))
+                self.compile_intervals += compiling
                 bar.update()
                 if on_result is not None:
                     on_result(k, results[k])
@@ -236,8 +242,9 @@ class Runner:
             index = {f.key: k for k, f in enumerate(futures)}
             for f in as_completed(futures):
                 k = index[f.key]
-                results[k], when = f.result()
+                results[k], when, compiling = f.result()
                 self.tasks.append((label, *when))
+                self.compile_intervals += compiling
                 bar.update()
                 if on_result is not None:
                     on_result(k, results[k])

@@ -62,6 +62,7 @@ class CompressSummary:
     mean_error: float
     seconds: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
+    compile_seconds: float = 0.0  # numba compiling the kernels (a first run), not in seconds
     scheduler: str = "threads"
 
     def format(self) -> str:
@@ -74,7 +75,7 @@ class CompressSummary:
             f"{self.mean_error:.4f} m (before quantisation, which adds at most half the budget)",
             f"  size            {self.output_bytes:,} bytes, {8 * self.output_bytes / n:.2f} bits/point; input "
             f"{self.input_bytes:,} bytes ({self.input_bytes / max(self.output_bytes, 1):.1f}x larger)",
-            *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler),
+            *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
         ])
 
 
@@ -215,7 +216,7 @@ class CompressJob(Job):
             cells=counts["cells"], residual=counts["residual"], max_error=self.options.max_error,
             input_bytes=ctx.source.size, output_bytes=ctx.output.stat().st_size,
             mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=ctx.seconds,
-            peak_memory=ctx.peak_memory, scheduler=ctx.scheduler,
+            peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler,
         )
 
 

@@ -57,6 +57,7 @@ class DonSummary:
     histogram: list[int] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
+    compile_seconds: float = 0.0  # numba compiling the kernels (a first run), not in seconds
     scheduler: str = "threads"
     store: str = ""
     files: list = field(default_factory=list)  # (input, output, points) of each file of a catalog
@@ -88,7 +89,7 @@ class DonSummary:
                 f"  segments        {self.segments:,} (tolerance {p['tolerance']:g} m, {p['min_cluster']}"
                 f"{'' if mx is None else f'-{mx}'}{'+' if mx is None else ''} points)"
             )
-        lines += time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler)
+        lines += time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds)
         lines += file_lines(self.files)
         return "\n".join(lines)
 
@@ -174,7 +175,7 @@ class DonJob(Job):
             input=ctx.input_name, output=str(ctx.output), points=ctx.catalog.point_count, tiles=len(ctx.store.tiles),
             tile_size=ctx.store.grid.tile_size, parameters={k: self.params[k] for k in self.params if not k.endswith("_key")},
             defined=sum(i["defined"] for i in v), histogram=np.sum([i["hist"] for i in v], axis=0).astype(int).tolist() if v else [],
-            seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.scheduler, store=ctx.kept_store, files=ctx.files,
+            seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler, store=ctx.kept_store, files=ctx.files,
         )
 
 

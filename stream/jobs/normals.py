@@ -66,6 +66,7 @@ class NormalsSummary:
     parameters: dict
     seconds: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
+    compile_seconds: float = 0.0  # numba compiling the kernels (a first run), not in seconds
     scheduler: str = "threads"
     store: str = ""
     files: list = field(default_factory=list)  # (input, output, points) of each file of a catalog
@@ -82,7 +83,7 @@ class NormalsSummary:
             f"  normals by      quadric {m['quadric'] / n:.1%}, blended {m['blended'] / n:.1%}, k-NN fallback {m['knn'] / n:.1%}",
             f"  parameters      {self.parameters['criterion']} threshold {self.parameters['threshold']:.4g}, "
             f"d_min {self.parameters['d_min']:.3g} m, spacing {self.parameters['spacing']:.3g} m, orient {self.parameters['orient']}",
-            *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler),
+            *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
             *file_lines(self.files),
         ]
         return "\n".join(lines)
@@ -204,7 +205,7 @@ class NormalsJob(Job):
             tile_size=st.grid.tile_size,
             patches_by_kind={k.name.lower(): int(kinds[k]) for k in PatchKind},
             normals_by_method={m.name.lower(): int(methods[m]) for m in Method},
-            parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, scheduler=ctx.scheduler,
+            parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler,
             store=ctx.kept_store, files=ctx.files,
         )
 
