@@ -101,9 +101,9 @@ def test_points_past_the_header_count_before_a_waveform_record_are_still_refused
         open_source(path)
 
 
-def test_a_las_10_input_is_written_as_las_12_with_the_same_records(tmp_path):
-    """laspy writes LAS 1.2 to 1.4: a LAS 1.0 input's outputs are LAS 1.2 (formats 0 and 1 and the header are those of 1.0),
-    instead of the whole job running and then failing at the export."""
+def test_a_las_10_input_is_written_as_las_14_with_the_same_records(tmp_path):
+    """Outputs are LAS 1.4 (issue 18): a LAS 1.0 input's outputs are LAS 1.4 of the same point format (formats 0 and 1
+    are those of 1.0), with the legacy point count set, instead of the whole job running and then failing at the export."""
     from patchcloud.stream import compress, decompress
 
     path = tmp_path / "old.las"
@@ -115,7 +115,9 @@ def test_a_las_10_input_is_written_as_las_12_with_the_same_records(tmp_path):
     assert str(laspy.open(str(path)).header.version) == "1.0"
     normals(path, tmp_path / "out.las", quiet=True)
     back = laspy.read(str(tmp_path / "out.las"))
-    assert str(back.header.version) == "1.2" and np.array_equal(back.X, las.X) and np.array_equal(back.gps_time, las.gps_time)
+    assert str(back.header.version) == "1.4" and back.header.point_format.id == 1
+    assert np.array_equal(back.X, las.X) and np.array_equal(back.gps_time, las.gps_time)
+    assert struct.unpack_from("<I", (tmp_path / "out.las").read_bytes(), 107)[0] == 3000  # the legacy point count
     compress(path, tmp_path / "old.pcz", max_error=0.02, quiet=True)
     decompress(tmp_path / "old.pcz", tmp_path / "back.laz")
-    assert str(laspy.open(str(tmp_path / "back.laz")).header.version) == "1.2"
+    assert str(laspy.open(str(tmp_path / "back.laz")).header.version) == "1.4"

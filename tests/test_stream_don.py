@@ -160,13 +160,15 @@ def test_don_dims_and_undefined_points(tmp_path):
     las = laspy.read(tmp_path / "o.las")
     m = np.asarray(las["DoN"])
     lonely_row = np.argmax(las.z)
-    assert np.isnan(m[lonely_row]) and np.isnan(las["DoNX"][lonely_row])
+    undefined = [las[d][lonely_row] for d in ("DoN", "DoNX", "DoNY", "DoNZ")]
+    assert undefined == [0.0] * 4  # undefined: 0 in all four, the declared no-data value; no NaN in the file
+    assert not np.isnan(np.column_stack([las[d] for d in ("DoN", "DoNX", "DoNY", "DoNZ")])).any()
     others = np.delete(np.arange(len(m)), lonely_row)
-    assert np.nanmax(np.abs(m[others])) < 1e-6  # a plane: zero
+    assert np.max(np.abs(m[others])) < 1e-6  # a plane: zero
     assert s.defined == len(pts) - 1
     structs = [e for v in las.header.vlrs if hasattr(v, "extra_bytes_structs") for e in v.extra_bytes_structs]
     declared = {e.name.decode(): e.no_data for e in structs}
-    assert all(np.isnan(declared[d][0]) for d in ("DoN", "DoNX", "DoNY", "DoNZ"))  # NaN is the declared no-data value
+    assert all(declared[d][0] == 0.0 for d in ("DoN", "DoNX", "DoNY", "DoNZ"))
     g = segment(path, tmp_path / "g.las", r_small=0.5, r_large=1.5, threshold=0.1, tolerance=0.3, min_cluster=1,
                 tile_size=2.0, scheduler="synchronous", quiet=True)
     assert g.kept == 0 and g.segments == 0

@@ -48,6 +48,7 @@ def compress_command(paths, max_error, record_source, report, **run):
     if isinstance(summary, list):  # a catalog, file by file: each file's summary, then one report of them all
         for s in summary:
             options.finish_job(s, run.quiet, None, "report_compress")
+        options.write_summary_json(summary)
         if report is not None:
             options.finish_job(summary, True, report, "report_compress_catalog")
             if not run.quiet:
@@ -67,6 +68,7 @@ def compress_command(paths, max_error, record_source, report, **run):
 @options.max_memory
 @options.overwrite
 @options.quiet
+@options.summary_json
 @options.reports_errors
 def decompress_command(input, output, density, lod, bbox, seed, overwrite, quiet):
     """Points of INPUT (a .pcz) written to OUTPUT (LAS/LAZ): patch samples and the residual points.
@@ -78,5 +80,6 @@ def decompress_command(input, output, density, lod, bbox, seed, overwrite, quiet
     from patchcloud.stream import decompress
 
     summary = decompress(input, output, density=density, lod=lod, bbox=bbox or None, seed=seed, overwrite=overwrite)
+    options.write_summary_json(summary)
     if not quiet:
         click.echo(summary.format())

@@ -78,6 +78,7 @@ def _write_text(path: str, text: str) -> None:
 @click.option("--table", default=None, metavar="OUT.txt", help="Also write the table to this file.")
 @options.max_memory
 @options.quiet
+@options.summary_json
 @options.reports_errors
 def don_scales_command(input, radii, small, large, classes_from, classes, sample, mode, min_class_points, min_defined, max_points, seed,
                        plot, no_plot, table, quiet):
@@ -115,6 +116,7 @@ def don_scales_command(input, radii, small, large, classes_from, classes, sample
         mode=mode, min_class_points=min_class_points, min_defined=min_defined, max_points=max_points, seed=seed, progress=say,
     )
     text = result.format()
+    options.write_summary_json(result)
     if table is not None:
         _write_text(table, text)
     if plot_path is not None:

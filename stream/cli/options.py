@@ -12,7 +12,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options"]
+__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="METRES",
@@ -77,6 +77,85 @@ report_option = click.option(
 )
 
 
+#: Where click's context keeps the --summary-json path of the running command.
+SUMMARY_JSON_KEY = "patchcloud.summary_json"
+
+
+def _summary_json_path(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
+    """--summary-json's callback: check its directory exists before anything runs, and keep the path for the end."""
+    if value is None:
+        return
+    from pathlib import Path
+
+    if Path(value).is_dir() or not Path(value).resolve().parent.is_dir():
+        raise click.BadParameter(f"{value}: is a directory, or its directory does not exist")
+    ctx.meta[SUMMARY_JSON_KEY] = value
+
+
+summary_json = click.option(
+    "--summary-json", default=None, metavar="PATH", type=click.Path(dir_okay=False), expose_value=False,
+    callback=_summary_json_path,
+    help="Also write the summary's figures as one JSON object there (for batch pipelines; lengths in the file's "
+    "horizontal unit, named by 'units'); replaced when it exists, written under a temporary name and renamed.",
+)
+
+
+def summary_dict(summary) -> dict | list:
+    """A summary (a dataclass, or a list of them) as JSON values: numpy numbers as numbers, NaN and infinities as null.
+
+    >>> from dataclasses import dataclass
+    >>> @dataclass
+    ... class S:
+    ...     points: int
+    ...     ratio: float
+    >>> summary_dict(S(3, float("nan")))
+    {'points': 3, 'ratio': None}
+    """
+    import dataclasses
+    import math
+
+    import numpy as np
+
+    def clean(v):
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return {f.name: clean(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, dict):
+            return {str(k): clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if isinstance(v, np.ndarray):
+            return clean(v.tolist())
+        if isinstance(v, np.generic):
+            return clean(v.item())
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, (str, int, float, bool)) or v is None:
+            return v
+        return str(v)
+
+    return clean(summary)
+
+
+def write_summary_json(summary) -> None:
+    """Write ``summary`` (:func:`summary_dict`) where the running command's --summary-json says, if it says: under a
+    temporary name, then renamed."""
+    import json
+
+    ctx = click.get_current_context(silent=True)
+    path = None if ctx is None else ctx.find_root().meta.get(SUMMARY_JSON_KEY) or ctx.meta.get(SUMMARY_JSON_KEY)
+    if path is None:
+        return
+    tmp = f"{path}.partial"
+    try:
+        with open(tmp, "w") as f:
+            json.dump(summary_dict(summary), f, indent=2, sort_keys=True, allow_nan=False)
+            f.write("\n")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
 #: INPUT OUTPUT, or INPUT... with --out-dir (a catalog): see :func:`input_and_output`.
 paths_argument = click.argument("paths", nargs=-1, required=True, metavar="INPUT... [OUTPUT]", type=click.Path())
 
@@ -126,7 +205,9 @@ def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:
 
 def finish_job(summary, quiet: bool, report: str | None, write_report: str) -> None:
     """After a job: print its summary (unless ``quiet``) and write its ``--report`` with ``write_report(summary, path)``,
-    the name of a function of :mod:`patchcloud.stream.views.report` (imported only then: matplotlib is slow to import)."""
+    the name of a function of :mod:`patchcloud.stream.views.report` (imported only then: matplotlib is slow to import);
+    and its --summary-json (:func:`write_summary_json`)."""
+    write_summary_json(summary)
     if not quiet:
         click.echo(summary.format())
     if report is not None:
@@ -158,9 +239,9 @@ def run_options(values: dict):
 def job_options(func):
     """The options every out-of-core job shares, named as the fields of RunOptions (a command takes them as ``**run``:
     :func:`run_options`): --tile-size, --scheduler, --scheduler-file, --workers, --store, --keep-store, --in-memory, --overwrite,
-    -q, --profile; and --max-memory (which sets the budget, :mod:`patchcloud.stream.io.budget`)."""
+    -q, --profile, --summary-json; and --max-memory (which sets the budget, :mod:`patchcloud.stream.io.budget`)."""
     for option in reversed([tile_size, scheduler, scheduler_file, workers, store, keep_store, in_memory, overwrite, quiet, profile,
-                            max_memory]):
+                            summary_json, max_memory]):
         func = option(func)
     return func
 

@@ -37,6 +37,7 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
 @options.catalog_options
 @options.max_memory
 @options.quiet
+@options.summary_json
 @options.reports_errors
 def render_command(paths, color, view, bbox, width, shade, value_range, fill, heights, out_dir, assume_crs, quiet):
     """A PNG picture of INPUT (LAS/LAZ/COPC, any size) in OUTPUT.
@@ -77,11 +78,14 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
             check_modes(sources, [color], shade)
             check_not_input(output, [s.path for s in sources])
         directory.mkdir(exist_ok=True)
+    summaries = []
     for input, output in jobs:
         s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
                    heights=heights, assume_crs=assume_crs)
+        summaries.append(s)
         if not quiet:
             click.echo(s.format())
+    options.write_summary_json(summaries[0] if out_dir is None else summaries)
 
 
 @click.command("render-tiles")
@@ -94,6 +98,7 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
               "compress. Default: the last of them any tile reached.")
 @options.max_memory
 @options.quiet
+@options.summary_json
 @options.reports_errors
 def render_tiles_command(store, output, by, step, quiet):
     """A PNG of the tile grid of STORE from above: which tiles are done, partly done or pending, and points per tile.
@@ -104,5 +109,6 @@ def render_tiles_command(store, output, by, step, quiet):
     from patchcloud.stream.views.render_tiles import render_tiles
 
     s = render_tiles(store, output, by=by, step=step)
+    options.write_summary_json(s)
     if not quiet:
         click.echo(s.format())

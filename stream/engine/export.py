@@ -206,7 +206,7 @@ def complete_outputs(store: Store, outputs, key: str | None = None) -> list[bool
 
 def export_columns(
     store: Store, outputs, columns: list[Column], dims, runner: Runner | None = None, overwrite: bool = False,
-    quiet: bool = False,
+    quiet: bool = False, provenance: laspy.VLR | None = None,
 ) -> None:
     """Write every file of the store's catalog again, plus ``columns`` as dimensions ``dims``: one output per file.
 
@@ -220,7 +220,8 @@ def export_columns(
     workers must reach the outputs' directory), each renamed to its output
     when its last part is written, and recorded in the store; outputs a
     previous run on this store completed (:func:`complete_outputs`) are
-    kept as they are.
+    kept as they are.  ``provenance``: a VLR every output carries, saying
+    what made it (:func:`patchcloud.stream.io.las_records.provenance_vlr`).
     """
     runner = runner or Runner("synchronous", quiet=quiet)
     cat = store.catalog
@@ -233,7 +234,7 @@ def export_columns(
     if all(done):
         return
     compressed = [is_laz_name(o) for o in outs]
-    headers = [las_output.prepare_header(output_header(src, dims), c) for src, c in zip(cat.sources, compressed)]
+    headers = [las_output.prepare_header(output_header(src, dims, provenance), c) for src, c in zip(cat.sources, compressed)]
     parts = catalog_parts(cat, int(store.attrs["part_points"]))
     first_part = np.searchsorted([f for f, _, _ in parts], np.arange(len(cat.sources) + 1))  # a file's parts are consecutive
     laz_parallel = runner.numba_threads > 1

@@ -60,6 +60,7 @@ from patchcloud.stream.engine.export import Column, complete_outputs, export_col
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner, check_scheduler
 from patchcloud.stream.engine.tasks import map_tiles
+from patchcloud.stream.io.las_records import provenance_vlr
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import LasSource, check_las_output, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
@@ -330,6 +331,8 @@ class Job:
     write_step = "export"
     #: Whether the job takes a catalog of several files (``RunOptions.out_dir``).
     catalogs = True
+    #: The command's name, as the outputs' provenance VLR states it.
+    name = ""
 
     def steps(self) -> Sequence[tuple[str, Callable[[JobContext], None]]]:
         """The job's steps after ``tile``, in order: (name in the summary's times, function of the context)."""
@@ -342,7 +345,12 @@ class Job:
     def write(self, ctx: JobContext) -> None:
         """Write the output: by default the input's records plus :meth:`columns`, under a temporary name."""
         columns, dims = self.columns(ctx)
-        export_columns(ctx.store, ctx.outputs, columns, dims, runner=ctx.runner, overwrite=ctx.run.overwrite, quiet=ctx.run.quiet)
+        export_columns(ctx.store, ctx.outputs, columns, dims, runner=ctx.runner, overwrite=ctx.run.overwrite, quiet=ctx.run.quiet,
+                       provenance=provenance_vlr(self.name, self.parameters()))
+
+    def parameters(self) -> dict:
+        """The parameters the outputs' provenance VLR states: the job's resolved ``params`` (none by default)."""
+        return dict(getattr(self, "params", None) or {})
 
     def summarise(self, ctx: JobContext):
         """The job's summary (a dataclass with ``format()``), made after the output is written."""

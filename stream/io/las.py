@@ -19,11 +19,14 @@ from pathlib import Path
 import laspy
 import lazrs
 import numpy as np
+from laspy.vlrs.known import ExtraBytesStruct
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
+from .las_records import RawRecord, as_vlr, file_records, is_extra_bytes, kept, software_version
+
 __all__ = [
-    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
+    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "with_writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "ascii_text", "ascii_vlr", "ascii_texts", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR",
 ]
@@ -526,37 +529,76 @@ def ascii_texts(header: laspy.LasHeader) -> laspy.LasHeader:
     return header
 
 
-def output_header(src: LasSource, dims) -> laspy.LasHeader:
-    """The input's header (point format, version, scales, offsets, VLRs and EVLRs, CRS) with ``dims`` added.
+#: The LAS version of every output: 1.4, whose ExtraBytes VLR every reader (PDAL's without options) takes; point
+#: formats 0 to 5 stay 0 to 5 (LAS 1.4 defines them all), so every record keeps its bytes.
+OUTPUT_VERSION = "1.4"
 
-    COPC records are left out (:func:`without_copc`); a VLR's user id or
-    description that is not ASCII text (as LAS requires) has its other
-    characters written as '?'.
+
+def output_header(src: LasSource, dims, provenance: laspy.VLR | None = None) -> laspy.LasHeader:
+    """The header of an output of the file ``src``: its point format, scales, offsets, VLRs and EVLRs (the CRS among
+    them) with ``dims`` added, as LAS 1.4 (:func:`assemble_header`).
 
     ``dims``: (name, numpy type, description[, no-data value]) of every
     dimension to add (each job declares its own, e.g.
-    :data:`patchcloud.stream.jobs.normals.NORMALS_DIMS`).
+    :data:`patchcloud.stream.jobs.normals.NORMALS_DIMS`).  ``provenance``:
+    a VLR saying what made the file
+    (:func:`patchcloud.stream.io.las_records.provenance_vlr`), appended.
 
     A dimension of the same name and type already in the input (a file
     that went through ``patchcloud normals`` before) is reused; one of
     another type is an error.
     """
     with laspy.open(src.path) as reader:
-        header = with_writable_version(without_copc(reader.header))
-    ascii_texts(header)
+        header = reader.header
+    vlrs, evlrs = file_records(src.path)
+    return assemble_header(header, vlrs, evlrs, dims, provenance, where=src.path)
+
+
+def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[RawRecord], dims, provenance: laspy.VLR | None = None,
+                    where: str = "") -> laspy.LasHeader:
+    """``header`` (laspy's parse of an input, changed in place and returned) made the header of an output.
+
+    - version :data:`OUTPUT_VERSION`, the same point format;
+    - ``dims`` added (:func:`output_header`), the input's undescribed bytes
+      last (:func:`undescribed_last`);
+    - the input's VLRs and EVLRs (``vlrs``, ``evlrs``: their bytes) copied as
+      they are, but LASzip's, COPC's and the ExtraBytes VLR
+      (:mod:`patchcloud.stream.io.las_records`); the ExtraBytes VLR holds the
+      input's descriptors first, each as its bytes (their min and max set
+      to the output's points when they declare them), then those of
+      ``dims``, each with its no-data value (the options' no-data bit set);
+    - generating software: ``patchcloud VERSION``; ``provenance`` appended.
+    """
+    header.version = laspy.header.Version.from_str(OUTPUT_VERSION)
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
     for name, dtype, desc, *no_data in dims:
         if name in existing:
             if np.dtype(existing[name].dtype) != np.dtype(dtype):
                 raise PatchcloudValueError(
-                    f"{src.path}: already has a dimension {name} of type {existing[name].dtype}, not {np.dtype(dtype)}"
+                    f"{where}: already has a dimension {name} of type {existing[name].dtype}, not {np.dtype(dtype)}"
                 )
             continue
         new.append(laspy.ExtraBytesParams(name=name, type=dtype, description=desc, no_data=no_data or None))
     if new:
         header.add_extra_dims(new)
-    return undescribed_last(header)
+    # laspy's setter rebuilds the ExtraBytes VLR from the point format (appended): it is set right after
+    header.vlrs = [as_vlr(r) for r in vlrs if kept(r)] + ([provenance] if provenance is not None else [])
+    undescribed_last(header)
+    eb = header.vlrs.get("ExtraBytesVlr")
+    inputs = next((i for i, r in enumerate(vlrs) if is_extra_bytes(r)), None)
+    if eb and inputs is not None:  # the input's descriptors as they were, the VLR where the input's was
+        structs, data = eb[0].extra_bytes_structs, vlrs[inputs].data
+        for i in range(min(len(data) // 192, len(structs))):
+            raw = ExtraBytesStruct.from_buffer_copy(data[192 * i : 192 * (i + 1)])
+            if raw.format_name() == structs[i].format_name() and raw.data_type == structs[i].data_type:
+                structs[i] = raw
+        header.vlrs.remove(eb[0])
+        header.vlrs.insert(sum(kept(r) for r in vlrs[:inputs]), eb[0])
+    header.evlrs = laspy.vlrs.vlrlist.VLRList([as_vlr(r) for r in evlrs if kept(r)])
+    header.system_identifier = ascii_text(header.system_identifier)
+    header.generating_software = f"patchcloud {software_version()}"
+    return header
 
 
 #: The name and description laspy gives the bytes of a record that no extra-bytes VLR entry describes.

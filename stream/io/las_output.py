@@ -34,7 +34,7 @@ import numpy as np
 from laspy.vlrs.known import LasZipVlr
 
 __all__ = ["LAZ_CHUNK", "PointStats", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "finish",
-           "fragments_dir", "remove_partial"]
+           "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
 LAZ_CHUNK = 50_000
@@ -165,6 +165,15 @@ def _merge(header: laspy.LasHeader, parts: list[PointStats]) -> laspy.LasHeader:
     return h
 
 
+def restate(written: laspy.LasHeader, stats: list[PointStats]) -> laspy.LasHeader:
+    """The header laspy's writer wrote (``written``, after its close) with the statistics merged from ``stats`` of
+    every point written (:func:`point_stats`): what is written over it, the file's layout kept."""
+    h = _merge(written, stats)
+    for name in ("offset_to_point_data", "start_of_first_evlr", "number_of_evlrs", "start_of_waveform_data_packet_record"):
+        setattr(h, name, getattr(written, name))
+    return h
+
+
 def fragments_dir(tmp: str | os.PathLike) -> Path:
     """Where the LAZ parts of the file being written at ``tmp`` wait to be stitched."""
     return Path(str(tmp) + ".parts")
@@ -248,6 +257,24 @@ def _is_waveform_record(v) -> bool:
     return v.user_id == "LASF_Spec" and v.record_id == 65535
 
 
+def legacy_counts(f, h: laspy.LasHeader) -> None:
+    """Write LAS 1.4's legacy point count and counts by return into the header at the start of the open file ``f``
+    (laspy writes them 0): set for point formats 0 to 5 with at most 2**32 - 1 points, as LAS 1.4 asks, so that readers
+    of LAS 1.2 fields find the counts too; 0 otherwise."""
+    if h.version.minor < 4:
+        return
+    n, by = int(h.point_count), [int(v) for v in h.number_of_points_by_return]
+    ok = h.point_format.id < 6 and n <= 0xFFFFFFFF and not any(by[5:])
+    at = f.tell()
+    f.seek(LEGACY_COUNT_AT)
+    f.write(struct.pack("<6I", *([n] + by[:5] if ok else [0] * 6)))
+    f.seek(at)
+
+
+#: Byte of a LAS header where the legacy point count is, followed by the 5 legacy counts by return.
+LEGACY_COUNT_AT = 107
+
+
 def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: list[PointStats], tables: list | None = None,
            source: str | None = None) -> None:
     """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments in part order and the chunk table;
@@ -255,13 +282,15 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
 
     ``tables``: each LAZ part's chunk-table entries, in part order.
     ``source``: the input file, whose internal waveform data packet record
-    (LAS 1.3: from the header's offset to the end of the file; LAS 1.4: an
-    EVLR, kept with the others) follows the points of the output too, the
-    header pointing at it; the wave packet descriptors of the points are
-    relative to its start, so they stay true.
+    follows the points of the output too, the header pointing at it: a
+    LAS 1.4 input's is one of its EVLRs, kept with the others; a LAS 1.3
+    input's (from the header's offset to the end of the file, a record of
+    the layout of an EVLR) becomes the output's first EVLR.  The wave
+    packet descriptors of the points are relative to its start, so they
+    stay true.
     """
     h = _merge(header, stats)
-    evlrs = header.evlrs if header.version.minor >= 4 and header.evlrs else None
+    evlrs = list(header.evlrs) if header.version.minor >= 4 and header.evlrs else []
     waves = h.global_encoding.waveform_data_packets_internal
     h.start_of_waveform_data_packet_record = 0
     with open(tmp, "r+b") as f:
@@ -279,22 +308,27 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
             f.truncate()
             f.seek(start)
             f.write(struct.pack("<q", table_at))
-        if waves and header.version.minor < 4 and source is not None:
-            f.seek(0, os.SEEK_END)
-            f.flush()
-            h.start_of_waveform_data_packet_record = f.tell()
+        f.seek(0, os.SEEK_END)
+        first, count = f.tell(), 0
+        if waves and source is not None:
             with open(source, "rb") as src:
-                _append(src, f, laspy.LasHeader.read_from(src).start_of_waveform_data_packet_record)
-        if evlrs:
-            f.seek(0, os.SEEK_END)
-            h.start_of_first_evlr, h.number_of_evlrs = f.tell(), len(evlrs)
-            for v in evlrs:
-                if waves and _is_waveform_record(v) and not h.start_of_waveform_data_packet_record:
+                sh = laspy.LasHeader.read_from(src)
+                if sh.version.minor < 4 and sh.start_of_waveform_data_packet_record:
+                    f.flush()
                     h.start_of_waveform_data_packet_record = f.tell()
-                type(evlrs)([v]).write_to(f, as_extended=True)
+                    _append(src, f, sh.start_of_waveform_data_packet_record)
+                    count += 1
+        for v in evlrs:
+            if waves and _is_waveform_record(v) and not h.start_of_waveform_data_packet_record:
+                h.start_of_waveform_data_packet_record = f.tell()
+            type(header.evlrs)([v]).write_to(f, as_extended=True)
+            count += 1
+        if h.version.minor >= 4:
+            h.start_of_first_evlr, h.number_of_evlrs = (first, count) if count else (0, 0)
         h.global_encoding.waveform_data_packets_internal = bool(h.start_of_waveform_data_packet_record)
         f.seek(0)
         h.write_to(f, ensure_same_size=True)
+        legacy_counts(f, h)
     if h.are_points_compressed:
         shutil.rmtree(fragments_dir(tmp), ignore_errors=True)
 

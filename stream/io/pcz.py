@@ -298,6 +298,13 @@ class PczFile:
         lo, hi = np.asarray(lo, float), np.asarray(hi, float)
         return np.flatnonzero(np.all((a <= hi) & (a + T >= lo), axis=1))
 
+    def evlr_bytes(self, count: int) -> bytes:
+        """The bytes of the input's ``count`` extended VLRs (LAS 1.4), as they were; empty when it had none."""
+        raw = bytes(self._read("evlrs")) if count else b""
+        if count * 60 > len(raw):
+            raise PatchcloudIOError(f"{self.path}: the input's header says {count:,} extended VLRs, the file holds {len(raw):,} bytes of them")
+        return raw
+
     def evlrs(self, count: int) -> "VLRList":
         """The input's ``count`` extended VLRs (LAS 1.4), parsed; an empty list when it had none."""
         raw = bytes(self._read("evlrs")) if count else b""

@@ -11,6 +11,7 @@ and no scheduler: one pass over the file.
 from __future__ import annotations
 
 import os
+import struct
 import time
 from dataclasses import dataclass
 
@@ -21,12 +22,12 @@ from patchcloud.core import MASK_SIDE, PatchcloudIOError, PatchcloudValueError, 
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.store import tile_name
-from patchcloud.stream.io.las import (ascii_texts, ascii_vlr, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name,
-                                      laz_backend, undescribed_last, with_writable_version)
-from patchcloud.stream.io.las_output import copy_records
+from patchcloud.stream.io.las import assemble_header, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend
+from patchcloud.stream.io.las_output import copy_records, legacy_counts, point_stats, restate
+from patchcloud.stream.io.las_records import parse_records, provenance_vlr
 from patchcloud.stream.engine.background import stops_what_it_starts
 
-__all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile"]
+__all__ = ["decompress", "DecompressSummary", "DECOMPRESS_DIMS", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile"]
 
 
 @dataclass
@@ -44,6 +45,8 @@ class DecompressSummary:
                 f"{self.reconstructed:,} sampled from patches, {self.residual:,} residual\n  time            {self.seconds:.1f} s")
 
 
+#: The dimension ``decompress`` adds: every point has it (its no-data value, 255, is never written).
+DECOMPRESS_DIMS = (("Reconstructed", np.uint8, "1 from a patch, 0 residual", 255),)
 #: Most points sampled at once: a tile's cells are sampled in batches of about this many (memory bounded whatever the
 #: density; a tile within one batch is sampled as it always was).
 SAMPLE_BATCH = 8_000_000
@@ -148,15 +151,16 @@ def decompress(
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
-        header = with_writable_version(f.las_header())
-        evlrs = f.evlrs(header.number_of_evlrs if header.version.minor >= 4 else 0)
-        header.vlrs = [v for v in header.vlrs if v.user_id not in ("laszip encoded", "copc")]  # LAS/LAZ out, not COPC
-        ascii_texts(header)
-        if evlrs:
-            evlrs = type(evlrs)([ascii_vlr(v) for v in evlrs if v.user_id != "copc"])
+        header = f.las_header()
+        raw = f.header_bytes
+        size, _, count = struct.unpack_from("<HII", raw, 94)
+        vlrs = parse_records(raw, size, count, False, f"{input}: the input's header")
+        n_evlrs = header.number_of_evlrs if header.version.minor >= 4 else 0
+        evlrs = parse_records(f.evlr_bytes(n_evlrs), 0, n_evlrs, True, f"{input}: the input's EVLRs")
         kept = header.point_format.dtype()  # the input's records, as the residual blocks hold them
-        header.add_extra_dims([laspy.ExtraBytesParams(name="Reconstructed", type=np.uint8, description="1 from a patch, 0 residual")])
-        undescribed_last(header)
+        parameters = dict(density=density, lod=lod, bbox=None if box is None else box.tolist(), seed=seed)
+        assemble_header(header, vlrs, evlrs, DECOMPRESS_DIMS, provenance_vlr("decompress", parameters), where=str(input))
+        evlrs = header.evlrs
         g = f.attrs["grid"]
         origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
         if not (np.array_equal(scale, header.scales) and np.array_equal(offset, header.offsets)):
@@ -176,6 +180,7 @@ def decompress(
                     f"times the {have:,} the file stands for; give a lower density"
                 )
         written = [0, 0]  # sampled, residual
+        stats = []  # each written batch's header statistics (laspy's writer records the extra bytes' first values only)
 
         def write(writer, rec, is_res: bool) -> None:
             if box is not None and len(rec):
@@ -184,6 +189,7 @@ def decompress(
                 rec = laspy.PackedPointRecord(rec.array[inside], header.point_format)
             if len(rec):
                 writer.write_points(rec)
+                stats.append(point_stats(header, rec))
             written[int(is_res)] += len(rec)
 
         with atomic_output(output, overwrite) as out:
@@ -224,5 +230,9 @@ def decompress(
                     write(writer, resid, True)
                 if evlrs:
                     writer.write_evlrs(evlrs)
+            h = restate(writer.header, stats)
+            out.seek(0)
+            h.write_to(out, ensure_same_size=True)
+            legacy_counts(out, h)
     return DecompressSummary(input=str(input), output=str(output), reconstructed=written[0], residual=written[1],
                              seconds=time.perf_counter() - t0)

@@ -29,15 +29,17 @@ from patchcloud.stream.io.las import LasSource
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import don_tiles
 
-__all__ = ["don", "DonJob", "DonSummary", "DON_DIMS", "default_viewpoint_of", "cloud_density", "magnitude_and_vector"]
+__all__ = ["don", "DonJob", "DonSummary", "DON_DIMS", "default_viewpoint_of", "cloud_density", "magnitude_and_vector", "DON_NO_DATA"]
 
-#: Dimensions ``patchcloud don`` adds (NaN where the DoN is undefined).
-#: The extra-bytes VLR declares NaN as their no-data value.
+#: The value the DoN dimensions hold where the DoN is undefined, and their descriptors' no-data value: 0 (no NaN in
+#: the file, so PDAL's statistics run; PDAL does not apply no-data values).
+DON_NO_DATA = 0.0
+#: Dimensions ``patchcloud don`` adds: name, numpy type, description, no-data value (:data:`DON_NO_DATA`).
 DON_DIMS = (
-    ("DoN", np.float32, "DoN magnitude |n_s - n_l|/2", np.nan),
-    ("DoNX", np.float32, "DoN vector x", np.nan),
-    ("DoNY", np.float32, "DoN vector y", np.nan),
-    ("DoNZ", np.float32, "DoN vector z", np.nan),
+    ("DoN", np.float32, "DoN |n_s - n_l|/2, 0 none", DON_NO_DATA),
+    ("DoNX", np.float32, "DoN vector x, 0 none", DON_NO_DATA),
+    ("DoNY", np.float32, "DoN vector y, 0 none", DON_NO_DATA),
+    ("DoNZ", np.float32, "DoN vector z, 0 none", DON_NO_DATA),
 )
 
 
@@ -119,12 +121,21 @@ def cloud_density(st: Store, edge: float) -> float:
 
 
 def magnitude_and_vector(store: Store, t: int, v: np.ndarray) -> np.ndarray:
-    """(n, 4): the DoN vectors' length, then the vectors (what the output's DoN, DoNX/Y/Z hold)."""
-    return np.column_stack([np.sqrt(np.einsum("ij,ij->i", v, v)), v])
+    """(n, 4): the DoN vectors' length, then the vectors (what the output's DoN, DoNX/Y/Z hold); :data:`DON_NO_DATA`
+    in all four where the DoN is undefined (NaN in the store).
+
+    >>> magnitude_and_vector(None, 0, np.array([[0.0, 0.6, 0.8], [np.nan, np.nan, np.nan]])).tolist()
+    [[1.0, 0.0, 0.6, 0.8], [0.0, 0.0, 0.0, 0.0]]
+    """
+    out = np.column_stack([np.sqrt(np.einsum("ij,ij->i", v, v)), v])
+    out[~np.isfinite(out).all(axis=1)] = DON_NO_DATA
+    return out
 
 
 class DonJob(Job):
     """The steps of ``don`` on the scaffold; :class:`patchcloud.stream.jobs.segment.SegmentJob` adds two."""
+
+    name = "don"
 
     def __init__(self, options: DonOptions) -> None:
         self.options = options
@@ -188,8 +199,9 @@ def don(
     ``output`` is the input (every point once, in input order, every
     original dimension unchanged) plus :data:`DON_DIMS`: ``DoN``
     (magnitude, in [0, 1]) and ``DoNX``, ``DoNY``, ``DoNZ`` (the vector
-    ``(n_s - n_l) / 2``), float32; NaN where a normal is undefined (fewer
-    than ``min_points`` points in a ball, or collinear ones).
+    ``(n_s - n_l) / 2``), float32; 0 in all four where a normal is
+    undefined (fewer than ``min_points`` points in a ball, or collinear
+    ones), the descriptors' no-data value (:data:`DON_NO_DATA`).
 
     Parameters
     ----------

@@ -33,22 +33,25 @@ from patchcloud.stream.jobs.seams import orient_tiles
 
 __all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "PRINCIPAL_DIMS", "resolve_parameters", "global_patch_ids"]
 
-#: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description.
+#: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description, no-data value.  Every point has a
+#: normal, curvature, method and patch: their no-data values are ones no point holds (NaN is never written; NormalMethod
+#: 0 means none, see :class:`patchcloud.core.Method`).
 NORMALS_DIMS = (
-    ("NormalX", np.float32, "unit normal x"),
-    ("NormalY", np.float32, "unit normal y"),
-    ("NormalZ", np.float32, "unit normal z"),
-    ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)"),
-    ("NormalMethod", np.uint8, Method.describe()),
-    ("PatchId", np.uint32, "patchcloud patch id"),
+    ("NormalX", np.float32, "unit normal x", np.nan),
+    ("NormalY", np.float32, "unit normal y", np.nan),
+    ("NormalZ", np.float32, "unit normal z", np.nan),
+    ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)", np.nan),
+    ("NormalMethod", np.uint8, Method.describe(), 0),
+    ("PatchId", np.uint32, "patchcloud patch id", np.iinfo(np.uint32).max),
 )
-#: What ``principal_curvatures`` adds (1/metre, signed w.r.t. the oriented normal; 0 and (0, 0, 0) where the point has none).
+#: What ``principal_curvatures`` adds (1/unit of the file, signed w.r.t. the oriented normal; 0 and (0, 0, 0) where the
+#: point has none, their no-data value).
 PRINCIPAL_DIMS = (
-    ("PrincipalCurvature1", np.float32, "k1>=k2 1/m +convex to normal"),
-    ("PrincipalCurvature2", np.float32, "k2<=k1 1/m +convex to normal"),
-    ("PrincipalDirectionX", np.float32, "unit direction of k1, x"),
-    ("PrincipalDirectionY", np.float32, "unit direction of k1, y"),
-    ("PrincipalDirectionZ", np.float32, "unit direction of k1, z"),
+    ("PrincipalCurvature1", np.float32, "k1>=k2 1/unit +convex, 0 none", 0.0),
+    ("PrincipalCurvature2", np.float32, "k2<=k1 1/unit +convex, 0 none", 0.0),
+    ("PrincipalDirectionX", np.float32, "unit direction of k1 x, 0 none", 0.0),
+    ("PrincipalDirectionY", np.float32, "unit direction of k1 y, 0 none", 0.0),
+    ("PrincipalDirectionZ", np.float32, "unit direction of k1 z, 0 none", 0.0),
 )
 
 
@@ -131,6 +134,8 @@ def global_patch_ids(store: Store, t: int, patch: np.ndarray) -> np.ndarray:
 
 class NormalsJob(Job):
     """The steps of ``normals`` on the scaffold (see :mod:`patchcloud.stream.engine.job`)."""
+
+    name = "normals"
 
     def __init__(self, options: NormalsOptions, principal_curvatures: bool = False) -> None:
         self.options = options

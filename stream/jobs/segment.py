@@ -28,7 +28,7 @@ from patchcloud.stream.jobs.don import DON_DIMS, DonJob, DonSummary
 __all__ = ["segment", "SegmentJob", "SEGMENT_DIMS", "segment_of"]
 
 #: Dimensions ``patchcloud segment`` adds: the DoN and PDAL's cluster id (0 = no segment).
-SEGMENT_DIMS = DON_DIMS + (("ClusterID", np.uint64, "DoN segment id, 0 = none"),)
+SEGMENT_DIMS = DON_DIMS + (("ClusterID", np.uint64, "DoN segment id, 0 = none", 0),)
 
 
 def segment_of(store: Store, t: int, comp: np.ndarray) -> np.ndarray:
@@ -40,6 +40,7 @@ class SegmentJob(DonJob):
     """``don``'s steps with a threshold, then cluster and merge."""
 
     options: SegmentOptions
+    name = "segment"
 
     def __init__(self, options: SegmentOptions) -> None:
         super().__init__(options)

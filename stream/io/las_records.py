@@ -1,0 +1,143 @@
+"""The VLRs and EVLRs of a LAS file as raw bytes, and the records of the files patchcloud writes.
+
+laspy parses the records it knows (the GeoTIFF keys among them) and writes
+them again from what it parsed: the GeoKeyDirectory's key count, for one,
+comes back changed (a directory of 21 keys padded to 22 slots is written as
+22 keys, and PDAL then fails to make its SRS).  The outputs' records are
+therefore taken from the input's bytes: every VLR and EVLR is copied as
+it was (its record data byte for byte), except those the output must
+change:
+
+- the LASzip VLR (the output's own, for LAZ; none for LAS);
+- the ExtraBytes VLR, which gains the new dimensions after the input's
+  descriptors (a second ExtraBytes VLR, which readers ignore, is dropped:
+  its descriptors would describe the wrong bytes);
+- COPC's info VLR and hierarchy EVLR (user id ``copc``), dropped: the
+  outputs are LAS/LAZ, not COPC.
+
+A record of ``patchcloud`` (:func:`provenance_vlr`) says what made the file.
+
+>>> r = RawRecord(b"LASF_Projection", 34735, b"GeoTiff GeoKeyDirectoryTag", b"\\x01\\x00")
+>>> r.name, kept(r)
+('LASF_Projection', True)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from dataclasses import dataclass
+
+import laspy
+
+from patchcloud.core import PatchcloudIOError
+
+__all__ = ["RawRecord", "parse_records", "file_records", "kept", "is_extra_bytes", "as_vlr", "provenance_vlr", "PROVENANCE_USER_ID",
+           "software_version"]
+
+#: The user id and record id of the record saying what made a file (JSON: software, version, job, parameters).
+PROVENANCE_USER_ID, PROVENANCE_RECORD_ID = "patchcloud", 1
+
+
+@dataclass(frozen=True)
+class RawRecord:
+    """One VLR or EVLR as its bytes: user id and description as stored (NUL-padded), record id, record data."""
+
+    user_id: bytes
+    record_id: int
+    description: bytes
+    data: bytes
+
+    @property
+    def name(self) -> str:
+        """The user id as text (up to its first NUL)."""
+        return self.user_id.split(b"\0", 1)[0].decode("ascii", "replace")
+
+
+def parse_records(raw: bytes, at: int, count: int, extended: bool, where: str = "") -> list[RawRecord]:
+    """``count`` records from byte ``at`` of ``raw``: VLRs (54-byte headers) or, ``extended``, EVLRs (60 bytes).
+
+    Raises
+    ------
+    PatchcloudIOError
+        A record runs past the end of ``raw`` (``where`` names the file).
+    """
+    out = []
+    head = 60 if extended else 54
+    for i in range(count):
+        if at + head > len(raw):
+            raise PatchcloudIOError(f"{where}: {'E' if extended else ''}VLR {i + 1} of {count:,} runs past its bytes")
+        user_id, record_id = raw[at + 2 : at + 18], struct.unpack_from("<H", raw, at + 18)[0]
+        length = struct.unpack_from("<Q" if extended else "<H", raw, at + 20)[0]
+        desc_at = at + (28 if extended else 22)
+        end = at + head + length
+        if end > len(raw):
+            raise PatchcloudIOError(f"{where}: {'E' if extended else ''}VLR {i + 1} of {count:,} runs past its bytes")
+        out.append(RawRecord(bytes(user_id), int(record_id), bytes(raw[desc_at : desc_at + 32]), bytes(raw[at + head : end])))
+        at = end
+    return out
+
+
+def file_records(path: str | os.PathLike) -> tuple[list[RawRecord], list[RawRecord]]:
+    """The VLRs and EVLRs of the LAS/LAZ file ``path`` (already checked by
+    :func:`patchcloud.stream.io.las.open_source`), as their bytes."""
+    with open(path, "rb") as f:
+        head = f.read(375)
+        header_size, offset, count = struct.unpack_from("<HII", head, 94)
+        f.seek(0)
+        vlrs = parse_records(f.read(offset), header_size, count, False, str(path))
+        evlrs: list[RawRecord] = []
+        if head[25] >= 4 and header_size >= 375:
+            start, n = struct.unpack_from("<QI", head, 235)
+            if n:
+                f.seek(start)
+                evlrs = parse_records(f.read(), 0, n, True, str(path))
+    return vlrs, evlrs
+
+
+def is_extra_bytes(r: RawRecord) -> bool:
+    return r.name == "LASF_Spec" and r.record_id == 4
+
+
+def kept(r: RawRecord) -> bool:
+    """Whether an output copies ``r`` as it is: all but the LASzip, ExtraBytes and COPC records."""
+    return not (r.name == "laszip encoded" and r.record_id == 22204) and not is_extra_bytes(r) and r.name != "copc"
+
+
+def _ascii(b: bytes) -> str:
+    text = b.split(b"\0", 1)[0].decode("ascii", "replace").replace("\ufffd", "?")
+    return text if text.isascii() else text.encode("ascii", "replace").decode("ascii")
+
+
+def as_vlr(r: RawRecord) -> laspy.VLR:
+    """A laspy VLR that writes ``r``'s record data byte for byte (laspy would write its parse of a record it knows).
+
+    A user id or description that is not ASCII (LAS texts are) has its other characters written as '?'.
+    """
+    return laspy.VLR(_ascii(r.user_id), r.record_id, _ascii(r.description), r.data)
+
+
+def software_version() -> str:
+    """patchcloud's installed version."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("patchcloud")
+    except PackageNotFoundError:  # run from a source tree that is not installed
+        return "unknown"
+
+
+def provenance_vlr(job: str, parameters: dict) -> laspy.VLR:
+    """The VLR saying what made a file: JSON ``{"software": "patchcloud", "version", "job", "parameters"}``.
+
+    User id ``patchcloud``, record id 1; keys sorted, so a run's file is the
+    same bytes whenever it is made.
+
+    >>> v = provenance_vlr("normals", {"criterion": "rmse"})
+    >>> json.loads(v.record_data)["job"], v.user_id
+    ('normals', 'patchcloud')
+    """
+    data = json.dumps({"software": "patchcloud", "version": software_version(), "job": job, "parameters": parameters},
+                      sort_keys=True, separators=(",", ":"), default=str).encode()
+    return laspy.VLR(PROVENANCE_USER_ID, PROVENANCE_RECORD_ID, f"patchcloud {job} parameters"[:31], data)
