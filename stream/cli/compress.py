@@ -11,8 +11,8 @@ from . import options
 
 @click.command("compress")
 @options.paths_argument
-@click.option("--max-error", type=float, default=CompressOptions.max_error, show_default=True, metavar="METRES",
-              help="Error budget: patches fit their points within it (RMS); points no patch models within it are kept exactly.")
+@click.option("--max-error", type=float, default=CompressOptions.max_error, show_default=True, metavar="LENGTH",
+              help="Error budget, in the file's horizontal unit (see --units): patches fit their points within it (RMS); points no patch models within it are kept exactly.")
 @options.job_options
 @click.option("--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
               help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), each compressed on its own "

@@ -55,9 +55,9 @@ def _write_text(path: str, text: str) -> None:
 @click.command("don-scales")
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.option("--radii", default="0.1,0.2,0.5,1,2,4", show_default=True, metavar="R1,R2,...",
-              help="Radii in metres, comma-separated; every pair r_s < r_l is scored.")
-@click.option("--small", default=None, metavar="R1,R2,...", help="Candidate small radii (metres); the large ones are --large, or else --radii.")
-@click.option("--large", default=None, metavar="R1,R2,...", help="Candidate large radii (metres); the small ones are --small, or else --radii.")
+              help="Radii in the file's horizontal unit, comma-separated; every pair r_s < r_l is scored.")
+@click.option("--small", default=None, metavar="R1,R2,...", help="Candidate small radii (the file's unit); the large ones are --large, or else --radii.")
+@click.option("--large", default=None, metavar="R1,R2,...", help="Candidate large radii (the file's unit); the small ones are --small, or else --radii.")
 @click.option("--classes-from", default="classification", show_default=True, metavar="NAME",
               help="The dimension holding the classes (any dimension of the file, extra bytes included).")
 @click.option("--classes", default=None, metavar="C1,C2,...", help="The class values to compare, e.g. 2,6,64. Default: every class present.")

@@ -12,7 +12,7 @@ from . import options
 @click.command("normals")
 @options.paths_argument
 @click.option("--criterion", type=click.Choice(["rmse", "sigma3"]), default=NormalsOptions.criterion, show_default=True,
-              help="When an octree node is one smooth patch: quadric fit RMSE below the threshold (metres), or surface variation.")
+              help="When an octree node is one smooth patch: quadric fit RMSE below the threshold (in the file's unit), or surface variation.")
 @click.option("--threshold", type=float, default=None, help="Threshold of the criterion. Default: from the scanner noise (rmse), 0.005 (sigma3).")
 @click.option("--orient", type=click.Choice(["up", "viewpoint", "outward", "none"]), default=NormalsOptions.orient, show_default=True,
               help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule.")

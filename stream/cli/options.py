@@ -12,11 +12,18 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
+__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
-    "--tile-size", type=float, default=None, metavar="METRES",
-    help="Edge of the tiles, rounded down to a power of two. Default: about a million points per tile.",
+    "--tile-size", type=float, default=None, metavar="LENGTH",
+    help="Edge of the tiles (in the file's horizontal unit, as every distance option: see --units), rounded down to a "
+    "power of two. Default: about a million points per tile.",
+)
+units = click.option(
+    "--units", type=click.Choice(["m", "ft", "us-ft"]), default=None,
+    help="The unit of the file's coordinates, which every distance option and summary figure is in, instead of its "
+    "CRS's (for a file without a CRS, where metres are assumed, or a wrong one). Default: the CRS's horizontal unit; a "
+    "geographic CRS (degrees) is an error naming this option.",
 )
 scheduler = click.option(
     "--scheduler", default="auto", show_default=True, metavar="ADDRESS",
@@ -239,9 +246,9 @@ def run_options(values: dict):
 def job_options(func):
     """The options every out-of-core job shares, named as the fields of RunOptions (a command takes them as ``**run``:
     :func:`run_options`): --tile-size, --scheduler, --scheduler-file, --workers, --store, --keep-store, --in-memory, --overwrite,
-    -q, --profile, --summary-json; and --max-memory (which sets the budget, :mod:`patchcloud.stream.io.budget`)."""
+    -q, --profile, --units, --summary-json; and --max-memory (which sets the budget, :mod:`patchcloud.stream.io.budget`)."""
     for option in reversed([tile_size, scheduler, scheduler_file, workers, store, keep_store, in_memory, overwrite, quiet, profile,
-                            summary_json, max_memory]):
+                            units, summary_json, max_memory]):
         func = option(func)
     return func
 
@@ -249,8 +256,10 @@ def job_options(func):
 def don_options(func):
     """The options of the Difference of Normals: --rs, --rl, --mode, --viewpoint."""
     for option in reversed([
-        click.option("--rs", "r_small", type=float, default=DonOptions.r_small, show_default=True, metavar="METRES", help="Small support radius."),
-        click.option("--rl", "r_large", type=float, default=DonOptions.r_large, show_default=True, metavar="METRES", help="Large support radius."),
+        click.option("--rs", "r_small", type=float, default=DonOptions.r_small, show_default=True, metavar="LENGTH",
+                     help="Small support radius, in the file's horizontal unit (see --units)."),
+        click.option("--rl", "r_large", type=float, default=DonOptions.r_large, show_default=True, metavar="LENGTH",
+                     help="Large support radius, in the file's horizontal unit (see --units)."),
         click.option("--mode", type=click.Choice(["exact", "fast"]), default=DonOptions.mode, show_default=True,
                      help="Radius normals by PCA of every point in the ball (exact, PCL's definition) or from voxel moments (fast)."),
         click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z",

@@ -16,7 +16,8 @@ from . import options
 @click.option("--axis", type=click.Choice(["x", "y", "z"]), default=None,
               help="Also require |DoN| along this axis >= --axis-threshold (e.g. z for kerbs).")
 @click.option("--axis-threshold", type=float, default=None, help="With --axis: smallest |DoN| along it.")
-@click.option("--tolerance", type=float, default=SegmentOptions.tolerance, show_default=True, metavar="METRES", help="Largest gap between two points of one segment.")
+@click.option("--tolerance", type=float, default=SegmentOptions.tolerance, show_default=True, metavar="LENGTH",
+              help="Largest gap between two points of one segment, in the file's horizontal unit (see --units).")
 @click.option("--min-points", type=int, default=SegmentOptions.min_cluster, show_default=True, help="Smaller segments are dropped (ClusterID 0).")
 @click.option("--max-points", type=int, default=None, help="Larger segments are dropped (ClusterID 0). Default: no limit.")
 @options.job_options

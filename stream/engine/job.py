@@ -60,6 +60,7 @@ from patchcloud.stream.engine.export import Column, complete_outputs, export_col
 from patchcloud.stream.engine.ingest import check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner, check_scheduler
 from patchcloud.stream.engine.tasks import map_tiles
+from patchcloud.stream.io.crs import UNITS, Units, units_of
 from patchcloud.stream.io.las_records import provenance_vlr
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import LasSource, check_las_output, check_not_input, check_writable, open_source, same_file
@@ -71,7 +72,7 @@ from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store
 
 __all__ = [
     "IN_MEMORY_POINTS", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
-    "time_and_memory_lines", "file_lines", "kept_store_note",
+    "time_and_memory_lines", "file_lines", "kept_store_note", "catalog_units", "units_line",
 ]
 
 #: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.61 GB
@@ -130,6 +131,12 @@ class RunOptions:
         In a catalog, the CRS of the files that have none (``"EPSG:2154"``,
         WKT: what pyproj takes); without it a file without a CRS among
         files with one is an error.
+    units : {"m", "ft", "us-ft"}, optional
+        The unit of the file's coordinates, which every distance option and
+        summary figure is in, instead of its CRS's (for a file without a CRS,
+        or with a wrong one): see :mod:`patchcloud.stream.io.crs`.  Default:
+        the CRS's horizontal unit (metres for a file without a CRS); a
+        geographic CRS is an error naming this option.
     in_memory : bool, optional
         Run in this process, the tiles held in memory: no dask cluster, no
         store on disk, the kernels on ``workers`` threads (default: every
@@ -154,9 +161,12 @@ class RunOptions:
     out_dir: str | None = None
     assume_crs: str | None = None
     in_memory: bool | None = None
+    units: str | None = None
 
     def __post_init__(self) -> None:
         check_tile_size(self.tile_size)
+        if self.units is not None and self.units not in UNITS:
+            raise PatchcloudValueError(f"units must be one of {', '.join(UNITS)}; got {self.units!r}")
         if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) != self.workers or self.workers < 1):
             raise PatchcloudValueError(f"workers must be at least 1, got {self.workers!r}")
         if self.chunk is not None and (
@@ -253,6 +263,17 @@ def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: i
     ]
 
 
+def units_line(units: dict) -> str:
+    """A summary's line naming the unit every length in it is in, and where the unit came from.
+
+    >>> units_line({"symbol": "ft", "name": "foot", "metres": 0.3048, "source": "CRS"})
+    '  units           ft (foot, 0.3048 m; from the CRS): every length here and every distance option'
+    """
+    source = {"CRS": "from the CRS", "--units": "from --units", "assumed": "assumed: no CRS"}.get(units.get("source"), "")
+    return (f"  units           {units['symbol']} ({units.get('name', '')}, {units.get('metres', 1.0):g} m; {source}): "
+            "every length here and every distance option")
+
+
 def file_lines(files: list[tuple[str, str, int]]) -> list[str]:
     """A catalog summary's rows, one per file: (input, output, points); nothing for one file.
 
@@ -293,10 +314,13 @@ class JobContext:
     compile_seconds: float = 0.0
     peak_memory: int = 0
     kept_store: str = ""
+    units: Units | None = None
 
     def __post_init__(self) -> None:
         if self.catalog is None:
             self.catalog = Catalog.of(self.source)
+        if self.units is None:
+            self.units = catalog_units(self.catalog, self.run)
         if not self.outputs:
             self.outputs = [self.output]
 
@@ -346,7 +370,7 @@ class Job:
         """Write the output: by default the input's records plus :meth:`columns`, under a temporary name."""
         columns, dims = self.columns(ctx)
         export_columns(ctx.store, ctx.outputs, columns, dims, runner=ctx.runner, overwrite=ctx.run.overwrite, quiet=ctx.run.quiet,
-                       provenance=provenance_vlr(self.name, self.parameters()))
+                       provenance=provenance_vlr(self.name, dict(self.parameters(), units=ctx.units.symbol)))
 
     def parameters(self) -> dict:
         """The parameters the outputs' provenance VLR states: the job's resolved ``params`` (none by default)."""
@@ -417,6 +441,7 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
         check_las_output(output)
         check_writable(output, overwrite=True)  # its directory; whether it may be replaced once the store is known
         catalog = Catalog.of(open_source(input))
+        catalog_units(catalog, run)
         _check_inputs_kept(catalog, [output], run.store)
         url, in_memory = _store_url(run, catalog, default_store_path(output))
         return catalog, [Path(output)], Path(output), url, in_memory
@@ -429,10 +454,16 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
     out_dir = check_out_dir(run.out_dir)
     outs = output_paths(paths, out_dir, input)
     catalog = open_catalog(paths, run.assume_crs)
+    catalog_units(catalog, run)
     _check_inputs_kept(catalog, outs, run.store)
     url, in_memory = _store_url(run, catalog, str(out_dir / "patchcloud.store"))
     out_dir.mkdir(exist_ok=True)
     return catalog, outs, out_dir, url, in_memory
+
+
+def catalog_units(catalog: Catalog, run: RunOptions) -> Units:
+    """The unit of the catalog's coordinates (:func:`patchcloud.stream.io.crs.units_of`; ``run.units`` overrides its CRS)."""
+    return units_of(catalog.crs, catalog.mins, catalog.maxs, run.units, where=catalog.path)
 
 
 def run_job(job: Job, input, output, run: RunOptions) -> Any:

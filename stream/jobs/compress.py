@@ -64,15 +64,17 @@ class CompressSummary:
     peak_memory: int = 0
     compile_seconds: float = 0.0  # numba compiling the kernels (a first run), not in seconds
     scheduler: str = "threads"
+    units: dict = field(default_factory=lambda: {"symbol": "m"})  # the file's length unit (patchcloud.stream.io.crs.Units)
 
     def format(self) -> str:
         n = max(self.points, 1)
+        u = self.units["symbol"]
         return "\n".join([
             f"{self.input} -> {self.output}",
             f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches ({self.cells:,} octree cells) "
             f"({(self.points - self.residual) / n:.1%}), {self.residual:,} residual ({self.residual / n:.1%})",
-            f"  error           budget {self.max_error:g} m; mean distance of the modelled points to their surface "
-            f"{self.mean_error:.4f} m (before quantisation, which adds at most half the budget)",
+            f"  error           budget {self.max_error:g} {u}; mean distance of the modelled points to their surface "
+            f"{self.mean_error:.4f} {u} (before quantisation, which adds at most half the budget)",
             f"  size            {self.output_bytes:,} bytes, {8 * self.output_bytes / n:.2f} bits/point; input "
             f"{self.input_bytes:,} bytes ({self.input_bytes / max(self.output_bytes, 1):.1f}x larger)",
             *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
@@ -216,7 +218,7 @@ class CompressJob(Job):
             cells=counts["cells"], residual=counts["residual"], max_error=self.options.max_error,
             input_bytes=ctx.source.size, output_bytes=ctx.output.stat().st_size,
             mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=ctx.seconds,
-            peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler,
+            peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler, units=ctx.units.to_json(),
         )
 
 

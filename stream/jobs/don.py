@@ -23,7 +23,7 @@ import numpy as np
 
 from patchcloud.core import DonOptions, halo_width
 from patchcloud.stream.engine.export import Column
-from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines
+from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines, units_line
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.las import LasSource
 from patchcloud.stream.io.store import Store
@@ -63,6 +63,7 @@ class DonSummary:
     scheduler: str = "threads"
     store: str = ""
     files: list = field(default_factory=list)  # (input, output, points) of each file of a catalog
+    units: dict = field(default_factory=lambda: {"symbol": "m"})  # the file's length unit (patchcloud.stream.io.crs.Units)
 
     def median_magnitude(self) -> float:
         """Median DoN magnitude of the points where it is defined (from the histogram: to 1/50)."""
@@ -75,11 +76,13 @@ class DonSummary:
     def format(self) -> str:
         n = max(self.points, 1)
         p = self.parameters
+        u = self.units["symbol"]
         lines = [
             f"{self.input} -> {self.output}",
             f"  points          {self.points:,}",
-            f"  tiles           {self.tiles:,} of {self.tile_size:g} m",
-            f"  scales          r_s {p['r_small']:g} m, r_l {p['r_large']:g} m, mode {p['mode']}",
+            f"  tiles           {self.tiles:,} of {self.tile_size:g} {u}",
+            units_line(self.units),
+            f"  scales          r_s {p['r_small']:g} {u}, r_l {p['r_large']:g} {u}, mode {p['mode']}",
             f"  DoN defined     {self.defined:,} ({self.defined / n:.1%}); median magnitude {self.median_magnitude():.2f}",
         ]
         if self.kept is not None:
@@ -88,7 +91,7 @@ class DonSummary:
         if self.segments is not None:
             mx = p["max_cluster"]
             lines.append(
-                f"  segments        {self.segments:,} (tolerance {p['tolerance']:g} m, {p['min_cluster']}"
+                f"  segments        {self.segments:,} (tolerance {p['tolerance']:g} {u}, {p['min_cluster']}"
                 f"{'' if mx is None else f'-{mx}'}{'+' if mx is None else ''} points)"
             )
         lines += time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds)
@@ -187,6 +190,7 @@ class DonJob(Job):
             tile_size=ctx.store.grid.tile_size, parameters={k: self.params[k] for k in self.params if not k.endswith("_key")},
             defined=sum(i["defined"] for i in v), histogram=np.sum([i["hist"] for i in v], axis=0).astype(int).tolist() if v else [],
             seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler, store=ctx.kept_store, files=ctx.files,
+            units=ctx.units.to_json(),
         )
 
 

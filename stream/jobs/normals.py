@@ -24,7 +24,7 @@ import numpy as np
 
 from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchKind, threshold_from_histograms
 from patchcloud.stream.engine.export import Column
-from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines
+from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines, units_line
 from patchcloud.stream.engine.ingest import occupancy_spacing
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import Store
@@ -73,19 +73,22 @@ class NormalsSummary:
     scheduler: str = "threads"
     store: str = ""
     files: list = field(default_factory=list)  # (input, output, points) of each file of a catalog
+    units: dict = field(default_factory=lambda: {"symbol": "m"})  # the file's length unit (patchcloud.stream.io.crs.Units)
 
     def format(self) -> str:
         n = max(self.points, 1)
         m = self.normals_by_method
         k = self.patches_by_kind
+        u = self.units["symbol"]
         lines = [
             f"{self.input} -> {self.output}",
             f"  points          {self.points:,}",
-            f"  tiles           {self.tiles:,} of {self.tile_size:g} m",
+            f"  tiles           {self.tiles:,} of {self.tile_size:g} {u}",
+            units_line(self.units),
             f"  patches         {sum(k.values()):,} (surface {k['surface']:,}, edge {k['edge']:,}, sparse {k['sparse']:,})",
             f"  normals by      quadric {m['quadric'] / n:.1%}, blended {m['blended'] / n:.1%}, k-NN fallback {m['knn'] / n:.1%}",
             f"  parameters      {self.parameters['criterion']} threshold {self.parameters['threshold']:.4g}, "
-            f"d_min {self.parameters['d_min']:.3g} m, spacing {self.parameters['spacing']:.3g} m, orient {self.parameters['orient']}",
+            f"d_min {self.parameters['d_min']:.3g} {u}, spacing {self.parameters['spacing']:.3g} {u}, orient {self.parameters['orient']}",
             *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
             *file_lines(self.files),
         ]
@@ -211,7 +214,7 @@ class NormalsJob(Job):
             patches_by_kind={k.name.lower(): int(kinds[k]) for k in PatchKind},
             normals_by_method={m.name.lower(): int(methods[m]) for m in Method},
             parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler,
-            store=ctx.kept_store, files=ctx.files,
+            store=ctx.kept_store, files=ctx.files, units=ctx.units.to_json(),
         )
 
 

@@ -1,0 +1,98 @@
+"""The CRS kept byte for byte and named, and the unit of every distance (issue 18, part 2)."""
+
+import json
+import os
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from pyproj import CRS
+
+import synthetic
+from patchcloud.core import PatchcloudValueError
+from patchcloud.stream import RunOptions, info, normals
+from patchcloud.stream.cli import main
+from patchcloud.stream.io.crs import units_of
+from patchcloud.stream.io.las_records import file_records
+
+SAMPLE = os.path.join(os.path.dirname(__file__), "..", "data", "test_data_77055_627760_LA93_IGN69.laz")
+AUTZEN = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "lidar-autzen", "autzen_trim.laz")
+
+
+def _scene(path, crs=None, evlrs=(), offset=(650000.0, 6860000.0, 40.0), scale=0.001, n=6_000):
+    pts, _ = synthetic.scene(n, seed=2)
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = np.array([scale] * 3), np.array(offset)
+    if crs is not None:
+        h.vlrs.append(laspy.VLR("LASF_Projection", 2112, "OGC WKT", CRS.from_user_input(crs).to_wkt().encode() + b"\0"))
+        h.global_encoding.wkt = True
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = (pts[:, i] * (scale / 0.001) + offset[i] for i in range(3))
+    las.evlrs = laspy.vlrs.vlrlist.VLRList(list(evlrs))
+    las.write(str(path))
+    return path
+
+
+def test_info_names_the_crs_of_the_embedded_tile_and_of_its_store(tmp_path):
+    r = CliRunner().invoke(main, ["info", SAMPLE])
+    assert r.exit_code == 0 and "CRS          EPSG:2154 (RGF93 v1 / Lambert-93); units: horizontal metre (1 m)" in r.output, r.output
+    assert info(SAMPLE)["crs_info"]["epsg"] == 2154
+    r = CliRunner().invoke(main, ["tile", SAMPLE, str(tmp_path / "s.zarr"), "-q"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "s.zarr")])
+    assert "EPSG:2154 (RGF93 v1 / Lambert-93)" in r.output, r.output
+
+
+@pytest.mark.skipif(not os.path.exists(AUTZEN), reason="../shared/data/lidar-autzen/autzen_trim.laz is absent")
+def test_autzen_is_in_international_feet_and_its_summary_says_so(tmp_path):
+    r = CliRunner().invoke(main, ["info", AUTZEN])
+    assert "NAD_1983_HARN_Lambert_Conformal_Conic; units: horizontal international foot (0.3048 m)" in r.output, r.output
+    out = tmp_path / "a.las"
+    r = CliRunner().invoke(main, ["normals", AUTZEN, str(out), "--summary-json", str(tmp_path / "s.json")])
+    assert r.exit_code == 0, r.output
+    assert "units           ft (foot, 0.3048 m; from the CRS)" in r.output and " ft, spacing " in r.output
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert s["units"] == {"symbol": "ft", "name": "foot", "metres": 0.3048, "source": "CRS"}
+    # the GeoTIFF keys (21 keys in 22 slots), their parameters and the WKT, byte for byte
+    ins, outs = file_records(AUTZEN)[0], file_records(out)[0]
+    assert sum(r.name == "LASF_Projection" for r in ins) == 4
+    assert all(r in outs for r in ins if r.name != "laszip encoded")
+    assert laspy.read(str(out)).header.parse_crs().equals(laspy.open(AUTZEN).header.parse_crs())
+
+
+def test_a_geographic_crs_is_one_error_naming_units_and_units_overrides_it(tmp_path):
+    path = _scene(tmp_path / "geo.las", crs="EPSG:4326")
+    out = tmp_path / "o.las"
+    r = CliRunner().invoke(main, ["normals", str(path), str(out), "-q"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert "EPSG:4326 (WGS 84) is geographic" in r.output and "--units" in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["geo.las"]  # nothing written
+    r = CliRunner().invoke(main, ["normals", str(path), str(out), "--units", "m", "--summary-json", str(tmp_path / "s.json")])
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "s.json").read_text())["units"]["source"] == "--units"
+    assert "units           m (metre, 1 m; from --units)" in r.output
+
+
+def test_degrees_in_a_projected_crs_are_refused():
+    with pytest.raises(PatchcloudValueError, match=r"look like degrees, not lengths of its projected CRS EPSG:2154.*--units"):
+        units_of("EPSG:2154", (2.30, 48.80), (2.31, 48.81), where="x.las")
+    assert units_of("EPSG:2154", (2.30, 48.80), (2.31, 48.81), "m").source == "--units"
+    assert units_of("EPSG:2249", (700000.0, 2900000.0), (701000.0, 2901000.0)).symbol == "us-ft"  # Massachusetts, US survey feet
+    assert units_of(None, (0.0, 0.0), (1.0, 1.0)).source == "assumed"
+    with pytest.raises(PatchcloudValueError, match="units must be one of m, ft, us-ft; got 'km'"):
+        RunOptions(units="km")
+
+
+def test_evlrs_are_kept_byte_for_byte_and_copc_records_dropped(tmp_path):
+    wkt = CRS.from_epsg(2154).to_wkt().encode() + b"\0"
+    evlrs = [laspy.VLR("LASF_Projection", 2112, "OGC WKT", wkt), laspy.VLR("copc", 1000, "EPT hierarchy", bytes(32)),
+             laspy.VLR("someone", 7, "their record", bytes(range(256)) * 300)]  # longer than a VLR may be
+    path = _scene(tmp_path / "e.las", crs="EPSG:2154", evlrs=evlrs)
+    out = tmp_path / "o.laz"
+    normals(path, out, quiet=True)
+    (iv, ie), (ov, oe) = file_records(path), file_records(out)
+    assert [(r.name, r.record_id) for r in ie] == [("LASF_Projection", 2112), ("copc", 1000), ("someone", 7)]
+    assert oe == [ie[0], ie[2]]
+    assert iv[0] in ov
+    assert laspy.read(str(out)).header.parse_crs().to_epsg() == 2154
