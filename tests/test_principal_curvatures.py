@@ -75,7 +75,7 @@ def test_without_the_option_the_output_has_no_principal_dims(surfaces, tmp_path)
     d, _, _ = surfaces
     normals(d / "dome.las", tmp_path / "plain.las", quiet=True)
     dims = set(laspy.read(str(tmp_path / "plain.las")).point_format.dimension_names)
-    assert "NormalX" in dims and not dims & {name for name, _, _ in PRINCIPAL_DIMS}
+    assert "NormalX" in dims and not dims & {name for name, *_ in PRINCIPAL_DIMS}
 
 
 def test_in_memory_and_on_disk_write_the_same_principal_curvatures(surfaces, tmp_path):
@@ -84,7 +84,7 @@ def test_in_memory_and_on_disk_write_the_same_principal_curvatures(surfaces, tmp
     normals(d / "saddle.las", tmp_path / "disk.las", principal_curvatures=True, tile_size=8, in_memory=False,
             scheduler="synchronous", quiet=True)
     a, b = laspy.read(str(tmp_path / "mem.las")), laspy.read(str(tmp_path / "disk.las"))
-    for name, _, _ in PRINCIPAL_DIMS:
+    for name, *_ in PRINCIPAL_DIMS:
         assert np.array_equal(np.asarray(a[name]), np.asarray(b[name])), name
 
 
@@ -104,5 +104,5 @@ def test_asking_for_them_on_a_kept_store_redoes_the_finish_only(surfaces, tmp_pa
     normals(d / "saddle.las", tmp_path / "fresh.las", principal_curvatures=True, tile_size=8, in_memory=False,
             scheduler="synchronous", quiet=True)
     a, b = laspy.read(str(tmp_path / "kept.las")), laspy.read(str(tmp_path / "fresh.las"))
-    for name, _, _ in PRINCIPAL_DIMS:
+    for name, *_ in PRINCIPAL_DIMS:
         assert np.array_equal(np.asarray(a[name]), np.asarray(b[name])), name
