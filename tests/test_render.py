@@ -11,7 +11,7 @@ from patchcloud.core.errors import PatchcloudValueError
 from patchcloud.stream import render, render_array, render_tiles
 from patchcloud.stream.views.render import render_arrays
 from patchcloud.stream.views.render import (
-    AMBIENT, BOUNDARY_DARKEN, LIGHT, NO_SEGMENT, ZBuffer, choose_view, class_colours, colorize, fill_gaps, lambert,
+    AMBIENT, BOUNDARY_DARKEN, LIGHT, NO_SEGMENT, ZBuffer, choose_view, class_colours, colorize, lambert,
     make_frame, patch_boundaries, patch_colours, segment_colours, view_axes,
 )
 from patchcloud.stream.views.render_tiles import STATE_COLOURS, tile_state
@@ -126,15 +126,6 @@ def test_lambert_is_the_formula_and_ignores_the_sign_of_the_normal():
     assert lambert(np.array([[np.nan, 0, 1]]), R)[0] == 1.0
 
 
-def test_fill_gaps_grows_the_nearest_neighbour_and_keeps_points():
-    d = np.full((3, 3), -np.inf)
-    d[0, 0], d[2, 2] = 1.0, 5.0
-    src, filled = fill_gaps(d, 1)
-    assert filled.sum() == 7 and not filled[0, 2] and not filled[2, 0]  # those touch no point
-    assert src[0, 0] == 0 and src[2, 2] == 8 and src[1, 1] == 8  # the centre takes the nearer point
-    assert (fill_gaps(d, 0)[0] == np.arange(9).reshape(3, 3)).all()
-
-
 # --- files ------------------------------------------------------------------------------------------------
 
 
@@ -181,7 +172,7 @@ def test_the_top_plane_wins_and_results_do_not_depend_on_the_chunk_size(tmp_path
         assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.value, b.value, equal_nan=True)
         assert a.points_drawn == b.points_drawn and a.value_range == b.value_range
     side = render_array(path, color="classification", view="side", width=60, fill=0)  # both planes seen edge-on
-    assert side.axis_labels == ("x (m)", "z (m)")
+    assert side.axis_labels == ("X (file units)", "Z (file units)")  # no CRS: no unit claimed
     top_row = side.value[0][side.filled[0]]
     bottom_row = side.value[-1][side.filled[-1]]
     assert (top_row == 6).all() and (bottom_row == 2).all()
@@ -227,7 +218,7 @@ def test_render_writes_a_png_and_the_cli_reports_a_missing_dimension(tmp_path):
     assert s.points_read == len(xy) and s.points_drawn <= s.pixels_filled
     assert np.isclose(s.value_range[0], 0.02, atol=0.02) and np.isclose(s.value_range[1], 0.98, atol=0.02)
     png = imread(str(out))
-    assert png.shape[1] > 120
+    assert png.shape[1] == 120 and png.shape[0] == s.height
     bad = tmp_path / "bad.png"
     r = CliRunner().invoke(main, ["render", str(path), str(bad), "--color", "patches"])
     assert r.exit_code == 2, r.output
@@ -348,6 +339,6 @@ def test_outliers_far_above_do_not_spoil_the_framing(tmp_path):
     assert tall.rgb.shape[0] > 10 * side.rgb.shape[0] and tall.points_in_box == len(xyz)
     with pytest.raises(PatchcloudValueError, match="heights must be one of robust, all"):
         render_array(path, color="elevation", heights="some")
-    for bad in (-1, 65, 1.5, True):
-        with pytest.raises(PatchcloudValueError, match="fill must be a number of gap-filling passes from 0"):
+    for bad in (-1, 65, "2", True):
+        with pytest.raises(PatchcloudValueError, match="fill must be a gap-filling radius in pixels from 0"):
             render_array(path, color="elevation", fill=bad)

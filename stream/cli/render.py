@@ -22,15 +22,17 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
               help="Orthographic view. Default: top when the height range is under 0.5 x the larger horizontal "
               "extent (aerial, street scans), else oblique (from the south-west, 35 degrees up).")
 @click.option("--bbox", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
-              help="Draw only this box (file coordinates, metres); it is the frame.")
-@click.option("--width", type=int, default=1600, show_default=True, metavar="PIXELS", help="Image width; the height follows the framing.")
+              help="Draw only this box (file coordinates, in the file's units); it is the frame.")
+@click.option("--width", type=int, default=1600, show_default=True, metavar="PIXELS",
+              help="Width of the PNG, its title, axes and colour bar or legend included (64 to 6000); the height follows "
+              "the framing.")
 @click.option("--shade/--no-shade", default=None,
               help="Lambert shading from the normals. Default: shade when the file has NormalX/Y/Z.")
 @click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LOW HIGH",
               help="Colour range of curvature, don, intensity, elevation. Default: 2nd-98th percentile of the drawn points.")
-@click.option("--fill", type=int, default=None, metavar="PASSES",
-              help="Close holes: passes in which an empty pixel takes its neighbour nearest the viewer (0: none). "
-              "Default: 3/4 of the mean point spacing in pixels, 1 to 8.")
+@click.option("--fill", type=float, default=None, metavar="PIXELS",
+              help="Close holes: an empty pixel within this many pixels of a point shows the nearest point (0: none). "
+              "Default: 1.5 x the mean point spacing in pixels (over the area the points cover), 1.5 to 32.")
 @click.option("--heights", type=click.Choice(["robust", "all"]), default="robust", show_default=True,
               help="robust: frame the heights of a sample of the file, so noise far above or below (birds, low "
               "returns) does not squash the picture; all: frame the header's bounds.")
@@ -63,8 +65,12 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
     from patchcloud.stream.io.las import check_not_input
     from patchcloud.stream.views.render import check_modes, input_sources, render
 
-    if width is not None and width < 1:
-        raise PatchcloudValueError(f"--width must be a positive number of pixels; got {width}")
+    from patchcloud.stream.views.layout import MIN_WIDTH
+    from patchcloud.stream.views.render import MAX_WIDTH
+
+    if not MIN_WIDTH <= width <= MAX_WIDTH:
+        raise PatchcloudValueError(f"--width must be {MIN_WIDTH} to {MAX_WIDTH} pixels (the PNG, title and legend included); "
+                                   f"got {width}")
     if out_dir is None:
         if len(paths) < 2:
             raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT picture after it, or --out-dir DIR")

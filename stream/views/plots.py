@@ -90,8 +90,12 @@ def check_png_path(path: str | os.PathLike) -> Path:
     return p
 
 
-def save_png(fig: Figure, path: str | os.PathLike) -> Path:
+def save_png(fig: Figure, path: str | os.PathLike, *, crop: bool = True) -> Path:
     """Write ``fig`` as a PNG at ``path``: to ``path + ".partial"`` first, then renamed (never a half-written file).
+
+    ``crop``: cut the PNG to what the figure draws (nothing clipped, the
+    size unknown beforehand); False: the figure's own size in pixels, for
+    figures laid out in pixels (``patchcloud render``).
 
     Raises
     ------
@@ -111,7 +115,10 @@ def save_png(fig: Figure, path: str | os.PathLike) -> Path:
         FigureCanvasAgg(fig)
     try:
         with atomic_output(p, overwrite=True) as f:
-            fig.savefig(f, format="png", dpi=STYLE["dpi"], bbox_inches="tight", pad_inches=0.05)  # nothing clipped
+            if crop:
+                fig.savefig(f, format="png", dpi=STYLE["dpi"], bbox_inches="tight", pad_inches=0.05)  # nothing clipped
+            else:
+                fig.savefig(f, format="png", dpi=STYLE["dpi"])
     except PatchcloudIOError:
         raise
     except OSError as exc:

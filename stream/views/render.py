@@ -54,11 +54,14 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.catalog import open_catalog
 from patchcloud.stream.io.las import LasSource, check_not_input, laz_backend, open_source, read_chunks
+from patchcloud.stream.views.layout import MIN_WIDTH, FigureLayout, figure_layout, layout_around
+from patchcloud.stream.views.units import AxisNames, axis_names
 
 __all__ = [
     "COLOR_MODES", "VIEWS", "AMBIENT", "FLAT_RATIO", "LIGHT", "BACKGROUND", "UNDEFINED", "NO_SEGMENT",
     "RenderImage", "RenderSummary", "ZBuffer", "Frame", "render", "render_array", "render_arrays", "render_figure",
-    "view_axes", "choose_view", "auto_fill", "MAX_FILL", "robust_heights", "HEIGHTS", "make_frame", "fill_gaps", "colorize", "lambert", "patch_boundaries", "segment_colours",
+    "view_axes", "choose_view", "auto_fill", "MAX_FILL", "MIN_FILL", "FILL_SPACINGS", "FILL_LIMIT", "point_spacing",
+    "view_axis_labels", "picture_crs", "WIDTH_OF", "robust_heights", "HEIGHTS", "make_frame", "fill_gaps", "colorize", "lambert", "patch_boundaries", "segment_colours",
     "patch_colours", "class_colours", "robust_range", "supported_modes", "file_dimensions",
 ]
 
@@ -293,49 +296,83 @@ class ZBuffer:
         return self.values[:, k].reshape(self.shape)
 
 
-def fill_gaps(depth: np.ndarray, passes: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Close small holes: each pass, an empty pixel copies its filled 8-neighbour nearest the viewer.
+def point_spacing(drawn: np.ndarray) -> float:
+    """The mean spacing (pixels) of the points drawn in ``drawn``, over the area they cover (not the whole frame).
+
+    The area is the cells of a coarse grid (cells about twice the spacing)
+    that hold a drawn pixel, so a lake, the sky of an oblique view or a
+    frame larger than the cloud do not count; the spacing is the square
+    root of that area over the drawn pixels (one point each), estimated
+    twice (the first time over the whole frame).  NaN when nothing is drawn.
+
+    Examples
+    --------
+    >>> d = np.zeros((100, 200), bool); d[::4, :100:4] = True     # points 4 px apart over the left half
+    >>> round(point_spacing(d), 2)    # 4, and a little for the cells cut by the edge of the points
+    4.08
+    """
+    drawn = np.asarray(drawn, dtype=bool)
+    n = int(drawn.sum())
+    if n == 0:
+        return float("nan")
+    H, W = drawn.shape
+    s = float(np.sqrt(H * W / n))
+    for _ in range(2):
+        c = max(1, int(round(2.0 * s)))
+        rows = np.logical_or.reduceat(drawn, np.arange(0, H, c), axis=0)
+        cells = np.logical_or.reduceat(rows, np.arange(0, W, c), axis=1)
+        # cells on the last row / column may be cut short: count their real area
+        hs = np.diff(np.append(np.arange(0, H, c), H))
+        ws = np.diff(np.append(np.arange(0, W, c), W))
+        area = float((cells * hs[:, None] * ws[None, :]).sum())
+        s = float(np.sqrt(area / n))
+    return s
+
+
+def fill_gaps(drawn: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Close the holes between the points: every empty pixel within ``radius`` pixels of a drawn one shows the nearest.
+
+    One Euclidean distance transform (:func:`scipy.ndimage.distance_transform_edt`)
+    finds each empty pixel's nearest drawn pixel, so the gaps between scan
+    lines close whatever their direction (no dashes), while an empty area
+    wider than twice the radius (a lake, a courtyard, the space beside the
+    cloud) stays empty farther than ``radius`` from its shore.
 
     Parameters
     ----------
-    depth : (H, W) depth of every pixel's point, -inf where empty.
-    passes : int
-        Passes (0: none); each grows the drawn points by one pixel into empty space.
+    drawn : (H, W) bool
+        Pixels a point was drawn in.
+    radius : float
+        Pixels (centre to centre); 0: no filling.
 
     Returns
     -------
     source : (H, W) int64
-        The flat pixel each pixel shows (itself for pixels with a point).
+        The flat pixel each pixel shows (itself for drawn and empty pixels).
     filled : (H, W) bool
         Pixels that show a point after filling.
 
     Examples
     --------
-    >>> d = np.full((1, 3), -np.inf); d[0, 0] = 1.0; d[0, 2] = 2.0
-    >>> fill_gaps(d)[0].tolist()   # the middle pixel takes the nearer neighbour
-    [[0, 2, 2]]
+    >>> d = np.zeros((1, 6), bool); d[0, 0] = d[0, 5] = True
+    >>> src, filled = fill_gaps(d, 2)
+    >>> src.tolist(), filled.tolist()   # pixels 1, 2 take the left point, 3, 4 the right one
+    ([[0, 0, 0, 5, 5, 5]], [[True, True, True, True, True, True]])
+    >>> fill_gaps(d, 1)[1].tolist()     # pixels 2 and 3 are 2 px from either point
+    [[True, True, False, False, True, True]]
     """
-    H, W = depth.shape
-    d = np.asarray(depth, dtype=np.float64).copy()
-    src = np.arange(H * W, dtype=np.int64).reshape(H, W)
-    offsets = [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)]
-    for _ in range(int(passes)):
-        empty = d == -np.inf
-        if not empty.any():
-            break
-        best_d, best_s = d.copy(), src.copy()
-        for dr, dc in offsets:  # neighbour at (r + dr, c + dc)
-            nd = np.full((H, W), -np.inf)
-            ns = np.zeros((H, W), dtype=np.int64)
-            rs, rd = (slice(dr, None), slice(None, H - dr)) if dr >= 0 else (slice(None, H + dr), slice(-dr, None))
-            cs, cd = (slice(dc, None), slice(None, W - dc)) if dc >= 0 else (slice(None, W + dc), slice(-dc, None))
-            nd[rd, cd] = d[rs, cs]
-            ns[rd, cd] = src[rs, cs]
-            take = empty & (nd > best_d)
-            best_d[take] = nd[take]
-            best_s[take] = ns[take]
-        d, src = best_d, best_s
-    return src, d > -np.inf
+    from scipy.ndimage import distance_transform_edt
+
+    drawn = np.asarray(drawn, dtype=bool)
+    H, W = drawn.shape
+    source = np.arange(H * W, dtype=np.int64).reshape(H, W)
+    if not radius > 0 or not drawn.any() or drawn.all():
+        return source, drawn.copy()
+    dist, (ri, ci) = distance_transform_edt(~drawn, return_indices=True)
+    take = ~drawn & (dist <= float(radius))
+    del dist
+    source[take] = ri[take].astype(np.int64) * W + ci[take]
+    return source, drawn | take
 
 
 # ---------------------------------------------------------------------------
@@ -576,9 +613,14 @@ class RenderImage:
     the pixels that show a point (after gap filling; ``points_drawn``
     counts the points kept by the z-buffer, one per pixel, before it); ``value`` the value shown in each pixel
     ((H, W, 3) normals or (H, W) values, NaN where empty); ``extent``
-    (left, right, bottom, top) in metres: file coordinates for the top view
+    (left, right, bottom, top) in file units: file coordinates for the top view
     (x, y) and the side view (x or y, and z), screen coordinates about the
-    box's lower corner for the oblique view.
+    box's lower corner for the oblique view.  ``names``: the axes' names
+    and units from the file's CRS; ``layout``: the picture it was framed
+    for (:func:`render_figure` draws it exactly that wide), None when the
+    image was made ``width`` pixels wide itself; ``fill``: the gap-filling
+    radius in pixels; ``range_given``: the colour range was asked for
+    (else the 2nd-98th percentiles).
     """
 
     source: str
@@ -597,8 +639,11 @@ class RenderImage:
     value_range: tuple[float, float] | None
     legend: list = field(default_factory=list)
     bbox: tuple[float, float, float, float] | None = None
-    fill: int = 0
+    fill: float = 0.0
     seconds: float = 0.0
+    names: AxisNames = field(default_factory=AxisNames)
+    layout: FigureLayout | None = None
+    range_given: bool = False
 
     @property
     def pixels_filled(self) -> int:
@@ -606,17 +651,28 @@ class RenderImage:
 
     @property
     def axis_labels(self) -> tuple[str | None, str | None]:
-        """Labels of the image axes (None for the oblique view, whose axes are not drawn)."""
-        if self.view == "top":
-            return "x (m)", "y (m)"
-        if self.view == "side":
-            return ("x (m)" if abs(self.axes[0, 0]) > 0.5 else "y (m)"), "z (m)"
-        return None, None
+        """Labels of the image axes, "Easting (m)", "Elevation (ft)"... (None for the oblique view, whose axes are not drawn)."""
+        return view_axis_labels(self.view, self.axes, self.names)
+
+
+def view_axis_labels(view: str, R: np.ndarray, names: AxisNames) -> tuple[str | None, str | None]:
+    """The labels of the horizontal and vertical axes of a view: file axes with the CRS's names and units.
+
+    Examples
+    --------
+    >>> view_axis_labels("side", view_axes("side", (0, 0, 0), (2, 10, 1)), AxisNames("Easting", "Northing", "Elevation", "m", "m"))
+    ('Northing (m)', 'Elevation (m)')
+    """
+    if view == "top":
+        return names.x, names.y
+    if view == "side":
+        return (names.x if abs(R[0, 0]) > 0.5 else names.y), names.z
+    return None, None
 
 
 @dataclass
 class RenderSummary:
-    """What :func:`render` drew: points read from the file, inside the frame, drawn (one per pixel), pixels filled (after gap filling)."""
+    """What :func:`render` drew: the PNG's size, the image's, points read from the file, inside the frame, drawn (one per pixel), pixels filled (after gap filling)."""
 
     input: str
     output: str
@@ -631,13 +687,20 @@ class RenderSummary:
     pixels_filled: int
     value_range: tuple[float, float] | None
     seconds: float
+    image_width: int = 0
+    image_height: int = 0
+    pixel: float = 0.0
+    unit: str = ""
+    fill: float = 0.0
 
     def format(self) -> str:
         rng = "" if self.value_range is None else f", colour range {self.value_range[0]:.4g} .. {self.value_range[1]:.4g}"
         return (
-            f"{self.input} -> {self.output}: {self.width} x {self.height} px, {self.color}, {self.view} view{', shaded' if self.shaded else ''}{rng}\n"
+            f"{self.input} -> {self.output}: {self.width} x {self.height} px PNG, {self.color}, {self.view} view"
+            f"{', shaded' if self.shaded else ''}{rng}\n"
+            f"image {self.image_width} x {self.image_height} px of {self.pixel:.4g} {self.unit}, "
             f"{self.points_read:,} points read, {self.points_in_box:,} in the frame, {self.points_drawn:,} drawn "
-            f"(one per pixel), {self.pixels_filled:,} pixels filled, {self.seconds:.1f} s"
+            f"(one per pixel), {self.pixels_filled:,} pixels filled (radius {self.fill:.3g} px), {self.seconds:.1f} s"
         )
 
 
@@ -706,30 +769,39 @@ MAX_WIDTH = 6000
 #: Bytes a pixel takes (depth, index, filled masks, the gap-filling and RGB passes), besides 8 per channel and picture:
 #: a picture is checked against the memory budget (``--max-memory``) before its buffers are made.
 PIXEL_BYTES = 96
-#: Most gap-filling passes the default chooses.
-MAX_FILL = 8
-#: Most gap-filling passes that may be asked for (each pass widens the points by a pixel).
+#: Gap filling by default: empty pixels within this many point spacings of a point are filled.
+FILL_SPACINGS = 1.5
+#: Largest filling radius the default chooses, and the smallest (pixels).
+MAX_FILL, MIN_FILL = 32.0, 1.5
+#: Largest filling radius that may be asked for (pixels).
 FILL_LIMIT = 64
 
 
-def auto_fill(shape: tuple[int, int], points: int) -> int:
-    """Gap-filling passes for ``points`` over an image of ``shape``: 3/4 of their mean spacing in pixels, in 1..MAX_FILL.
+def auto_fill(drawn: np.ndarray) -> float:
+    """The default filling radius (pixels): FILL_SPACINGS x the :func:`point_spacing` of ``drawn``, from MIN_FILL to MAX_FILL.
 
-    (Scan lines leave gaps wider than the mean spacing; 3/4 of it closes most of them.)
+    With points on scan lines (along-line spacing s, lines L apart) the
+    farthest empty pixel is sqrt(s² + L²) / 2 from a point, under 1.5 x
+    the mean spacing sqrt(s L) for lines up to 8 s apart; among points
+    spread at random, a pixel farther than 1.5 mean spacings from all of
+    them happens with probability exp(-1.5² π) < 0.1 %.
 
     Examples
     --------
-    >>> auto_fill((800, 800), 60000), auto_fill((800, 800), 5_000_000), auto_fill((800, 800), 0)
-    (3, 1, 8)
+    >>> d = np.zeros((400, 400), bool); d[::4, ::4] = True
+    >>> auto_fill(d), auto_fill(np.ones((4, 4), bool)), auto_fill(np.zeros((4, 4), bool))
+    (6.0, 1.5, 1.5)
     """
-    spacing = np.sqrt(shape[0] * shape[1] / max(points, 1))
-    return int(np.clip(np.ceil(0.75 * spacing), 1, MAX_FILL))
+    s = point_spacing(drawn)
+    if not np.isfinite(s):
+        return MIN_FILL
+    return float(np.clip(FILL_SPACINGS * s, MIN_FILL, MAX_FILL))
 
 
 def render_array(
     input, *, color: str, view: str | None = None, bbox=None, width: int = 1600,
-    shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust", chunk: int = 1 << 20,
-    assume_crs: str | None = None,
+    shade: bool | None = None, value_range=None, fill: float | None = None, heights: str = "robust", chunk: int = 1 << 20,
+    assume_crs: str | None = None, width_of: str = "image",
 ) -> RenderImage:
     """The picture of a LAS/LAZ file of any size, or of a catalog of them, as an RGB array, read out of core.
 
@@ -744,23 +816,28 @@ def render_array(
     view : {"top", "oblique", "side"}, optional
         Default: :func:`choose_view` of the framed box.
     bbox : (xmin, ymin, xmax, ymax), optional
-        File coordinates (metres, the file's CRS): only the points inside
+        File coordinates (the file's CRS and units): only the points inside
         are drawn and the frame is this box (with the file's z range).
     width : int
-        Image width in pixels; the height follows the aspect ratio.
+        Width in pixels of the image (``width_of="image"``), or of the
+        picture :func:`render_figure` draws of it (``"figure"``: title, axes
+        and legend included; the image gets the columns they leave, see
+        :func:`patchcloud.stream.views.layout.figure_layout`).  The height
+        follows the aspect ratio.
     shade : bool, optional
         Lambert shading from the normals; default: when the file has NormalX/Y/Z.
     value_range : (low, high), optional
         Colour range of the continuous modes; default the 2nd-98th
         percentiles of the visible pixels' values.
-    fill : int, optional
-        Gap filling (:func:`fill_gaps`): passes in which every empty pixel
-        takes its neighbour's point nearest the viewer, closing the holes of
-        sparse surfaces (each pass widens the points by one pixel); 0: none.
-        Default: 3/4 of the mean point spacing in pixels (from the frame's
-        pixels over the points inside it), rounded up, from 1 to :data:`MAX_FILL`,
-        so an aerial tile at 25 points/m² and a dense mobile scan both look
-        like surfaces at any width.
+    fill : float, optional
+        Gap filling (:func:`fill_gaps`): every empty pixel within ``fill``
+        pixels of a drawn one shows the nearest drawn one, closing the holes
+        between scan lines and sparse points; 0: none.  Default
+        (:func:`auto_fill`): 1.5 x the mean spacing in pixels of the points
+        drawn, over the area they cover, from 1.5 to :data:`MAX_FILL`, so an
+        aerial tile at 25 points/m² and a dense mobile scan both look like
+        surfaces at any width while a lake or a courtyard wider than 3
+        spacings stays empty.
     heights : {"robust", "all"}
         The heights the frame (and the default view) is chosen for.
         "robust" (default): from a sample of the file
@@ -794,7 +871,7 @@ def render_array(
     (60653, True, False)
     """
     return render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range,
-                         fill=fill, heights=heights, chunk=chunk, assume_crs=assume_crs)[0]
+                         fill=fill, heights=heights, chunk=chunk, assume_crs=assume_crs, width_of=width_of)[0]
 
 
 def input_sources(input, assume_crs: str | None = None) -> tuple[list[LasSource], str]:
@@ -832,10 +909,19 @@ def check_modes(sources: Sequence[LasSource], colors: Sequence[str], shade: bool
     return has_normals if shade is None else bool(shade)
 
 
+def picture_crs(sources: Sequence[LasSource], assume_crs: str | None = None) -> str | None:
+    """The CRS the picture's coordinates are in: the files' (a catalog has one), else ``assume_crs``, else None."""
+    return next((s.crs for s in sources if s.crs), assume_crs)
+
+
+#: What the ``width`` of :func:`render_array` is the width of.
+WIDTH_OF = ("image", "figure")
+
+
 def render_arrays(
     input, *, colors: Sequence[str], view: str | None = None, bbox=None, width: int = 1600,
-    shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust", chunk: int = 1 << 20,
-    assume_crs: str | None = None, output: str | os.PathLike | None = None,
+    shade: bool | None = None, value_range=None, fill: float | None = None, heights: str = "robust", chunk: int = 1 << 20,
+    assume_crs: str | None = None, output: str | os.PathLike | None = None, width_of: str = "image",
 ) -> list[RenderImage]:
     """Pictures of one file, or of a catalog as one cloud, in several colour modes, from one read (see :func:`render_array`).
 
@@ -870,9 +956,15 @@ def render_arrays(
         raise PatchcloudValueError(f"view must be one of {', '.join(VIEWS)}; got {view!r}")
     if int(chunk) < 1:
         raise PatchcloudValueError(f"chunk must be a positive number of points; got {chunk!r}")
-    if fill is not None and (isinstance(fill, bool) or int(fill) != fill or not 0 <= fill <= FILL_LIMIT):
-        raise PatchcloudValueError(f"fill must be a number of gap-filling passes from 0 (none) to {FILL_LIMIT}, "
+    if fill is not None and (isinstance(fill, bool) or not isinstance(fill, (int, float, np.integer, np.floating))
+                             or not 0 <= fill <= FILL_LIMIT):
+        raise PatchcloudValueError(f"fill must be a gap-filling radius in pixels from 0 (none) to {FILL_LIMIT}, "
                                    f"or left out (from the point spacing); got {fill!r}")
+    if width_of not in WIDTH_OF:
+        raise PatchcloudValueError(f"width_of must be one of {', '.join(WIDTH_OF)}; got {width_of!r}")
+    if width_of == "figure" and not (isinstance(width, (int, np.integer)) and MIN_WIDTH <= width <= MAX_WIDTH):
+        raise PatchcloudValueError(f"width must be {MIN_WIDTH} to {MAX_WIDTH} pixels for a picture (its title, axes and "
+                                   f"legend included); got {width!r}")
     if heights not in HEIGHTS:
         raise PatchcloudValueError(f"heights must be one of {', '.join(HEIGHTS)}; got {heights!r}")
     bbox = _check_bbox(bbox)
@@ -893,6 +985,15 @@ def render_arrays(
     if view is None:
         view = choose_view(lo, hi)
     R = view_axes(view, lo, hi)
+    names = axis_names(picture_crs(sources, assume_crs))
+    layout = None
+    if width_of == "figure":  # the image gets the columns the title, axes and legend leave
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        u, v = corners @ R[0], corners @ R[1]
+        ou, ov = (0.0, 0.0) if view == "oblique" else (float(R[0] @ origin), float(R[1] @ origin))
+        box = (u.min() + ou, u.max() + ou, v.min() + ov, v.max() + ov)
+        layout = figure_layout(width, box, *view_axis_labels(view, R, names))
+        width = layout.raster
     frame = make_frame(R, lo, hi, width)
 
     # channels kept per pixel: the normals (for the normals mode or the shading), then one per value dimension
@@ -936,11 +1037,10 @@ def render_arrays(
         zb.add(pixel[inside], w[inside], index[inside], vals[inside])
         del pts, vals, cols
 
-    points_drawn = int((zb.index >= 0).sum())
-    if fill is None:
-        fill = auto_fill(zb.shape, in_box)
-    source, filled = fill_gaps(zb.depth.reshape(zb.shape), max(0, int(fill)))
-    drawn = source == np.arange(source.size).reshape(source.shape)
+    drawn = zb.filled
+    points_drawn = int(drawn.sum())
+    fill = auto_fill(drawn) if fill is None else float(fill)
+    source, filled = fill_gaps(drawn, fill)
     vals = zb.values[source.ravel()].reshape(zb.shape + (zb.values.shape[1],))
     del zb
     normals = vals[..., :3] if want_normals else None
@@ -967,78 +1067,217 @@ def render_arrays(
         images.append(RenderImage(
             source=name, color=color, view=view, shaded=bool(shade), rgb=rgb, filled=filled, value=value,
             extent=extent, pixel=frame.pixel, axes=R, point_count=int(firsts[-1]), points_in_box=in_box,
-            points_drawn=points_drawn, value_range=rng, legend=legend, bbox=bbox, fill=int(fill),
-            seconds=time.perf_counter() - t0,
+            points_drawn=points_drawn, value_range=rng, legend=legend, bbox=bbox, fill=fill,
+            seconds=time.perf_counter() - t0, names=names, layout=layout, range_given=value_range is not None,
         ))
     return images
 
 
-def render_figure(img: RenderImage):
-    """The picture as a matplotlib Figure (Agg canvas): the image at about one figure pixel per image pixel, colour bar or legend beside it.
+#: Words for the colour modes in titles and colour bars.
+MODE_NAMES = {"normals": "Normals", "curvature": "Curvature", "don": "DoN magnitude", "segments": "Segments",
+              "patches": "Patches", "classification": "Classification", "intensity": "Intensity", "elevation": "Elevation"}
+#: Classes listed in a legend at most.
+LEGEND_MAX = 20
 
-    Title: file name, colour mode, view, points drawn of points in the file.
-    Top and side views have axes in metres (file coordinates); the oblique
-    view hides them.
+
+def _ordinal(p: float) -> str:
+    """2 -> "2nd", 98 -> "98th", 2.5 -> "2.5th"."""
+    if p != int(p):
+        return f"{p:g}th"
+    n = int(p)
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
+
+
+def colour_note(img: RenderImage) -> str:
+    """The sentence under a picture that says what its colours (and its empty pixels) mean.
+
+    Examples
+    --------
+    >>> img = RenderImage("f.laz", "normals", "top", True, np.zeros((1, 1, 3)), np.ones((1, 1), bool), np.zeros((1, 1, 3)),
+    ...                   (0, 1, 0, 1), 1.0, np.eye(3), 1, 1, 1, None, fill=2.0)
+    >>> print(colour_note(img))
+    Red = Normal X (east), green = Normal Y (north), blue = Normal Z (up), each (n + 1) / 2. Shaded by the normals, light from the upper left. Empty pixels within 2 px of a point show the nearest one.
     """
-    from matplotlib import colormaps
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
-    from matplotlib.patches import Patch
-
-    from patchcloud.stream.views.plots import STYLE, shorten, new_figure, style_axes
-
-    H, W = img.filled.shape
-    dpi = STYLE["dpi"]
-    side = 1.9 if (img.value_range is not None or img.legend) else 0.6
-    fig, (ax,) = new_figure(W / dpi + side + 0.9, H / dpi + 1.1)
-    ax.imshow(img.rgb, extent=img.extent, origin="upper", interpolation="nearest", aspect="equal")
-    xl, yl = img.axis_labels
-    name = shorten(Path(img.source).name, 60)
-    what = {"don": "DoN", "segments": "segments (ClusterID)", "patches": "patches (PatchId)",
-            "normals": "normals RGB = (n + 1) / 2"}.get(img.color, img.color)
-    title = (f"{name}: {what}, {img.view} view{', shaded' if img.shaded else ''}\n"
-             f"{img.points_drawn:,} points drawn of {img.point_count:,}")
-    style_axes(ax, title, xl, yl)
-    if xl is None:
-        ax.set_axis_off()
-    else:
-        ax.ticklabel_format(useOffset=False, style="plain")
-    if img.value_range is not None:
-        sm = ScalarMappable(norm=Normalize(*img.value_range), cmap=colormaps[CMAPS[img.color]])
-        cb = fig.colorbar(sm, ax=ax, shrink=0.8, extend="both")
-        label = {"curvature": "curvature l3/(l1+l2+l3)", "don": "|DoN|", "elevation": "z (m)", "intensity": "intensity"}[img.color]
-        cb.set_label(f"{label} ({PERCENTILES[0]:g}-{PERCENTILES[1]:g} percentile range)", fontsize=STYLE["label"])
-        cb.ax.tick_params(labelsize=STYLE["tick"])
-    elif img.legend:
-        handles = [Patch(facecolor=c, edgecolor="0.3", label=f"{lab} ({n:,} px)") for lab, c, n in img.legend[:20]]
-        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=STYLE["annotation"], frameon=False)
+    parts = []
+    if img.color == "normals":
+        parts.append("Red = Normal X (east), green = Normal Y (north), blue = Normal Z (up), each (n + 1) / 2.")
     elif img.color == "segments":
         ids = img.value[img.filled]
         n = np.unique(ids[np.isfinite(ids) & (ids > 0)]).size
-        handles = [Patch(facecolor=NO_SEGMENT, label="0: no segment"), Patch(facecolor="none", edgecolor="none", label=f"{n:,} segments visible")]
-        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=STYLE["annotation"], frameon=False)
+        parts.append(f"Grey: no segment (ClusterID 0); {n:,} segments visible, in 18 colours repeated.")
     elif img.color == "patches":
         ids = img.value[img.filled]
         n = np.unique(ids[np.isfinite(ids)]).size
-        ax.text(1.01, 1.0, f"{n:,} patches visible\nboundaries darkened", transform=ax.transAxes, va="top",
-                fontsize=STYLE["annotation"])
+        parts.append(f"{n:,} patches visible (PatchId), their boundaries darkened.")
+    elif img.value_range is not None:
+        if img.range_given:
+            parts.append("Colours span the range asked for; values beyond it take the end colours.")
+        else:
+            parts.append(f"Colours span the {_ordinal(PERCENTILES[0])} to {_ordinal(PERCENTILES[1])} percentiles of the "
+                         "points drawn; values beyond take the end colours.")
+    if img.shaded:
+        parts.append("Shaded by the normals, light from the upper left.")
+    if img.view == "oblique":
+        parts.append(f"Seen from the south-west, {OBLIQUE_ELEVATION:g}° above the horizon.")
+    if img.fill > 0:
+        parts.append(f"Empty pixels within {img.fill:.3g} px of a point show the nearest one.")
+    return " ".join(parts)
+
+
+def render_figure(img: RenderImage):
+    """The picture as a matplotlib Figure on an Agg canvas, laid out in pixels: one image pixel on one figure pixel.
+
+    Its width is ``img.layout.width`` when the image was framed for a
+    picture (``width_of="figure"``, as :func:`render` does), else the
+    image's width and the margins its axes need.  Top to bottom: the title
+    (file, colour mode, view, points drawn of the points in the file); the
+    image, its axes in file coordinates named and in the units of the
+    file's CRS ("Easting (m)", "Elevation (US ft)"; the oblique view has
+    none); the colour bar and its label ("Curvature", "DoN magnitude",
+    "Elevation (m)") or the legend of the classes; a sentence on the
+    colours.  Save it uncropped (:func:`~patchcloud.stream.views.plots.save_png`
+    with ``crop=False``): the PNG is then exactly that wide.
+
+    Examples
+    --------
+    >>> img = render_array(sample, color="elevation", width=600, width_of="figure")
+    >>> fig = render_figure(img)
+    >>> fig.canvas.get_width_height()[0], img.axis_labels
+    (600, ('Easting (m)', 'Northing (m)'))
+    """
+    from matplotlib import colormaps
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
+    from patchcloud.stream.views.layout import (
+        DPI, LABEL_PAD, PAD, TICK, TICK_PAD, axis_metrics, choose_ticks, line_height, text_size, thin_ticks, wrap_text,
+    )
+
+    H, W = img.filled.shape
+    xl, yl = img.axis_labels
+    lay = img.layout if img.layout is not None else layout_around(W, img.extent, xl, yl)
+    s = lay.scale
+    m = axis_metrics(s)
+    FW = lay.width
+    inner = FW - 2 * PAD
+    texts: list[tuple] = []  # (x px, top px, text, points, ha)
+    boxes: list[tuple] = []  # (x px, top px, w px, h px, colour)
+
+    y = PAD
+    title = (f"{Path(img.source).name}: {MODE_NAMES[img.color]}, {img.view} view{', shaded' if img.shaded else ''}\n"
+             f"{img.points_drawn:,} points drawn of {img.point_count:,}")
+    for line in wrap_text(title, inner, m["title_pt"]):
+        texts.append((FW / 2, y, line, m["title_pt"], "center"))
+        y += line_height(m["title_pt"])
+    y += PAD
+    if lay.axes:  # a y label longer than the image is tall reaches above it: keep it off the title
+        y += max(0, int(np.ceil((text_size(yl, m["label_pt"])[0] - H) / 2)))
+    ring = 1 if lay.axes else 0
+    img_left = lay.left + (lay.raster - W) // 2
+    img_top = y + ring
+    y = img_top + H + ring + lay.axis_height() + PAD
+
+    bar = None
+    if img.value_range is not None:  # colour bar under the image, as wide as it (at least 60 % of the picture)
+        span = max(W, int(0.6 * inner))
+        x0 = max(PAD, img_left + W // 2 - span // 2)
+        x1 = min(FW - PAD, x0 + span)
+        lo, hi = img.value_range
+        ticks, labels = choose_ticks(lo, hi, x1 - x0, True, m["tick_pt"])
+        half = max([text_size(t, m["tick_pt"])[0] for t in labels] or [0.0]) / 2
+        x0, x1 = max(x0, int(np.ceil(PAD + half))), min(x1, int(FW - PAD - half))
+        ticks, labels = thin_ticks(ticks, labels, lo, hi, x1 - x0, True, m["tick_pt"])
+        bar_h = max(6, int(round(14 * s)))
+        bar = (x0, y, x1 - x0, bar_h, ticks, labels)
+        tick_h = max([text_size(t, m["tick_pt"])[1] for t in labels] or [0.0])
+        y += bar_h + int(np.ceil(m["tick_len"] + m["tick_pad"] + tick_h)) + PAD
+        names = {"curvature": "Curvature", "don": "DoN magnitude", "elevation": img.names.z, "intensity": "Intensity"}
+        for line in wrap_text(names[img.color], inner, m["label_pt"]):
+            texts.append((FW / 2, y, line, m["label_pt"], "center"))
+            y += line_height(m["label_pt"])
+        y += PAD // 2
+    elif img.legend:  # the classes, most frequent first, in as many columns as fit
+        pt = m["note_pt"]
+        sw = int(round(text_size("Ag", pt)[1] * 0.8))
+        entries = [(f"{lab} ({n:,} px)", c) for lab, c, n in img.legend[:LEGEND_MAX]]
+        room = inner - sw - 4
+        entries = [(wrap_text(t, room, pt)[0] if text_size(t, pt)[0] > room else t, c) for t, c in entries]
+        colw = sw + 4 + max(text_size(t, pt)[0] for t, _ in entries) + 14
+        ncol = max(1, int((inner + 14) // colw))
+        lh = line_height(pt)
+        for k, (t, c) in enumerate(entries):
+            r, col = divmod(k, ncol)
+            x = PAD + col * colw
+            top = y + r * lh
+            boxes.append((x, top + (lh - sw) / 2 - 1, sw, sw, c))
+            texts.append((x + sw + 4, top, t, pt, "left"))
+        y += int(np.ceil(len(entries) / ncol)) * lh
+        if len(img.legend) > LEGEND_MAX:
+            more = f"and {len(img.legend) - LEGEND_MAX:,} more classes"
+            texts.append((PAD, y, wrap_text(more, inner, pt)[0], pt, "left"))
+            y += lh
+        y += PAD // 2
+    for line in wrap_text(colour_note(img), inner, m["note_pt"]):
+        texts.append((PAD, y, line, m["note_pt"], "left"))
+        y += line_height(m["note_pt"])
+    FH = y + PAD
+
+    fig = Figure(figsize=(FW / DPI, FH / DPI), dpi=DPI)
+    FigureCanvasAgg(fig)
+    fig.figimage(img.rgb, xo=img_left, yo=FH - img_top - H, origin="upper")
+    line_w = min(0.8 * s, 72.0 / DPI)  # at most one pixel: the frame stays on its ring of pixels around the image
+    if lay.axes:
+        ax = fig.add_axes(((img_left - 1) / FW, (FH - img_top - H - 1) / FH, (W + 2) / FW, (H + 2) / FH))
+        ax.patch.set_visible(False)
+        e, p = img.extent, img.pixel
+        ax.set_xlim(e[0] - p, e[1] + p)
+        ax.set_ylim(e[2] - p, e[3] + p)
+        ax.set_xticks(*thin_ticks(lay.xticks, lay.xtick_labels, e[0], e[1], W, True, m["tick_pt"]))
+        ax.set_yticks(*thin_ticks(lay.yticks, lay.ytick_labels, e[2], e[3], H, False, m["tick_pt"]))
+        ax.tick_params(labelsize=m["tick_pt"], length=TICK * s, pad=TICK_PAD * s, width=line_w)
+        ax.set_xlabel(xl, fontsize=m["label_pt"], labelpad=LABEL_PAD * s)
+        ax.set_ylabel(yl, fontsize=m["label_pt"], labelpad=LABEL_PAD * s)
+        for sp in ax.spines.values():
+            sp.set_linewidth(line_w)
+    if bar is not None:
+        from matplotlib.cm import ScalarMappable
+
+        x0, top, bw, bh, ticks, labels = bar
+        cax = fig.add_axes((x0 / FW, 1 - (top + bh) / FH, bw / FW, bh / FH))
+        sm = ScalarMappable(norm=Normalize(*img.value_range), cmap=colormaps[CMAPS[img.color]])
+        cb = fig.colorbar(sm, cax=cax, orientation="horizontal", extend="both")
+        cb.set_ticks(ticks, labels=labels)
+        cax.tick_params(labelsize=m["tick_pt"], length=TICK * s, pad=TICK_PAD * s, width=line_w)
+        cb.outline.set_linewidth(line_w)
+    for x, top, w, h, c in boxes:
+        fig.add_artist(Rectangle((x / FW, 1 - (top + h) / FH), w / FW, h / FH, transform=fig.transFigure,
+                                 facecolor=c, edgecolor="0.3", linewidth=line_w))
+    for x, top, t, pt, ha in texts:
+        fig.text(x / FW, 1 - top / FH, t, fontsize=pt, ha=ha, va="top", parse_math=False)
     return fig
 
 
 def render(
     input, output: str | os.PathLike, *, color: str, view: str | None = None, bbox=None,
-    width: int = 1600, shade: bool | None = None, value_range=None, fill: int | None = None, heights: str = "robust",
+    width: int = 1600, shade: bool | None = None, value_range=None, fill: float | None = None, heights: str = "robust",
     chunk: int = 1 << 20, assume_crs: str | None = None,
 ) -> RenderSummary:
     """Write a PNG picture of a LAS/LAZ file of any size, or of a catalog of files in one frame
     (out of core; see :func:`render_array` for the options).
 
-    The PNG is written atomically (an existing file is replaced).
+    The PNG is exactly ``width`` pixels wide, its title, axes and colour bar
+    or legend included (see :func:`render_figure`); the image of the points
+    takes the columns they leave.  It is written atomically (an existing
+    file is replaced).
 
     Returns
     -------
     RenderSummary
-        Points read, in the frame, drawn (one per filled pixel), the colour range, seconds.
+        The PNG's size and the image's, points read, in the frame, drawn
+        (one per filled pixel), the colour range, seconds.
 
     Examples
     --------
@@ -1046,9 +1285,10 @@ def render(
     >>> _ = normals(sample, tmp / "n.laz", quiet=True)
     >>> s = render(tmp / "n.laz", tmp / "n.png", color="curvature", width=400)
     >>> print(s.format())   # doctest: +ELLIPSIS
-    /...n.png: 400 x 400 px, curvature, top view, shaded, colour range ... .. ...
-    60,653 points read, 60,653 in the frame, ... drawn (one per pixel), ... pixels filled, ... s
-    >>> (tmp / "n.png").read_bytes()[:4] == b"\\x89PNG"
+    /...n.png: 400 x ... px PNG, curvature, top view, shaded, colour range ... .. ...
+    image ... x ... px of ... m, 60,653 points read, 60,653 in the frame, ... drawn (one per pixel), ... pixels filled (radius ... px), ... s
+    >>> from matplotlib.image import imread
+    >>> imread(tmp / "n.png").shape[1::-1] == (s.width, s.height)
     True
     """
     from patchcloud.stream.views.plots import check_png_path, save_png
@@ -1056,11 +1296,14 @@ def render(
     t0 = time.perf_counter()
     out = check_png_path(output)
     img = render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
-                        heights=heights, chunk=chunk, assume_crs=assume_crs, output=out)[0]
-    save_png(render_figure(img), out)
+                        heights=heights, chunk=chunk, assume_crs=assume_crs, output=out, width_of="figure")[0]
+    fig = render_figure(img)
+    save_png(fig, out, crop=False)
+    FW, FH = fig.canvas.get_width_height()
     H, W = img.filled.shape
     return RenderSummary(
-        input=img.source, output=str(out), color=color, view=img.view, shaded=img.shaded, width=W, height=H,
+        input=img.source, output=str(out), color=color, view=img.view, shaded=img.shaded, width=FW, height=FH,
         points_read=img.point_count, points_in_box=img.points_in_box, points_drawn=img.points_drawn,
         pixels_filled=img.pixels_filled, value_range=img.value_range, seconds=time.perf_counter() - t0,
+        image_width=W, image_height=H, pixel=img.pixel, unit=img.names.horizontal, fill=img.fill,
     )

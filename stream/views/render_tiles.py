@@ -36,7 +36,7 @@ class TileState:
     """Per column of tiles (i, j): state at ``step`` and points / patches.
 
     ``columns`` (C, 2) tile indices i, j; ``corner`` (C, 2) the file
-    coordinates (metres) of each column's south-west corner; ``tiles``,
+    coordinates (the units of ``crs``, the store's CRS as WKT or None) of each column's south-west corner; ``tiles``,
     ``done`` tiles per column and how many have the step done; ``points``
     and ``patches`` (-1 where a tile of the column has no fitted patch
     table) per column; ``failed`` the tiles per column that have not done
@@ -56,6 +56,7 @@ class TileState:
     patches: np.ndarray
     failed: np.ndarray
     errors: list
+    crs: str | None = None
 
     @property
     def state(self) -> np.ndarray:
@@ -122,7 +123,11 @@ def tile_state(store: Store | str, step: str | None = None) -> TileState:
     g = st.grid
     corner = cols * g.tile_size + np.asarray(g.origin[:2])
     n_failed = np.bincount(inv, weights=failed, minlength=C).astype(np.int64)
-    return TileState(st.url, step, steps, g.tile_size, cols, corner, n_tiles, n_done, pts, pat, n_failed, errors)
+    try:
+        crs = st.catalog.crs
+    except (KeyError, TypeError, ValueError):  # a store without its catalog's record: no CRS to name the axes by
+        crs = None
+    return TileState(st.url, step, steps, g.tile_size, cols, corner, n_tiles, n_done, pts, pat, n_failed, errors, crs)
 
 
 @dataclass
@@ -167,6 +172,9 @@ def tiles_figure(ts: TileState, by: str = "points"):
     from matplotlib.patches import Patch, Rectangle
 
     from patchcloud.stream.views.plots import CMAP, STYLE, shorten, new_figure, style_axes
+    from patchcloud.stream.views.units import axis_names
+
+    names = axis_names(ts.crs)
 
     T = ts.tile_size
     x0, y0 = ts.corner.min(axis=0)
@@ -191,7 +199,7 @@ def tiles_figure(ts: TileState, by: str = "points"):
     handles = [Patch(facecolor=c, label=f"{k}: {counts[k]:,}") for k, c in STATE_COLOURS.items()]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=STYLE["annotation"], frameon=False,
               title="columns", title_fontsize=STYLE["annotation"])
-    style_axes(ax, f"state at step '{ts.step}' ({int(ts.done.sum()):,} of {int(ts.tiles.sum()):,} tiles done)", "x (m)", "y (m)")
+    style_axes(ax, f"state at step '{ts.step}' ({int(ts.done.sum()):,} of {int(ts.tiles.sum()):,} tiles done)", names.x, names.y)
 
     values = ts.points if by == "points" else ts.patches
     known = values >= 0
@@ -216,8 +224,8 @@ def tiles_figure(ts: TileState, by: str = "points"):
     cb.ax.tick_params(labelsize=STYLE["tick"])
     total = int(v.sum())
     extra = "" if known.all() else f"; grey: no patch table ({int((~known).sum()):,})"
-    style_axes(bx, f"{by} per column ({total:,} in all{extra})", "x (m)", None)
-    fig.suptitle(f"tiles of {shorten(ts.url, 70)}: {len(ts.tiles):,} columns of {T:g} m tiles", fontsize=STYLE["suptitle"])
+    style_axes(bx, f"{by} per column ({total:,} in all{extra})", names.x, None)
+    fig.suptitle(f"tiles of {shorten(ts.url, 70)}: {len(ts.tiles):,} columns of tiles {T:g} {names.horizontal} wide", fontsize=STYLE["suptitle"])
     return fig
 
 

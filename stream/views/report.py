@@ -70,7 +70,7 @@ REFERENCE_DIMS = (("TrueNormalX", "TrueNormalY", "TrueNormalZ"), ("NormalX", "No
 CURVATURE_MAX = 1.0 / 3.0
 #: Rows of the per-tile table of a compress report at most (the largest tiles by points).
 MAX_TILE_ROWS = 200
-#: Width (pixels) of the rendered views.
+#: Width (pixels) of the rendered views' pictures (title, axes and colour bar included).
 VIEW_WIDTH = 1200
 
 
@@ -734,7 +734,8 @@ def _views(paths: list[str], colours: Sequence[tuple[str, str]], width: int) -> 
     if not wanted:
         return [], notes
     try:
-        images = render_arrays(paths[0] if len(paths) == 1 else paths, colors=[c for c, _ in wanted], width=width)
+        images = render_arrays(paths[0] if len(paths) == 1 else paths, colors=[c for c, _ in wanted], width=width,
+                               width_of="figure")
     except PatchcloudError as exc:
         return [], notes + [f"The views could not be drawn: {exc}"]
     figures = [ReportFigure(figure_png(render_figure(img)), caption, "Views") for img, (_, caption) in zip(images, wanted)]
@@ -799,7 +800,7 @@ def report_normals(
     else:
         notes.append("The input carries no reference normals (TrueNormalX/Y/Z or NormalX/Y/Z): no angle errors to show.")
     figures.append(ReportFigure(figure_png(histogram_figure(
-        stats.curvature, title="Curvature (surface variation)", xlabel="λ3 / (λ1 + λ2 + λ3)")),
+        stats.curvature, title="Curvature (surface variation)", xlabel="Curvature λ3 / (λ1 + λ2 + λ3)")),
         f"Curvature of the {stats.curvature.total:,} points with one, {stats.curvature.counts.size} bins over [0, 1/3].",
         "Histograms"))
     m = summary.normals_by_method
@@ -832,7 +833,7 @@ def report_don(
         notes += n
     h = don_histogram(summary)
     if h.total:
-        figures.append(ReportFigure(figure_png(histogram_figure(h, title="DoN magnitude", xlabel="|DoN| (0 to 1)")),
+        figures.append(ReportFigure(figure_png(histogram_figure(h, title="DoN magnitude", xlabel="DoN magnitude (0 to 1)")),
                                     f"DoN magnitude of the {h.total:,} points where it is defined, {h.counts.size} bins over [0, 1].",
                                     "Histograms"))
     else:
