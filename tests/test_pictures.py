@@ -144,7 +144,7 @@ def scan(s=0.25, lines=2.5, size=60.0, lake=(32.0, 28.0, 9.0), angle=20.0):
 
 def test_scan_lines_leave_no_dashes_and_a_lake_stays_empty(tmp_path):
     # 60 m at 800 px: 0.075 m pixels; points 3.3 px apart along lines 10 px apart, so most rows of pixels between the
-    # lines hold no point.  k = FILL_SPACINGS = 1.5 mean spacings sqrt(s L) (5.8 px).  (The filling by passes that this
+    # lines hold no point.  k = FILL_SPACINGS = 2 mean spacings sqrt(s L) (5.8 px each).  (The filling by passes that this
     # replaced, 5 passes of 8-neighbours here, left 1,127 empty pixels within 1.25 spacings of a point: dashes.)
     xyz, spacing = scan(lines=3.0)
     path = write_las(tmp_path / "scan.las", np.vstack([xyz, [[0, 0, 0], [60, 60, 0]]]))

@@ -32,7 +32,7 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
               help="Colour range of curvature, don, intensity, elevation. Default: 2nd-98th percentile of the drawn points.")
 @click.option("--fill", type=float, default=None, metavar="PIXELS",
               help="Close holes: an empty pixel within this many pixels of a point shows the nearest point (0: none). "
-              "Default: 1.5 x the mean point spacing in pixels (over the area the points cover), 1.5 to 32.")
+              "Default: 2 x the mean point spacing in pixels (over the area the points cover), 1.5 to 32.")
 @click.option("--heights", type=click.Choice(["robust", "all"]), default="robust", show_default=True,
               help="robust: frame the heights of a sample of the file, so noise far above or below (birds, low "
               "returns) does not squash the picture; all: frame the header's bounds.")

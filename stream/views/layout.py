@@ -131,7 +131,8 @@ def wrap_text(text: str, width: float, points: float) -> list[str]:
 
 
 def tick_labels(ticks) -> list[str]:
-    """Labels of ``ticks``: plain decimals with as many places as the step needs (no offset, no exponent).
+    """Labels of ``ticks``: plain decimals with as many places as the step needs (no offset); values all under 0.001
+    (or one over 1e9) in scientific notation.
 
     Examples
     --------
@@ -139,12 +140,22 @@ def tick_labels(ticks) -> list[str]:
     ['6860000', '6860020', '6860040']
     >>> tick_labels([0.0, 0.0025, 0.005]), tick_labels([-0.5, 0.0, 0.5]), tick_labels([2.5])
     (['0.0000', '0.0025', '0.0050'], ['-0.5', '0.0', '0.5'], ['2.5'])
+    >>> tick_labels([1.93e-8, 1.94e-8, 1.95e-8])
+    ['1.93e-08', '1.94e-08', '1.95e-08']
     """
     t = np.asarray(ticks, dtype=np.float64)
     if t.size == 0:
         return []
     diffs = np.abs(np.diff(t))
     step = float(diffs[diffs > 0].min()) if (diffs > 0).any() else (abs(float(t[0])) or 1.0)
+    big = float(np.abs(t).max())
+    if 0 < big < 1e-3 or big >= 1e9:
+        digits = max(0, math.floor(math.log10(big) + 1e-9) - math.floor(math.log10(step) + 1e-6))
+        for digits in range(digits, digits + 12):
+            labels = [f"{v:.{digits}e}" for v in t]
+            if all(abs(float(s) - v) <= 1e-6 * step for s, v in zip(labels, t)):
+                return labels
+        return labels
     places = max(0, math.ceil(-math.log10(step) - 1e-9))
     for places in range(places, places + 12):
         labels = [f"{v + 0.0:.{places}f}" for v in t]
