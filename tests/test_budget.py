@@ -80,7 +80,7 @@ def test_the_option_sets_the_budget_for_the_command_only(small_pcz, tmp_path, mo
     monkeypatch.delenv(budget.ENV, raising=False)
     r = CliRunner().invoke(main, ["render", str(small_pcz.with_name("scene.las")), str(tmp_path / "a.png"), "--color", "elevation", "--width", "6000",
                                   "--max-memory", "100MiB", "-q"])
-    one_line(r, "a picture of 6,000 x", "would need", "more than the memory budget of 100 MiB", "--max-memory")
+    one_line(r, "a picture 6,000 px wide (its image", "would need", "more than the memory budget of 100 MiB", "--max-memory")
     assert not (tmp_path / "a.png").exists() and budget.ENV not in __import__("os").environ
     r = CliRunner().invoke(main, ["info", str(small_pcz), "--max-memory", "a lot"])
     assert r.exit_code == 2 and "a size must be" in r.output

@@ -9,8 +9,13 @@ file.  The pieces are pure numpy functions, unit-tested on their own:
   orthographic camera and the image's framing from the header bounds (no
   first pass over the points);
 * :class:`ZBuffer`: the per-pixel decimation, chunk by chunk;
+* :func:`fill_gaps` / :func:`auto_fill`: the holes between the points
+  closed from the nearest drawn pixel, within 2 mean point spacings;
 * :func:`colorize`, :func:`lambert`, :func:`patch_boundaries`: colours,
-  shading and patch outlines of the decimated pixels.
+  shading and patch outlines of the decimated pixels;
+* :func:`render_figure`: the picture, exactly as wide as asked with its
+  title, axes and legend (laid out by :mod:`.layout`, the axes named and in
+  the units of the file's CRS by :mod:`.units`).
 
 Views (orthographic; screen axes u to the right, v up, depth w towards the
 viewer, the visible point of a pixel being the one of largest w, ties going
@@ -1006,8 +1011,9 @@ def render_arrays(
         if d is not None and d not in value_dims:
             value_dims.append(d)
     channels = nval + len(value_dims)
+    image = f"{frame.width:,} x {frame.height:,} pixels"
     check_memory(frame.height * frame.width * (PIXEL_BYTES + 8 * channels * len(colors)),
-                 f"a picture of {frame.width:,} x {frame.height:,} pixels")
+                 f"a picture {layout.width:,} px wide (its image {image})" if layout else f"a picture of {image}")
     zb = ZBuffer(frame.height, frame.width, channels)
     in_box = 0
     firsts = np.cumsum([0] + [s.point_count for s in sources])  # a point's index: its place in the catalog (ties: the first)
