@@ -71,9 +71,9 @@ def rmse_histograms(points: np.ndarray, d_min: float, n_min: int, origin=(0.0, 0
     n_min : int
         Cells with fewer points are left out.
     origin : (3,) float
-        Where the coordinates' zero lies in the absolute frame; a multiple
-        of both cell edges (the stream's grid origin), so that cells and
-        their hashes are those of the absolute grid.
+        Where the coordinates' zero lies in the absolute frame (the
+        stream's grid origin), so that cells and their hashes are those of
+        the absolute grid.
 
     Returns
     -------
@@ -95,11 +95,9 @@ def rmse_histograms(points: np.ndarray, d_min: float, n_min: int, origin=(0.0, 0
     """
     pts = np.asarray(points, dtype=np.float64)
     out = np.zeros((2, RMSE_BINS.size - 1), dtype=np.int64)
+    o = np.asarray(origin, dtype=np.float64)
     for row, c in enumerate(calibration_edges(d_min)[:2]):
-        shift = np.asarray(origin, dtype=np.float64) / c
-        if not np.array_equal(shift, np.round(shift)):
-            raise ValueError(f"origin {tuple(origin)} is not on the grid of {c} m cells")
-        ijk = np.floor(pts / c).astype(np.int64) + shift.astype(np.int64)
+        ijk = np.floor((pts + o) / c).astype(np.int64)  # absolute cells
         chosen = np.flatnonzero(np.mod(ijk @ _HASH, CALIBRATION_STRIDE) == 0)
         if chosen.size == 0:
             continue
@@ -111,7 +109,7 @@ def rmse_histograms(points: np.ndarray, d_min: float, n_min: int, origin=(0.0, 0
         keep = counts >= n_min
         if not keep.any():
             continue
-        centres = (cells[starts] - shift.astype(np.int64) + 0.5) * c
+        centres = (cells[starts] + 0.5) * c - o
         moments = cell_moments(np.ascontiguousarray(pts[chosen[order]]), starts.astype(np.int64), centres)
         fit = fit_nodes(moments[keep], np.full(int(keep.sum()), c / 2.0))
         rmse = np.maximum(np.nan_to_num(fit.rmse, nan=0.0), 10.0 ** RMSE_BINS[0])
