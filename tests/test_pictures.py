@@ -2,7 +2,6 @@
 
 import itertools
 
-import laspy
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -14,30 +13,9 @@ from patchcloud.core.errors import PatchcloudValueError
 from patchcloud.stream import render, render_array
 from patchcloud.stream.cli import main
 from patchcloud.stream.views.render import FILL_SPACINGS, auto_fill, fill_gaps, point_spacing, render_arrays, render_figure
+from test_render import X0, Y0, write_las
 
-X0, Y0 = 650000.0, 6860000.0
 SAMPLE = ROOT / "data" / "test_data_77055_627760_LA93_IGN69.laz"
-
-
-def write_las(path, xyz, crs=None, **dims):
-    """A LAS 1.4 pf6 file of local ``xyz`` shifted by X0, Y0, with a CRS (anything pyproj takes) when given."""
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.scales = np.array([0.001, 0.001, 0.001])
-    header.offsets = np.array([X0, Y0, 0.0])
-    std = set(header.point_format.dimension_names)
-    extra = [laspy.ExtraBytesParams(name, np.asarray(v).dtype) for name, v in dims.items() if name not in std]
-    if extra:
-        header.add_extra_dims(extra)
-    if crs is not None:
-        from pyproj import CRS
-
-        header.add_crs(CRS.from_user_input(crs))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0] + X0, xyz[:, 1] + Y0, xyz[:, 2]
-    for name, v in dims.items():
-        las[name] = v
-    las.write(str(path))
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -20,8 +20,9 @@ from patchcloud.stream.io.store import Store
 X0, Y0 = 650000.0, 6860000.0
 
 
-def write_las(path, xyz, **dims):
-    """A LAS 1.4 pf6 file of local ``xyz`` (metres, shifted by X0, Y0) with standard or extra dimensions."""
+def write_las(path, xyz, crs=None, **dims):
+    """A LAS 1.4 pf6 file of local ``xyz`` (metres, shifted by X0, Y0) with standard or extra dimensions,
+    and a CRS (anything pyproj takes) when given."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([0.001, 0.001, 0.001])
     header.offsets = np.array([X0, Y0, 0.0])
@@ -29,6 +30,10 @@ def write_las(path, xyz, **dims):
     extra = [laspy.ExtraBytesParams(name, np.asarray(v).dtype) for name, v in dims.items() if name not in std]
     if extra:
         header.add_extra_dims(extra)
+    if crs is not None:
+        from pyproj import CRS
+
+        header.add_crs(CRS.from_user_input(crs))
     las = laspy.LasData(header)
     las.x, las.y, las.z = xyz[:, 0] + X0, xyz[:, 1] + Y0, xyz[:, 2]
     for name, v in dims.items():
