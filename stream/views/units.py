@@ -16,12 +16,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["AxisNames", "axis_names", "unit_abbreviation", "NO_CRS_UNIT"]
+from patchcloud.stream.io.crs import UNITS
+
+__all__ = ["AxisNames", "axis_names", "unit_abbreviation", "NO_CRS_UNIT", "LABELS"]
 
 #: What an axis of unknown unit says.
 NO_CRS_UNIT = "file units"
-#: Metres per foot: international and US survey.
-FOOT, US_FOOT = 0.3048, 1200.0 / 3937.0
+#: How an axis label writes each unit of :data:`patchcloud.stream.io.crs.UNITS` (the units distances may be in).
+LABELS = {"m": "m", "ft": "ft", "us-ft": "US ft"}
 
 
 @dataclass(frozen=True)
@@ -68,9 +70,9 @@ def unit_abbreviation(name: str, metres: float | None) -> str:
     if "degree" in n:
         return "°"
     if metres is not None:
-        for value, short in ((1.0, "m"), (FOOT, "ft"), (US_FOOT, "US ft")):
+        for symbol, (_, value) in UNITS.items():
             if abs(float(metres) - value) <= 1e-9 * value:
-                return short
+                return LABELS[symbol]
     return name or NO_CRS_UNIT
 
 
