@@ -573,17 +573,15 @@ def take_rows(values, order):
 
 
 @parallel_kernel
-def neighbour_signs(query, nb, normals, oriented, todo, sign):
-    """Sign that turns each pending query normal towards the sum of its oriented neighbours' normals.
+def neighbour_signs(nrm, nb, normals, oriented, sign):
+    """Sign that turns each query normal ``nrm[m]`` towards the sum of its oriented neighbours' normals.
 
-    ``sign[m]`` is +1/-1 for pending queries (``todo[m]``) with at least one
-    oriented neighbour, 0 otherwise.  Returns how many got a sign.
+    ``nb[m]`` are the rows of ``normals`` next to query ``m``; ``sign[m]`` is
+    +1/-1 where at least one of them is ``oriented`` (and their sum is not
+    zero), 0 otherwise.
     """
-    count = 0
-    for m in prange(query.shape[0]):
+    for m in prange(nrm.shape[0]):
         sign[m] = 0.0
-        if not todo[m]:
-            continue
         rx, ry, rz = 0.0, 0.0, 0.0
         for j in range(nb.shape[1]):
             o = nb[m, j]
@@ -592,11 +590,8 @@ def neighbour_signs(query, nb, normals, oriented, todo, sign):
                 ry += normals[o, 1]
                 rz += normals[o, 2]
         if rx * rx + ry * ry + rz * rz > 0.0:
-            i = query[m]
-            dot = normals[i, 0] * rx + normals[i, 1] * ry + normals[i, 2] * rz
+            dot = nrm[m, 0] * rx + nrm[m, 1] * ry + nrm[m, 2] * rz
             sign[m] = -1.0 if dot < 0.0 else 1.0
-            count += 1
-    return count
 
 
 @parallel_kernel

@@ -376,11 +376,8 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, patch_normals, k, re
     dir1[query] = t / np.linalg.norm(t, axis=1)[:, None]
     method[query] = Method.KNN
     # 1. towards the patch normals among the point's k neighbours
-    todo = np.ones(query.size, dtype=bool)
     sign = np.zeros(query.size)
-    probe = votes.copy()  # patch normals, and the (unoriented) k-NN normals of the queries
-    probe[query] = nrm
-    _kernels.neighbour_signs(query, nb, probe, voters, todo, sign)
+    _kernels.neighbour_signs(nrm, nb, votes, voters, sign)
     # 2. towards the nearest patch normals within reach
     todo = sign == 0
     if todo.any() and voters.any():
@@ -403,7 +400,7 @@ def _nearby_signs(points, votes, voters, query, nrm, k: int, reach: float) -> np
     found = idx < rows.size
     total = (votes[rows[np.where(found, idx, 0)]] * found[..., None]).sum(axis=1)
     dot = np.einsum("ij,ij->i", total, nrm)
-    return np.where(found.any(axis=1) & (np.einsum("ij,ij->i", total, total) > 0), np.where(dot < 0, -1.0, 1.0), 0.0)
+    return np.where(np.einsum("ij,ij->i", total, total) > 0, np.where(dot < 0, -1.0, 1.0), 0.0)
 
 
 def _turn(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:
