@@ -23,12 +23,14 @@ from laspy.vlrs.known import ExtraBytesStruct
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from .las_records import RawRecord, as_vlr, file_records, is_extra_bytes, kept, software_version
+from .las_records import (
+    EVLR_BYTES, VLR_BYTES, RawRecord, as_vlr, ascii_text, file_records, header_record_fields, is_extra_bytes, kept, software_version,
+)
 
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
-    "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "with_writable_version", "check_header_sizes",
-    "check_record_sizes", "check_header_values", "header_record_fields", "ascii_text", "ascii_vlr", "ascii_texts", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR",
+    "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
+    "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR",
 ]
 
 
@@ -179,10 +181,6 @@ def open_source(path: str | os.PathLike) -> LasSource:
     return src
 
 
-#: The smallest VLR and EVLR (their headers, bytes).
-VLR_BYTES, EVLR_BYTES = 54, 60
-
-
 def check_header_sizes(path: str | os.PathLike, head: bytes, size: int, *, evlrs: bool = True) -> None:
     """Refuse a LAS header whose sizes and counts the file cannot hold, before anything is read or allocated from them.
 
@@ -218,20 +216,6 @@ def check_header_sizes(path: str | os.PathLike, head: bytes, size: int, *, evlrs
         room = max(0, size - start) // EVLR_BYTES
         raise PatchcloudIOError(f"{path}: the header says {count:,} EVLRs from byte {start:,}, but the file "
                                 f"({size:,} bytes) holds at most {room:,} there")
-
-
-def header_record_fields(head: bytes) -> tuple[int, int, int, int, int]:
-    """Header size, offset to the point data, VLR count, start of the first EVLR and EVLR count of a LAS header's
-    first bytes (``head``, at least 227); the EVLR fields are 0 where the header has none (before LAS 1.4, or cut short).
-
-    >>> header_record_fields(b"LASF" + bytes(90) + (375).to_bytes(2, "little") + (400).to_bytes(4, "little") + bytes(131))
-    (375, 400, 0, 0, 0)
-    """
-    header_size, offset, vlrs = struct.unpack_from("<HII", head, 94)
-    if head[25] >= 4 and header_size >= 375 and len(head) >= 375:
-        start, count = struct.unpack_from("<QI", head, 235)
-        return header_size, offset, vlrs, start, count
-    return header_size, offset, vlrs, 0, 0
 
 
 #: The largest scale and offset a header may state (metres or feet; a real file's are 0.01 to 1e-7, and a few million):
@@ -486,47 +470,6 @@ def writable_version(version) -> str:
     """
     v = str(version)
     return "1.2" if v in ("1.0", "1.1") else v
-
-
-def with_writable_version(header: laspy.LasHeader) -> laspy.LasHeader:
-    """``header`` with its version set to :func:`writable_version` of it (changed in place and returned)."""
-    header.version = laspy.header.Version.from_str(writable_version(header.version))
-    return header
-
-
-def ascii_text(text: str | bytes) -> str:
-    r"""``text`` with every character that is not ASCII written as '?' (bytes: decoded as ASCII the same way).
-
-    >>> ascii_text("Géo"), ascii_text(b"G\xe9o")
-    ('G?o', 'G?o')
-    """
-    if isinstance(text, bytes):
-        text = text.decode("ascii", "replace").replace("\ufffd", "?")
-    return text if text.isascii() else text.encode("ascii", "replace").decode("ascii")
-
-
-def ascii_vlr(vlr):
-    r"""``vlr`` itself, or a copy of it (same ids and record bytes) whose user id and description have every character
-    that is not ASCII (as LAS requires; laspy cannot write others, and keeps undecodable ones as bytes) written as '?'.
-
-    >>> ascii_vlr(laspy.VLR("test", 1, b"caf\xe9", b"x")).description
-    'caf?'
-    """
-    uid, desc = ascii_text(vlr.user_id), ascii_text(vlr.description)
-    if uid == vlr.user_id and desc == vlr.description:
-        return vlr
-    return laspy.VLR(uid, vlr.record_id, desc, vlr.record_data_bytes())
-
-
-def ascii_texts(header: laspy.LasHeader) -> laspy.LasHeader:
-    """``header`` (changed in place) with its system identifier, generating software, VLRs and EVLRs in ASCII
-    (:func:`ascii_text`, :func:`ascii_vlr`): LAS texts are ASCII, and laspy writes no other."""
-    header.system_identifier = ascii_text(header.system_identifier)
-    header.generating_software = ascii_text(header.generating_software)
-    header.vlrs = type(header.vlrs)([ascii_vlr(v) for v in header.vlrs])
-    if header.evlrs:
-        header.evlrs = type(header.evlrs)([ascii_vlr(v) for v in header.evlrs])
-    return header
 
 
 #: The LAS version of every output: 1.4, whose ExtraBytes VLR every reader (PDAL's without options) takes; point

@@ -34,7 +34,7 @@ import laspy
 from patchcloud.core import PatchcloudIOError
 
 __all__ = ["RawRecord", "parse_records", "file_records", "kept", "is_extra_bytes", "as_vlr", "provenance_vlr", "PROVENANCE_USER_ID",
-           "software_version"]
+           "software_version", "header_record_fields", "ascii_text", "VLR_BYTES", "EVLR_BYTES"]
 
 #: The user id and record id of the record saying what made a file (JSON: software, version, job, parameters).
 PROVENANCE_USER_ID, PROVENANCE_RECORD_ID = "patchcloud", 1
@@ -55,6 +55,37 @@ class RawRecord:
         return self.user_id.split(b"\0", 1)[0].decode("ascii", "replace")
 
 
+#: The smallest VLR and EVLR (their headers, bytes).
+VLR_BYTES, EVLR_BYTES = 54, 60
+
+
+
+def header_record_fields(head: bytes) -> tuple[int, int, int, int, int]:
+    """Header size, offset to the point data, VLR count, start of the first EVLR and EVLR count of a LAS header's
+    first bytes (``head``, at least 227); the EVLR fields are 0 where the header has none (before LAS 1.4, or cut short).
+
+    >>> header_record_fields(b"LASF" + bytes(90) + (375).to_bytes(2, "little") + (400).to_bytes(4, "little") + bytes(131))
+    (375, 400, 0, 0, 0)
+    """
+    header_size, offset, vlrs = struct.unpack_from("<HII", head, 94)
+    if head[25] >= 4 and header_size >= 375 and len(head) >= 375:
+        start, count = struct.unpack_from("<QI", head, 235)
+        return header_size, offset, vlrs, start, count
+    return header_size, offset, vlrs, 0, 0
+
+
+
+def ascii_text(text: str | bytes) -> str:
+    r"""``text`` with every character that is not ASCII written as '?' (bytes: decoded as ASCII the same way).
+
+    >>> ascii_text("Géo"), ascii_text(b"G\xe9o")
+    ('G?o', 'G?o')
+    """
+    if isinstance(text, bytes):
+        text = text.decode("ascii", "replace").replace("\ufffd", "?")
+    return text if text.isascii() else text.encode("ascii", "replace").decode("ascii")
+
+
 def parse_records(raw: bytes, at: int, count: int, extended: bool, where: str = "") -> list[RawRecord]:
     """``count`` records from byte ``at`` of ``raw``: VLRs (54-byte headers) or, ``extended``, EVLRs (60 bytes).
 
@@ -64,7 +95,7 @@ def parse_records(raw: bytes, at: int, count: int, extended: bool, where: str = 
         A record runs past the end of ``raw`` (``where`` names the file).
     """
     out = []
-    head = 60 if extended else 54
+    head = EVLR_BYTES if extended else VLR_BYTES
     for i in range(count):
         if at + head > len(raw):
             raise PatchcloudIOError(f"{where}: {'E' if extended else ''}VLR {i + 1} of {count:,} runs past its bytes")
@@ -83,16 +114,13 @@ def file_records(path: str | os.PathLike) -> tuple[list[RawRecord], list[RawReco
     """The VLRs and EVLRs of the LAS/LAZ file ``path`` (already checked by
     :func:`patchcloud.stream.io.las.open_source`), as their bytes."""
     with open(path, "rb") as f:
-        head = f.read(375)
-        header_size, offset, count = struct.unpack_from("<HII", head, 94)
+        header_size, offset, count, start, n = header_record_fields(f.read(375))
         f.seek(0)
         vlrs = parse_records(f.read(offset), header_size, count, False, str(path))
         evlrs: list[RawRecord] = []
-        if head[25] >= 4 and header_size >= 375:
-            start, n = struct.unpack_from("<QI", head, 235)
-            if n:
-                f.seek(start)
-                evlrs = parse_records(f.read(), 0, n, True, str(path))
+        if n:
+            f.seek(start)
+            evlrs = parse_records(f.read(), 0, n, True, str(path))
     return vlrs, evlrs
 
 
@@ -105,17 +133,12 @@ def kept(r: RawRecord) -> bool:
     return not (r.name == "laszip encoded" and r.record_id == 22204) and not is_extra_bytes(r) and r.name != "copc"
 
 
-def _ascii(b: bytes) -> str:
-    text = b.split(b"\0", 1)[0].decode("ascii", "replace").replace("\ufffd", "?")
-    return text if text.isascii() else text.encode("ascii", "replace").decode("ascii")
-
-
 def as_vlr(r: RawRecord) -> laspy.VLR:
     """A laspy VLR that writes ``r``'s record data byte for byte (laspy would write its parse of a record it knows).
 
     A user id or description that is not ASCII (LAS texts are) has its other characters written as '?'.
     """
-    return laspy.VLR(_ascii(r.user_id), r.record_id, _ascii(r.description), r.data)
+    return laspy.VLR(ascii_text(r.user_id.split(b"\0", 1)[0]), r.record_id, ascii_text(r.description.split(b"\0", 1)[0]), r.data)
 
 
 def software_version() -> str:
