@@ -150,8 +150,9 @@ def test_a_job_run_three_times_leaves_no_thread_and_no_client(how, tmp_path):
         counts.append((threading.active_count(), _os_threads(settle_to=counts[0][1] if counts else None)))
         with pytest.raises(ValueError, match="No clients found"):
             default_client()
-    # numba's pool (in memory) starts once per process, with the first run: no growth after it
-    assert counts[1] == counts[0] and counts[2] == counts[0], counts
+    # numba's pool (in memory) starts once per process, with the first run: no growth after it (the first count
+    # may still hold a thread of run 1 that is ending in the OS, so a later count may be lower: that is no leak)
+    assert counts[1] <= counts[0] and counts[2] <= counts[0], counts
 
 
 def test_the_other_entry_points_leave_no_thread(tmp_path):
