@@ -15,7 +15,15 @@ from . import options
               help="When an octree node is one smooth patch: quadric fit RMSE below the threshold (in the file's unit), or surface variation.")
 @click.option("--threshold", type=float, default=None, help="Threshold of the criterion. Default: from the scanner noise (rmse), 0.005 (sigma3).")
 @click.option("--orient", type=click.Choice(["up", "viewpoint", "outward", "none"]), default=NormalsOptions.orient, show_default=True,
-              help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule.")
+              help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule. "
+              "The rule orients whole groups of linked patches, so a wall or an overhang keeps the side its neighbours give it.")
+@click.option("--always-up", is_flag=True,
+              help="PDAL's always_up (filters.normal): after orientation, flip every normal with NormalZ < 0, point by point, "
+              "so NormalZ >= 0 everywhere (the principal curvatures follow). Unlike --orient up, which turns whole patch groups. "
+              "Default: off (PDAL's default is on).")
+@click.option("--fallback-knn", "k_fallback", type=int, default=NormalsOptions.k_fallback, show_default=True, metavar="K",
+              help="Neighbours of the k-NN fallback: the PCA normal of the points of edge and sparse patches (NormalMethod 3). "
+              "Not PDAL's knn, the neighbours of every normal: patchcloud's other normals come from the patches' quadrics.")
 @click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z", help="With --orient viewpoint, in the file's coordinates.")
 @click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
 @click.option("--principal-curvatures", is_flag=True,
@@ -25,7 +33,7 @@ from . import options
 @options.catalog_options
 @options.report_option
 @options.reports_errors
-def normals_command(paths, criterion, threshold, orient, viewpoint, no_blend, principal_curvatures, report, **run):
+def normals_command(paths, criterion, threshold, orient, always_up, k_fallback, viewpoint, no_blend, principal_curvatures, report, **run):
     """Normals and curvature of INPUT (LAS/LAZ/COPC, any size), written to OUTPUT.
 
     With --out-dir DIR every argument is an input (files, directories,
@@ -36,7 +44,9 @@ def normals_command(paths, criterion, threshold, orient, viewpoint, no_blend, pr
     OUTPUT (LAZ when its name ends in .laz) holds every input point once, in
     input order, with every original dimension unchanged, plus NormalX,
     NormalY, NormalZ, Curvature (surface variation), NormalMethod ({methods}) and
-    PatchId.  Memory depends on --tile-size, not on the file.  A run that is
+    PatchId.  Points left out (--classes; noise and withheld points unless
+    --keep-noise) get NormalMethod 0, a zero normal, Curvature 0 and PatchId
+    4294967295.  Memory depends on --tile-size, not on the file.  A run that is
     stopped can be resumed by running the same command again with --store.
 
     \b
@@ -50,8 +60,9 @@ def normals_command(paths, criterion, threshold, orient, viewpoint, no_blend, pr
 
     run = options.run_options(run)
     input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
-    asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend)
-    summary = normals(input, output, asked, run, principal_curvatures=principal_curvatures)
+    asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend,
+                           k_fallback=k_fallback)
+    summary = normals(input, output, asked, run, principal_curvatures=principal_curvatures, always_up=always_up)
     options.finish_job(summary, run.quiet, report, "report_normals")
 
 

@@ -12,7 +12,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
+__all__ = ["classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="LENGTH",
@@ -42,6 +42,17 @@ store = click.option(
     "--store", default=None, metavar="PATH",
     help="Where the tiles and intermediate results go (a path or an fsspec URL). Default: OUT.store beside "
     "the output, removed when the job succeeds; a store given here is kept, and a rerun resumes from it.",
+)
+classes = click.option(
+    "--classes", default=None, metavar="LIST",
+    help="Only points of these ASPRS classes, e.g. 2,6 (PDAL's `where: Classification == 2`): only they are computed and "
+    "used as neighbours; the others are written unchanged with the empty value (NormalMethod 0 and a zero normal, DoN 0, "
+    "ClusterID 0; compress keeps them exactly, as residual points). Default: every class.",
+)
+keep_noise = click.option(
+    "--keep-noise", is_flag=True,
+    help="Keep noise (classes 7 and 18) and withheld points; by default they are left out of every neighbourhood and get "
+    "the empty value, as --classes leaves points out (a noise class named in --classes is kept).",
 )
 keep_store = click.option("--keep-store", is_flag=True, help="Keep the default store after success.")
 overwrite = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
@@ -245,10 +256,11 @@ def run_options(values: dict):
 
 def job_options(func):
     """The options every out-of-core job shares, named as the fields of RunOptions (a command takes them as ``**run``:
-    :func:`run_options`): --tile-size, --scheduler, --scheduler-file, --workers, --store, --keep-store, --in-memory, --overwrite,
-    -q, --profile, --units, --summary-json; and --max-memory (which sets the budget, :mod:`patchcloud.stream.io.budget`)."""
-    for option in reversed([tile_size, scheduler, scheduler_file, workers, store, keep_store, in_memory, overwrite, quiet, profile,
-                            units, summary_json, max_memory]):
+    :func:`run_options`): --classes, --keep-noise, --tile-size, --scheduler, --scheduler-file, --workers, --store, --keep-store,
+    --in-memory, --overwrite, -q, --profile, --units, --summary-json; and --max-memory (which sets the budget,
+    :mod:`patchcloud.stream.io.budget`)."""
+    for option in reversed([classes, keep_noise, tile_size, scheduler, scheduler_file, workers, store, keep_store, in_memory, overwrite,
+                            quiet, profile, units, summary_json, max_memory]):
         func = option(func)
     return func
 

@@ -43,7 +43,7 @@ import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, read_part, tile_keys
+from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, part_selection, read_part, store_selection, tile_keys
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io import las_output
 from patchcloud.stream.io.las import check_writable, is_laz_name, output_header
@@ -63,7 +63,10 @@ class Column:
     the tile's position in the store's list), e.g. to make ids global: a
     module-level function, since tasks may run in other processes.
     ``renumber``: the values are ids (0 for none), renumbered 1, 2, ... in
-    the order they first appear in the file.
+    the order they first appear in the file.  ``empty``: what the points
+    the store's tiles leave out (:mod:`patchcloud.stream.io.classes`: not of
+    the classes asked for, noise, withheld) hold, the dimensions'
+    documented empty value.
     """
 
     array: str
@@ -71,6 +74,7 @@ class Column:
     dtype: type
     per_tile: Callable[[Store, int, np.ndarray], np.ndarray] | None = None
     renumber: bool = False
+    empty: float = 0
 
 
 class FirstSeenIds:
@@ -120,13 +124,15 @@ def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: 
     starts = store.get("index/tile_start", slice(int(lo), int(hi)))
     records = read_part(store, p, src, first, count, laz_parallel)
     n = len(records)
-    xyz = cat.common(f, records["X"], records["Y"], records["Z"])
+    keep, _, _ = part_selection(store_selection(store), records)
+    kept = np.flatnonzero(keep)  # the points the tiles hold; the others get each column's empty value
+    xyz = cat.common(f, records["X"][kept], records["Y"][kept], records["Z"][kept])
     tid = np.searchsorted(pack_tile_keys(np.asarray(tiles, dtype=np.int64)), tile_keys(store.grid, xyz))
     counts = np.bincount(tid, minlength=len(tiles))
     if not np.array_equal(counts[rows[:, 1]], rows[:, 2]) or counts.sum() != rows[:, 2].sum():
         raise PatchcloudIOError(f"{src.path}: the file no longer matches the store {store.url} (part {p})")
-    order = np.argsort(tid, kind="stable")
-    values = [np.empty((n, len(col.dims)) if len(col.dims) > 1 else n, col.dtype) for col in columns]
+    order = kept[np.argsort(tid, kind="stable")]
+    values = [np.full((n, len(col.dims)) if len(col.dims) > 1 else n, col.empty, col.dtype) for col in columns]
     s = 0
     for t, m, start in zip(rows[:, 1].tolist(), rows[:, 2].tolist(), starts.tolist()):
         dst = order[s : s + m]
@@ -182,8 +188,8 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
 def output_key(store: Store, columns: list[Column], dims) -> str:
     """What an output holds, as a short hash: the dimensions added, the columns, and the steps done on the store (with
     the keys of their resolved parameters), so an output written after other parameters is not taken as this one."""
-    what = dict(dims=[[str(d[0]), np.dtype(d[1]).str] for d in dims], columns=[[c.array, list(c.dims)] for c in columns],
-                steps=store.attrs.get("steps", {}), params=store.attrs.get("params_key"))
+    what = dict(dims=[[str(d[0]), np.dtype(d[1]).str] for d in dims], columns=[[c.array, list(c.dims), c.empty] for c in columns],
+                steps=store.attrs.get("steps", {}), params=store.attrs.get("params_key"), selection=store.attrs.get("selection"))
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 

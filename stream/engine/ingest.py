@@ -26,6 +26,7 @@ import numpy as np
 from patchcloud.core import MAX_DEPTH, PatchcloudValueError, sort_points
 
 from patchcloud.stream.io.catalog import Catalog
+from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
 from patchcloud.stream.io.las import LasSource, read_range
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.engine.runner import Runner
@@ -34,7 +35,7 @@ from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
     "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "part_size", "part_ranges", "catalog_parts", "part_path",
-    "scatter_part", "read_part",
+    "scatter_part", "read_part", "part_selection", "store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
@@ -171,13 +172,35 @@ def part_path(p: int) -> str:
     return f"parts/{p:06d}"
 
 
+def store_selection(store: Store) -> Selection:
+    """The points the store's tiles hold (:class:`~patchcloud.stream.io.classes.Selection`; a store that records none:
+    every point)."""
+    return Selection.from_json(store.attrs.get("selection"))
+
+
+def part_selection(selection: Selection, records: np.ndarray) -> tuple[np.ndarray, list[int], list[int]]:
+    """Which of a part's records take part: (n,) bool, the points left out by reason (:data:`REASONS`), and the
+    part's points by class (MAX_CLASS + 1 counts, every point)."""
+    cls, _ = classification_and_withheld(records)
+    by_class = np.bincount(cls, minlength=MAX_CLASS + 1).tolist()
+    if selection.everything:
+        return np.ones(len(records), dtype=bool), [0] * len(REASONS), by_class
+    why = selection.reasons(records)
+    return why == 0, np.bincount(why, minlength=len(REASONS) + 1)[1:].tolist(), by_class
+
+
 def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = "xyz", laz_parallel: bool = False) -> None:
     """Ingest task: read part ``p`` (points ``first:first + count`` of file ``f``) and store its points grouped by tile.
 
     Coordinates are put on the catalog's grid (:meth:`Catalog.common`).
+    Only the points of the store's selection (:func:`store_selection`: by
+    default noise and withheld points are left out) go to the tiles: the
+    others enter no neighbourhood of any step, and the export writes them
+    with empty values.
 
     ``field`` "xyz": the LAS integer coordinates, with the part's tiles, their
-    counts and the coordinates' sums in the part's attributes; "record":
+    counts, the coordinates' sums, the points left out by reason and the
+    points by class in the part's attributes; "record":
     every point's whole record (its bytes), for ``compress``.  Within a
     tile the points keep their input order.  A part already done is skipped.
     """
@@ -190,12 +213,16 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
     cat = store.catalog
     grid = store.grid
     records = read_part(store, p, cat.sources[f], first, count, laz_parallel)
+    keep, left_out, by_class = part_selection(store_selection(store), records)
+    if not keep.all():
+        records = records[keep]
     xyz = cat.common(f, records["X"], records["Y"], records["Z"])
     order, sk, starts, ends = _route(grid, grid.local(xyz))
     if field == "xyz":
         store.put(f"{path}/xyz", xyz[order])
         sums = xyz.astype(np.int64).sum(axis=0)
-        store.set_group_attrs(path, keys=sk[starts].tolist(), counts=(ends - starts).tolist(), sums=sums.tolist(), done_xyz=True)
+        store.set_group_attrs(path, keys=sk[starts].tolist(), counts=(ends - starts).tolist(), sums=sums.tolist(),
+                              left_out=left_out, by_class=by_class, done_xyz=True)
     else:
         rec = records.view(np.uint8).reshape(len(records), records.dtype.itemsize)
         store.put(f"{path}/record", rec[order])
@@ -246,13 +273,25 @@ def _index_parts(store: Store) -> None:
     among the tile's points (in input order).
     """
     rows, sums = [], [0, 0, 0]
+    left_out = np.zeros(len(REASONS), dtype=np.int64)
+    by_class = np.zeros(MAX_CLASS + 1, dtype=np.int64)
     cat = store.catalog
     for p in range(len(catalog_parts(cat, int(store.attrs["part_points"])))):
         a = store.group_attrs(part_path(p))
         keys, counts = np.asarray(a["keys"], dtype=np.int64), np.asarray(a["counts"], dtype=np.int64)
-        rows.append(np.column_stack([np.full(keys.size, p), keys, counts]))
+        rows.append(np.column_stack([np.full(keys.size, p), keys, counts]).reshape(-1, 3))
         sums = [s + int(v) for s, v in zip(sums, a["sums"])]
+        left_out += np.asarray(a["left_out"], dtype=np.int64)
+        by_class += np.asarray(a["by_class"], dtype=np.int64)
     rec = np.concatenate(rows)
+    kept = int(rec[:, 2].sum())
+    classes = {str(c): int(n) for c, n in enumerate(by_class) if n}
+    if kept == 0:
+        raise PatchcloudValueError(
+            f"{cat.path}: no point left to compute on ({store_selection(store).describe()}); the input holds "
+            + ", ".join(f"class {c}: {n:,}" for c, n in classes.items())
+            + " (--classes chooses the classes, --keep-noise keeps noise and withheld points)"
+        )
     keys_sorted = np.unique(rec[:, 1])
     t = np.searchsorted(keys_sorted, rec[:, 1])
     counts = np.bincount(t, weights=rec[:, 2], minlength=keys_sorted.size).astype(np.int64)
@@ -264,9 +303,10 @@ def _index_parts(store: Store) -> None:
     store.put("index/part_start", _starts(index[:, 0], index[:, 2]))
     store.put("index/tile_start", tile_start)
     g = store.grid
-    mean = np.asarray([s / cat.point_count for s in sums])  # exact integer sums: whatever the parts
+    mean = np.asarray([s / kept for s in sums])  # exact integer sums: whatever the parts
     centroid = mean * np.asarray(g.scale) + (np.asarray(g.offset) - np.asarray(g.origin))
-    store.update(tiles=unpack_tile_keys(keys_sorted).tolist(), tile_counts=counts.tolist(), centroid_local=centroid.tolist())
+    store.update(tiles=unpack_tile_keys(keys_sorted).tolist(), tile_counts=counts.tolist(), centroid_local=centroid.tolist(),
+                 left_out=dict(zip(REASONS, left_out.tolist())), classes=classes)
 
 
 def tile_pieces(store: Store, ijk: tuple) -> list[tuple[int, int, int]]:
@@ -342,10 +382,12 @@ def occupancy_spacing(occupancy: dict[int, int], n: int, target: float = 16.0) -
 
 
 def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, runner: Runner, quiet: bool,
-                 chunk: int | None = None) -> tuple[Store, float]:
+                 chunk: int | None = None, selection: Selection | None = None) -> tuple[Store, float]:
     """The store at ``url`` holding ``src`` (a file or a catalog) tiled at ``tile_size``, and the seconds this took.
 
-    A store made from the same files on the same grid is reused: as it is
+    ``selection``: the points the tiles hold (default ``Selection()``: noise
+    and withheld points left out; :mod:`patchcloud.stream.io.classes`).
+    A store made from the same files on the same grid with the same selection is reused: as it is
     when complete, else resuming from the parts and tiles done; anything
     else there is replaced.  Steps, all of them tasks on the workers: one
     :func:`scatter_part` per part of the file (``chunk`` points, default
@@ -356,11 +398,13 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
     """
     cat = src if isinstance(src, Catalog) else Catalog.of(src)
     grid = make_grid(cat, tile_size)
+    selection = Selection() if selection is None else selection
     t0 = time.perf_counter()
     if Store.exists(url):
         store = Store.open(url)
         a = store.attrs
-        same = a.get("catalog") and cat.same_files(a["catalog"]) and a.get("grid") == grid.to_json() and "part_points" in a
+        same = (a.get("catalog") and cat.same_files(a["catalog"]) and a.get("grid") == grid.to_json() and "part_points" in a
+                and a.get("selection") == selection.to_json())
         if same and store.step_done("tile"):
             return store, 0.0
         if not same:  # else resume from the parts and tiles done
@@ -368,7 +412,7 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
     else:
         store = Store.create(url)
     if "part_points" not in store.attrs:
-        store.update(source=cat.sources[0].to_json(), catalog=cat.to_json(), grid=grid.to_json(),
+        store.update(source=cat.sources[0].to_json(), catalog=cat.to_json(), grid=grid.to_json(), selection=selection.to_json(),
                      part_points=part_size(cat.point_count, runner.slots, chunk))
     if not store.step_done("bucket"):
         _scatter(store, runner, "xyz", "tile: read")

@@ -62,6 +62,7 @@ from patchcloud.stream.engine.runner import Runner, check_scheduler
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.crs import UNITS, Units, units_of
 from patchcloud.stream.io.las_records import provenance_vlr
+from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import LasSource, check_las_output, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
@@ -72,7 +73,7 @@ from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store
 
 __all__ = [
     "IN_MEMORY_POINTS", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
-    "time_and_memory_lines", "file_lines", "kept_store_note", "catalog_units", "units_line",
+    "time_and_memory_lines", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines",
 ]
 
 #: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.61 GB
@@ -131,6 +132,17 @@ class RunOptions:
         In a catalog, the CRS of the files that have none (``"EPSG:2154"``,
         WKT: what pyproj takes); without it a file without a CRS among
         files with one is an error.
+    classes : tuple of int or str, optional
+        Which points take part (:mod:`patchcloud.stream.io.classes`): only
+        those of these ASPRS classes ("2,6" or ``(2, 6)``) are computed and
+        used as neighbours; the others are written unchanged with the new
+        dimensions' empty value (NormalMethod 0 and a zero normal, DoN 0,
+        ClusterID 0; ``compress`` keeps them exactly, as residual points).
+        PDAL's ``where: Classification == 2``.  Default: every class.
+    keep_noise : bool
+        Keep noise (classes 7 and 18) and withheld points in the
+        neighbourhoods.  Default False: they are left out as above (a noise
+        class listed in ``classes`` is kept).
     units : {"m", "ft", "us-ft"}, optional
         The unit of the file's coordinates, which every distance option and
         summary figure is in, instead of its CRS's (for a file without a CRS,
@@ -162,9 +174,12 @@ class RunOptions:
     assume_crs: str | None = None
     in_memory: bool | None = None
     units: str | None = None
+    classes: tuple[int, ...] | None = None
+    keep_noise: bool = False
 
     def __post_init__(self) -> None:
         check_tile_size(self.tile_size)
+        object.__setattr__(self, "classes", self.selection.classes)  # checked, as a sorted tuple
         if self.units is not None and self.units not in UNITS:
             raise PatchcloudValueError(f"units must be one of {', '.join(UNITS)}; got {self.units!r}")
         if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) != self.workers or self.workers < 1):
@@ -181,6 +196,11 @@ class RunOptions:
                 raise PatchcloudValueError("in_memory runs keep no store: leave out store and keep_store, or in_memory")
             if self.scheduler not in ("auto", "synchronous"):
                 raise PatchcloudValueError(f"in_memory runs inline, on no scheduler: leave out scheduler ({self.scheduler!r}), or in_memory")
+
+    @property
+    def selection(self) -> Selection:
+        """The points that take part (:class:`patchcloud.stream.io.classes.Selection`)."""
+        return Selection(classes=self.classes, keep_noise=self.keep_noise)
 
     def runs_in_memory(self, points: int) -> bool:
         """Whether a run on an input of ``points`` points runs in memory (see ``in_memory``): by default only if its
@@ -274,6 +294,23 @@ def units_line(units: dict) -> str:
             "every length here and every distance option")
 
 
+def left_out_lines(left_out: dict, selection: dict | None, points: int, fate: str = "no value, in no neighbourhood") -> list[str]:
+    """A summary's line on the points left out of every neighbourhood (by reason), and what became of them (``fate``);
+    none when none.
+
+    >>> print(left_out_lines({"classes": 5, "noise": 2, "withheld": 0}, {"classes": [2], "keep_noise": False}, 100)[0])
+      left out        7 (7.0%): 5 not of classes 2, 2 noise (class 7, 18); no value, in no neighbourhood
+    """
+    total = sum(int(v) for v in left_out.values())
+    if total == 0:
+        return []
+    classes = (selection or {}).get("classes")
+    words = {"classes": "not of classes " + ", ".join(str(c) for c in classes or []), "noise": "noise (class 7, 18)",
+             "withheld": "withheld"}
+    why = ", ".join(f"{int(left_out[r]):,} {words[r]}" for r in REASONS if int(left_out.get(r, 0)))
+    return [f"  left out        {total:,} ({total / max(points, 1):.1%}): {why}; {fate}"]
+
+
 def file_lines(files: list[tuple[str, str, int]]) -> list[str]:
     """A catalog summary's rows, one per file: (input, output, points); nothing for one file.
 
@@ -357,6 +394,9 @@ class Job:
     catalogs = True
     #: The command's name, as the outputs' provenance VLR states it.
     name = ""
+    #: Whether the store's tiles hold only the points of ``RunOptions.selection`` (else every point: the job applies
+    #: the selection itself, as ``compress`` does, which keeps the others as residual points).
+    tiles_selection = True
 
     def steps(self) -> Sequence[tuple[str, Callable[[JobContext], None]]]:
         """The job's steps after ``tile``, in order: (name in the summary's times, function of the context)."""
@@ -370,7 +410,7 @@ class Job:
         """Write the output: by default the input's records plus :meth:`columns`, under a temporary name."""
         columns, dims = self.columns(ctx)
         export_columns(ctx.store, ctx.outputs, columns, dims, runner=ctx.runner, overwrite=ctx.run.overwrite, quiet=ctx.run.quiet,
-                       provenance=provenance_vlr(self.name, dict(self.parameters(), units=ctx.units.symbol)))
+                       provenance=provenance_vlr(self.name, dict(self.parameters(), units=ctx.units.symbol, **ctx.run.selection.to_json())))
 
     def parameters(self) -> dict:
         """The parameters the outputs' provenance VLR states: the job's resolved ``params`` (none by default)."""
@@ -411,21 +451,24 @@ def _store_url(run: RunOptions, catalog: Catalog, default_store: str) -> tuple[s
     return run.store or default_store, False
 
 
-def _complete(catalog: Catalog, outs: list[Path], url: str) -> list[bool]:
-    """For each output, whether the store at ``url``, made from the same files, records it as complete and unchanged
+def _complete(catalog: Catalog, outs: list[Path], url: str, selection: dict | None = None) -> list[bool]:
+    """For each output, whether the store at ``url``, made from the same files (and, when given, with the same
+    ``selection`` of points: :meth:`Selection.to_json`), records it as complete and unchanged
     (:func:`~patchcloud.stream.engine.export.complete_outputs`)."""
     if Store.exists(url):
         st = Store.open(url, mode="r")
-        if st.attrs.get("catalog") and catalog.same_files(st.attrs["catalog"]):
+        if (st.attrs.get("catalog") and catalog.same_files(st.attrs["catalog"])
+                and (selection is None or st.attrs.get("selection") == selection)):
             return complete_outputs(st, outs)
     return [False] * len(outs)
 
 
-def _writable(catalog: Catalog, outs: list[Path], url: str, in_memory: bool, overwrite: bool, ours: list[bool]) -> list[Path]:
+def _writable(catalog: Catalog, outs: list[Path], url: str, in_memory: bool, overwrite: bool, ours: list[bool],
+              selection: dict | None = None) -> list[Path]:
     """Check each output can be written: absent, or ``overwrite``, or completed by an earlier run on this store
     (:func:`~patchcloud.stream.engine.export.complete_outputs`: the export then keeps it), or ``ours`` (completed by a run
     killed while removing its store: written again)."""
-    done = [False] * len(outs) if in_memory else _complete(catalog, outs, url)
+    done = [False] * len(outs) if in_memory else _complete(catalog, outs, url, selection)
     return [Path(o) if d or mine else check_writable(o, overwrite) for o, d, mine in zip(outs, done, ours)]
 
 
@@ -497,10 +540,15 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
         locked.append(run.store)
     with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
         ours = _left_complete(catalog, outs, url, in_memory)
-        outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours)
+        outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours, _tiles_selection(job, run).to_json())
         if any(ours):  # written by a run killed while removing its store: written again, the same bytes
             run = dataclasses.replace(run, overwrite=True)
         return _run_locked(job, catalog, outs, out, url, in_memory, run)
+
+
+def _tiles_selection(job: Job, run: RunOptions) -> Selection:
+    """The points the job's store tiles: the run's selection, or every point for a job that selects itself."""
+    return run.selection if job.tiles_selection else Selection(keep_noise=True)
 
 
 def _left_complete(catalog: Catalog, outs: list[Path], url: str, in_memory: bool) -> list[bool]:
@@ -560,7 +608,7 @@ def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep
     with CompileClock(announce=None if run.quiet else announce_on_stderr) as clock, \
             Runner(run.scheduler, run.workers, quiet=run.quiet, points=catalog.point_count) as runner:
         w0 = time.time()
-        store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk)
+        store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk, _tiles_selection(job, run))
         windows["tile"] = [(w0, time.time())]
         ctx = JobContext(source=catalog.sources[0], output=out, store=store, runner=runner, run=run, catalog=catalog, outputs=outs,
                          kept_store=url if keep else "")

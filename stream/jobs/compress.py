@@ -28,7 +28,8 @@ import numpy as np
 
 from patchcloud.core import CompressOptions, PatchcloudValueError, PatchModels, QuantisedModels, fit_models, quantise_models
 from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
-from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines
+from patchcloud.stream.engine.job import Job, JobContext, RunOptions, left_out_lines, params_key, run_job, split_options, time_and_memory_lines
+from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
 from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source
@@ -65,6 +66,8 @@ class CompressSummary:
     compile_seconds: float = 0.0  # numba compiling the kernels (a first run), not in seconds
     scheduler: str = "threads"
     units: dict = field(default_factory=lambda: {"symbol": "m"})  # the file's length unit (patchcloud.stream.io.crs.Units)
+    left_out: dict = field(default_factory=dict)  # points left out of the models, by reason (stream.io.classes.REASONS)
+    selection: dict | None = None  # the classes asked for and keep_noise (Selection.to_json)
 
     def format(self) -> str:
         n = max(self.points, 1)
@@ -77,6 +80,7 @@ class CompressSummary:
             f"{self.mean_error:.4f} {u} (before quantisation, which adds at most half the budget)",
             f"  size            {self.output_bytes:,} bytes, {8 * self.output_bytes / n:.2f} bits/point; input "
             f"{self.input_bytes:,} bytes ({self.input_bytes / max(self.output_bytes, 1):.1f}x larger)",
+            *left_out_lines(self.left_out, self.selection, self.points, "in no model, kept exactly as residual points"),
             *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
         ])
 
@@ -109,16 +113,23 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     local = grid.local(xyz)
     rank = store.read(ijk, "rank").astype(np.int64)  # xyz row r is the tile's point rank[r] in input order
     in_order = store.read(ijk, "record")  # the tile's records in input order
-    budget = params["max_error"]
-    if xyz.shape[0] >= N_MIN:
-        fit = fit_models(local, budget, d_min=params["d_min"], max_edge=params["max_edge"], n_min=N_MIN, root=(corner, T))
-        models, cell, residual, err = fit.models, fit.cell, fit.residual, fit.error
-    else:  # too few points for a surface: all residual
-        n = xyz.shape[0]
-        models, cell, residual, err = PatchModels.empty(corner, T), np.full(n, -1), np.arange(n), np.zeros(n)
-    q = quantise_models(models, budget)
     pf = point_format(params["point_format"], params["extra_dims"])
     rec = laspy.PackedPointRecord(np.ascontiguousarray(in_order).view(pf.dtype()).reshape(-1), pf)
+    # the points of the run's selection (stream.io.classes): only they are modelled; the others are residual points
+    why = Selection.from_json(params["selection"]).reasons(rec.array)[rank]
+    takes = np.flatnonzero(why == 0)
+    budget = params["max_error"]
+    n = xyz.shape[0]
+    if takes.size >= N_MIN:
+        fit = fit_models(local if takes.size == n else local[takes], budget, d_min=params["d_min"], max_edge=params["max_edge"],
+                         n_min=N_MIN, root=(corner, T))
+        models = fit.models
+        cell, err = np.full(n, -1, dtype=np.asarray(fit.cell).dtype), np.zeros(n, dtype=np.asarray(fit.error).dtype)
+        cell[takes], err[takes] = fit.cell, fit.error
+        residual = np.sort(np.r_[takes[fit.residual], np.flatnonzero(why != 0)])
+    else:  # too few points for a surface: all residual
+        models, cell, residual, err = PatchModels.empty(corner, T), np.full(n, -1), np.arange(n), np.zeros(n)
+    q = quantise_models(models, budget)
     on = cell >= 0
     C = q.count.shape[0]
     cls = np.asarray(rec["classification"]).astype(np.int64)[rank]
@@ -134,7 +145,8 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     # in input order: LAZ predicts each record from the previous one (scan order: GPS time, returns, intensity)
     laz = pcz.residual_laz(in_order[np.sort(rank[residual])], pf, params["version"], grid.scale, grid.offset)
     store.write(ijk, "pcz_residual_laz", np.frombuffer(laz, dtype=np.uint8))
-    info = dict(patches=len(models), cells=C, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()))
+    info = dict(patches=len(models), cells=C, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()),
+                left_out=np.bincount(why, minlength=len(REASONS) + 1)[1:].tolist())
     store.mark_tile(ijk, "compress", key, compress=info)
     return info
 
@@ -169,6 +181,7 @@ class CompressJob(Job):
 
     write_step = "pack"
     catalogs = False  # a catalog is compressed file by file: compress_catalog
+    tiles_selection = False  # every point is tiled: compress_tile models the selection's, the others are residual points
 
     def __init__(self, options: CompressOptions, record_source: bool = False) -> None:
         self.options = options
@@ -196,7 +209,7 @@ class CompressJob(Job):
         self.params = dict(
             max_error=self.options.max_error, d_min=3.0 * spacing if spacing > 0 else st.grid.tile_size / 2.0**21,
             max_edge=MAX_EDGE_SPACINGS * spacing if spacing > 0 else float("inf"), point_format=pf.id, version=src.version,
-            extra_dims=[extra_dim(d) for d in pf.extra_dimensions],
+            extra_dims=[extra_dim(d) for d in pf.extra_dimensions], selection=ctx.run.selection.to_json(),
         )
         self.params["key"] = params_key(self.params)
         self.infos = ctx.map_tiles(compress_tile, label="compress", params=self.params)
@@ -219,6 +232,8 @@ class CompressJob(Job):
             input_bytes=ctx.source.size, output_bytes=ctx.output.stat().st_size,
             mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=ctx.seconds,
             peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler, units=ctx.units.to_json(),
+            left_out=dict(zip(REASONS, np.sum([i.get("left_out", [0] * len(REASONS)) for i in v], axis=0).astype(int).tolist()))
+            if v else {}, selection=ctx.run.selection.to_json(),
         )
 
 

@@ -23,7 +23,9 @@ import numpy as np
 
 from patchcloud.core import DonOptions, halo_width
 from patchcloud.stream.engine.export import Column
-from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines, units_line
+from patchcloud.stream.engine.job import (
+    Job, JobContext, RunOptions, file_lines, left_out_lines, params_key, run_job, split_options, time_and_memory_lines, units_line,
+)
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.las import LasSource
 from patchcloud.stream.io.store import Store
@@ -64,6 +66,8 @@ class DonSummary:
     store: str = ""
     files: list = field(default_factory=list)  # (input, output, points) of each file of a catalog
     units: dict = field(default_factory=lambda: {"symbol": "m"})  # the file's length unit (patchcloud.stream.io.crs.Units)
+    left_out: dict = field(default_factory=dict)  # points left out of every neighbourhood, by reason (stream.io.classes.REASONS)
+    selection: dict | None = None  # the classes asked for and keep_noise (Selection.to_json)
 
     def median_magnitude(self) -> float:
         """Median DoN magnitude of the points where it is defined (from the histogram: to 1/50)."""
@@ -84,6 +88,7 @@ class DonSummary:
             units_line(self.units),
             f"  scales          r_s {p['r_small']:g} {u}, r_l {p['r_large']:g} {u}, mode {p['mode']}",
             f"  DoN defined     {self.defined:,} ({self.defined / n:.1%}); median magnitude {self.median_magnitude():.2f}",
+            *left_out_lines(self.left_out, self.selection, self.points),
         ]
         if self.kept is not None:
             extra = f", |DoN_{p['axis']}| >= {p['axis_threshold']:g}" if p.get("axis") else ""
@@ -190,7 +195,7 @@ class DonJob(Job):
             tile_size=ctx.store.grid.tile_size, parameters={k: self.params[k] for k in self.params if not k.endswith("_key")},
             defined=sum(i["defined"] for i in v), histogram=np.sum([i["hist"] for i in v], axis=0).astype(int).tolist() if v else [],
             seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler, store=ctx.kept_store, files=ctx.files,
-            units=ctx.units.to_json(),
+            units=ctx.units.to_json(), left_out=dict(ctx.store.attrs.get("left_out", {})), selection=ctx.store.attrs.get("selection"),
         )
 
 

@@ -10,18 +10,67 @@ import numpy as np
 
 from patchcloud.core import PatchcloudIOError
 
+from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
 from patchcloud.stream.io.crs import crs_description
-from patchcloud.stream.io.las import open_source
+from patchcloud.stream.io.las import LasSource, open_source, read_chunks
 from patchcloud.stream.io.pcz import open_pcz
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.engine.background import stops_what_it_starts
+from patchcloud.stream.jobs.decompress import DECOMPRESS_DIMS
+from patchcloud.stream.jobs.normals import NORMALS_DIMS, PRINCIPAL_DIMS
+from patchcloud.stream.jobs.segment import SEGMENT_DIMS
 
-__all__ = ["info", "format_info", "crs_line"]
+__all__ = ["info", "format_info", "crs_line", "class_counts", "patchcloud_dims", "PATCHCLOUD_DIMS", "CLASS_NAMES"]
+
+#: The dimensions each patchcloud command writes (``patchcloud info`` says which of them a file holds).
+PATCHCLOUD_DIMS = {
+    "normals": tuple(d[0] for d in NORMALS_DIMS),
+    "normals --principal-curvatures": tuple(d[0] for d in PRINCIPAL_DIMS),
+    "don": tuple(d[0] for d in SEGMENT_DIMS[:-1]),
+    "segment": (SEGMENT_DIMS[-1][0],),
+    "decompress": tuple(d[0] for d in DECOMPRESS_DIMS),
+}
+#: ASPRS names of the standard classes (LAS 1.4 R15, table 17).
+CLASS_NAMES = {
+    0: "never classified", 1: "unclassified", 2: "ground", 3: "low vegetation", 4: "medium vegetation", 5: "high vegetation",
+    6: "building", 7: "low point (noise)", 8: "model key point", 9: "water", 10: "rail", 11: "road surface",
+    12: "overlap", 13: "wire guard", 14: "wire conductor", 15: "transmission tower", 16: "wire connector",
+    17: "bridge deck", 18: "high noise",
+}
+_CHUNK = 1 << 20
+
+
+def class_counts(src: LasSource) -> tuple[dict[int, int], int]:
+    """Points of each class present (code: count) and the withheld points of a file, read in chunks of 2^20 points."""
+    by_class = np.zeros(MAX_CLASS + 1, dtype=np.int64)
+    withheld = 0
+    for _, pts in read_chunks(src, _CHUNK):
+        cls, wh = classification_and_withheld(pts.array)
+        by_class += np.bincount(cls, minlength=MAX_CLASS + 1)
+        withheld += int(wh.sum())
+    return {int(c): int(n) for c, n in enumerate(by_class) if n}, withheld
+
+
+def patchcloud_dims(names) -> dict[str, list[str]]:
+    """Which patchcloud dimensions ``names`` (a file's extra dimensions) holds, by the command that writes them.
+
+    >>> patchcloud_dims(["Deviation", "NormalX", "NormalY", "NormalZ", "Curvature", "NormalMethod", "PatchId"])
+    {'normals': ['NormalX', 'NormalY', 'NormalZ', 'Curvature', 'NormalMethod', 'PatchId']}
+    """
+    names = set(names)
+    found = {job: [d for d in dims if d in names] for job, dims in PATCHCLOUD_DIMS.items()}
+    return {job: d for job, d in found.items() if d}
 
 
 @stops_what_it_starts()  # no thread of the run's left running (stream.engine.background)
 def info(path: str | os.PathLike) -> dict:
-    """A description of a LAS/LAZ file (header), a store (source, grid, tiles, steps done) or a .pcz (counts).
+    """A description of a LAS/LAZ file, a store (source, grid, tiles, steps done) or a .pcz (counts).
+
+    A LAS/LAZ file: its header (point format, count, bounds, scale and
+    offset, CRS), its dimensions, the patchcloud dimensions it holds (by the
+    command that writes them), and the classes present with their counts and
+    the withheld points (which reads every point, in chunks).  A store: the
+    classes of its input and the points its tiles leave out.
 
     Raises
     ------
@@ -33,6 +82,8 @@ def info(path: str | os.PathLike) -> dict:
     >>> d = info(sample)
     >>> d["kind"], d["point_count"], d["point_format"]
     ('las', 60653, 8)
+    >>> d["classes"], d["withheld"], d["patchcloud_dimensions"]
+    ({'1': 581, '2': 22343, '3': 2497, '4': 2449, '5': 17875, '6': 14908}, 0, {})
     """
     p = str(path)
     if os.path.isfile(p) and zipfile.is_zipfile(p):
@@ -45,7 +96,9 @@ def info(path: str | os.PathLike) -> dict:
         with laspy.open(p) as r:
             dims = list(r.header.point_format.dimension_names)
             extra = list(r.header.point_format.extra_dimension_names)
-        return {"kind": "las", **src.to_json(), "dimensions": dims, "extra_dimensions": extra, "crs_info": _crs_info(src.crs)}
+        classes, withheld = class_counts(src)
+        return {"kind": "las", **src.to_json(), "dimensions": dims, "extra_dimensions": extra, "crs_info": _crs_info(src.crs),
+                "classes": {str(c): n for c, n in classes.items()}, "withheld": withheld, "patchcloud_dimensions": patchcloud_dims(extra)}
     if Store.exists(p):
         st = Store.open(p, mode="r")
         a = st.attrs
@@ -60,6 +113,7 @@ def info(path: str | os.PathLike) -> dict:
             "kind": "store", "url": st.url, "source": a.get("source"), "grid": a.get("grid"), "tiles": len(tiles),
             "points": int(counts.sum()), "points_per_tile": [int(counts.min()), int(np.median(counts)), int(counts.max())] if counts.size else [],
             "steps": a.get("steps", {}), "tiles_done": done, "parameters": a.get("params"),
+            "classes": a.get("classes"), "selection": a.get("selection"), "left_out": a.get("left_out"),
             "crs_info": _crs_info((a.get("catalog") or {}).get("crs") or (a.get("source") or {}).get("crs")),
         }
     raise PatchcloudIOError(f"{p}: neither a LAS/LAZ file nor a patchcloud store")
@@ -92,6 +146,22 @@ def crs_line(c: dict | None) -> str:
     return f"{c['label']}; units: horizontal {name.get(hn, hn)} ({hf:g} m), vertical {name.get(vn, vn)} ({vf:g} m)"
 
 
+def _class_lines(classes: dict | None, points: int) -> list[str]:
+    """``info``'s lines of the classes present: code, ASPRS name, count and share, one per line.
+
+    >>> print("\\n".join(_class_lines({"2": 75, "7": 25}, 100)))
+      classes      2 ground                        75  75.0%
+                   7 low point (noise)             25  25.0%
+    """
+    if not classes:
+        return []
+    out = []
+    for k, (c, n) in enumerate(sorted(classes.items(), key=lambda kv: int(kv[0]))):
+        name = CLASS_NAMES.get(int(c), "user defined" if int(c) >= 64 else "reserved")
+        out.append(f"  {'classes' if k == 0 else '':<11}{int(c):>3} {name:<20}{n:>12,} {n / max(points, 1):>6.1%}")
+    return out
+
+
 def format_info(d: dict) -> str:
     """``info``'s dictionary as a few lines of text.
 
@@ -120,6 +190,10 @@ def format_info(d: dict) -> str:
             f"  scale        {d['scale']}  offset {d['offset']}",
             f"  dimensions   {', '.join(d['dimensions'])}",
             f"  CRS          {crs_line(d.get('crs_info'))}",
+            *_class_lines(d.get("classes"), d["point_count"]),
+            f"  withheld     {d.get('withheld', 0):,}",
+            "  patchcloud   " + ("; ".join(f"{job}: {', '.join(dims)}" for job, dims in d["patchcloud_dimensions"].items())
+                                  if d.get("patchcloud_dimensions") else "no patchcloud dimensions"),
         ]
         return "\n".join(lines)
     g = d["grid"] or {}
@@ -135,6 +209,11 @@ def format_info(d: dict) -> str:
         f"  steps done   {steps}",
         f"  tiles done   {done}",
     ]
+    lines += _class_lines(d.get("classes"), int(src.get("point_count", 0)) or d["points"])
+    if d.get("selection") is not None:
+        left = d.get("left_out") or {}
+        lines.append(f"  points of    {Selection.from_json(d['selection']).describe()}; left out "
+                     + ", ".join(f"{r} {int(left.get(r, 0)):,}" for r in REASONS))
     if d.get("parameters"):
         p = d["parameters"]
         lines.append(f"  parameters   {p['criterion']} threshold {p['threshold']:.4g}, d_min {p['d_min']:.3g} m, spacing {p['spacing']:.3g} m, orient {p['orient']}")

@@ -24,25 +24,30 @@ import numpy as np
 
 from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchKind, threshold_from_histograms
 from patchcloud.stream.engine.export import Column
-from patchcloud.stream.engine.job import Job, JobContext, RunOptions, params_key, run_job, split_options, time_and_memory_lines, file_lines, units_line
+from patchcloud.stream.engine.job import (
+    Job, JobContext, RunOptions, file_lines, left_out_lines, params_key, run_job, split_options, time_and_memory_lines, units_line,
+)
 from patchcloud.stream.engine.ingest import occupancy_spacing
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import normals_tiles
 from patchcloud.stream.jobs.seams import orient_tiles
 
-__all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "PRINCIPAL_DIMS", "resolve_parameters", "global_patch_ids"]
+__all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "PRINCIPAL_DIMS", "NO_PATCH", "resolve_parameters", "global_patch_ids"]
 
-#: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description, no-data value.  Every point has a
-#: normal, curvature, method and patch: their no-data values are ones no point holds (NaN is never written; NormalMethod
-#: 0 means none, see :class:`patchcloud.core.Method`).
+#: The PatchId of a point without a normal (left out by the class selection: :mod:`patchcloud.stream.io.classes`).
+NO_PATCH = int(np.iinfo(np.uint32).max)
+#: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description, no-data value.  Every point the
+#: run computes on has a normal (NormalMethod 1 to 3); a point left out (not of the classes asked for, noise, withheld)
+#: has none: NormalMethod 0, a zero normal, Curvature 0 and PatchId :data:`NO_PATCH`, the no-data values (NaN is never
+#: written; a unit normal is never (0, 0, 0), so NormalMethod 0 is what tells such a point).
 NORMALS_DIMS = (
-    ("NormalX", np.float32, "unit normal x", np.nan),
-    ("NormalY", np.float32, "unit normal y", np.nan),
-    ("NormalZ", np.float32, "unit normal z", np.nan),
-    ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)", np.nan),
+    ("NormalX", np.float32, "unit normal x, 0 none", 0.0),
+    ("NormalY", np.float32, "unit normal y, 0 none", 0.0),
+    ("NormalZ", np.float32, "unit normal z, 0 none", 0.0),
+    ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)", 0.0),
     ("NormalMethod", np.uint8, Method.describe(), 0),
-    ("PatchId", np.uint32, "patchcloud patch id", np.iinfo(np.uint32).max),
+    ("PatchId", np.uint32, "patchcloud patch id", NO_PATCH),
 )
 #: What ``principal_curvatures`` adds (1/unit of the file, signed w.r.t. the oriented normal; 0 and (0, 0, 0) where the
 #: point has none, their no-data value).
@@ -74,6 +79,8 @@ class NormalsSummary:
     store: str = ""
     files: list = field(default_factory=list)  # (input, output, points) of each file of a catalog
     units: dict = field(default_factory=lambda: {"symbol": "m"})  # the file's length unit (patchcloud.stream.io.crs.Units)
+    left_out: dict = field(default_factory=dict)  # points left out of every neighbourhood, by reason (stream.io.classes.REASONS)
+    selection: dict | None = None  # the classes asked for and keep_noise (Selection.to_json)
 
     def format(self) -> str:
         n = max(self.points, 1)
@@ -88,7 +95,9 @@ class NormalsSummary:
             f"  patches         {sum(k.values()):,} (surface {k['surface']:,}, edge {k['edge']:,}, sparse {k['sparse']:,})",
             f"  normals by      quadric {m['quadric'] / n:.1%}, blended {m['blended'] / n:.1%}, k-NN fallback {m['knn'] / n:.1%}",
             f"  parameters      {self.parameters['criterion']} threshold {self.parameters['threshold']:.4g}, "
-            f"d_min {self.parameters['d_min']:.3g} {u}, spacing {self.parameters['spacing']:.3g} {u}, orient {self.parameters['orient']}",
+            f"d_min {self.parameters['d_min']:.3g} {u}, spacing {self.parameters['spacing']:.3g} {u}, orient {self.parameters['orient']}"
+            + (", always up" if self.parameters.get("always_up") else "") + (f", fallback k-NN {self.parameters['k_fallback']}" if "k_fallback" in self.parameters else ""),
+            *left_out_lines(self.left_out, self.selection, self.points),
             *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
             *file_lines(self.files),
         ]
@@ -140,9 +149,10 @@ class NormalsJob(Job):
 
     name = "normals"
 
-    def __init__(self, options: NormalsOptions, principal_curvatures: bool = False) -> None:
+    def __init__(self, options: NormalsOptions, principal_curvatures: bool = False, always_up: bool = False) -> None:
         self.options = options
         self.principal_curvatures = bool(principal_curvatures)
+        self.always_up = bool(always_up)
         self.params: dict = {}
         self.key = ""
 
@@ -166,8 +176,9 @@ class NormalsJob(Job):
             st.clear_tile_steps(["fit", "finish"])
             st.mark_step("seams", None)
             st.update(params=self.params, params_key=self.key)
-        # what only the finish step depends on: asking for the principal curvatures redoes that step, not the fit
+        # what only the finish step depends on: asking for the principal curvatures or always_up redoes that step, not the fit
         self.params["principal_curvatures"] = self.principal_curvatures
+        self.params["always_up"] = self.always_up
         finish_key = params_key(self.params)
         if st.attrs.get("finish_key") != finish_key:
             st.clear_tile_steps(["finish"])
@@ -192,7 +203,7 @@ class NormalsJob(Job):
             Column("normal", ("NormalX", "NormalY", "NormalZ"), np.float32),
             Column("curvature", ("Curvature",), np.float32),
             Column("method", ("NormalMethod",), np.uint8),
-            Column("patch", ("PatchId",), np.uint32, per_tile=global_patch_ids),
+            Column("patch", ("PatchId",), np.uint32, per_tile=global_patch_ids, empty=NO_PATCH),
         ]
         if not self.principal_curvatures:
             return columns, NORMALS_DIMS
@@ -214,13 +225,14 @@ class NormalsJob(Job):
             patches_by_kind={k.name.lower(): int(kinds[k]) for k in PatchKind},
             normals_by_method={m.name.lower(): int(methods[m]) for m in Method},
             parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler,
-            store=ctx.kept_store, files=ctx.files, units=ctx.units.to_json(),
+            store=ctx.kept_store, files=ctx.files, units=ctx.units.to_json(), left_out=dict(st.attrs.get("left_out", {})),
+            selection=st.attrs.get("selection"),
         )
 
 
 def normals(
     input, output: str | os.PathLike | None = None, options: NormalsOptions | None = None, run: RunOptions | None = None,
-    *, principal_curvatures: bool = False, **kwargs,
+    *, principal_curvatures: bool = False, always_up: bool = False, **kwargs,
 ) -> NormalsSummary:
     """Normals and curvature of a LAS/LAZ/COPC file (or a catalog of them) of any size, written as a copy with extra dimensions.
 
@@ -249,6 +261,14 @@ def normals(
         convex seen from the side the oriented normal points to) and the unit
         direction of the first (PrincipalDirectionX/Y/Z; the second is
         normal x first).  A point with none gets 0 and (0, 0, 0).
+    always_up : bool
+        PDAL's ``always_up`` (``filters.normal``): after orientation, every
+        normal whose z is negative is flipped, point by point, so that
+        NormalZ >= 0 everywhere (with it the principal curvatures and
+        direction, which depend on the side: (k1, k2) becomes (-k2, -k1)).
+        Unlike ``orient="up"`` (the default), which turns whole groups of
+        linked patches towards +Z, so a wall or an overhang keeps the side
+        its neighbours give it.  Default False (PDAL's default is True).
     **kwargs
         Any field of either, by name (``criterion="sigma3"``, ``workers=2``),
         overriding the objects given.
@@ -275,4 +295,4 @@ def normals(
     dtype('float32')
     """
     options, run = split_options(kwargs, options, NormalsOptions, run)
-    return run_job(NormalsJob(options, principal_curvatures), input, output, run)
+    return run_job(NormalsJob(options, principal_curvatures, always_up), input, output, run)

@@ -18,7 +18,32 @@ from patchcloud.core import (
 
 from patchcloud.stream.io.store import Store, table_to_array
 
-__all__ = ["calibrate_tile", "fit_one_tile", "seam_links", "finish_one_tile"]
+__all__ = ["calibrate_tile", "fit_one_tile", "seam_links", "finish_one_tile", "turn_up"]
+
+
+def turn_up(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PDAL's ``always_up``: each normal with a negative z flipped, point by point, with what depends on its side.
+
+    Seen from the other side a surface's curvatures change sign: ``(k1,
+    k2)`` (``scalars[:, 1:3]``) becomes ``(-k2, -k1)``, still ``k1 >= k2``,
+    and the k1 direction becomes the old k2 direction, ``cross(n, dir1)``;
+    the surface variation (``scalars[:, 0]``) does not change.  Returns new
+    arrays; (N, 3), (N, 3) and (N, 3) float64 in, the same out.
+
+    >>> n, sc, d = turn_up(np.array([[0.0, 0.6, -0.8], [0.0, 0.0, 1.0]]), np.array([[0.1, 2.0, -1.0], [0.0, 1.0, 1.0]]),
+    ...                    np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]))
+    >>> n.tolist(), sc.tolist(), d[0].round(2).tolist()
+    ([[-0.0, -0.6, 0.8], [0.0, 0.0, 1.0]], [[0.1, 1.0, -2.0], [0.0, 1.0, 1.0]], [0.0, -0.8, -0.6])
+    """
+    normals, scalars, dir1 = normals.copy(), scalars.copy(), dir1.copy()
+    rows = np.flatnonzero(normals[:, 2] < 0)
+    n = normals[rows]
+    dir1[rows] = np.cross(n, dir1[rows])
+    normals[rows] = -n
+    k1, k2 = scalars[rows, 1].copy(), scalars[rows, 2].copy()
+    scalars[rows, 1], scalars[rows, 2] = -k2, -k1
+    return normals, scalars, dir1
+
 
 def calibrate_tile(url: str, ijk: tuple, d_min: float, n_min: int) -> np.ndarray:
     """The tile's share of the default threshold's histograms (:func:`patchcloud.core.rmse_histograms`).
@@ -145,14 +170,17 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
         viewpoint=None if vp is None else np.asarray(vp), centre=np.asarray(params["centre_local"]), blend=params["blend"],
         outside=outside, skin=skin,
     )
+    normals, scalars, dir1 = res.normals, res.scalars, res.dir1
+    if params.get("always_up"):  # PDAL's always_up: point by point, after the orientation
+        normals, scalars, dir1 = turn_up(normals, scalars, dir1)
     rank = store.read(ijk, "rank").astype(np.int64)
     n = rank.shape[0]
     out_n = np.empty((n, 3), np.float32)
     out_c = np.empty(n, np.float32)
     out_m = np.empty(n, np.uint8)
     out_p = np.empty(n, np.uint32)
-    out_n[rank] = res.normals
-    out_c[rank] = res.scalars[:, 0]
+    out_n[rank] = normals
+    out_c[rank] = scalars[:, 0]
     out_m[rank] = res.method
     out_p[rank] = res.patch
     store.write(ijk, "normal", out_n)
@@ -162,8 +190,8 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
     if params.get("principal_curvatures"):  # k1, k2 and k1's direction; 0 where a point has none (NaN-free output)
         out_k = np.empty((n, 2), np.float32)
         out_d = np.empty((n, 3), np.float32)
-        out_k[rank] = np.nan_to_num(res.scalars[:, 1:3], nan=0.0, posinf=0.0, neginf=0.0)
-        out_d[rank] = np.nan_to_num(res.dir1, nan=0.0, posinf=0.0, neginf=0.0)
+        out_k[rank] = np.nan_to_num(scalars[:, 1:3], nan=0.0, posinf=0.0, neginf=0.0)
+        out_d[rank] = np.nan_to_num(dir1, nan=0.0, posinf=0.0, neginf=0.0)
         store.write(ijk, "principal", out_k)
         store.write(ijk, "direction", out_d)
     info = dict(methods=np.bincount(res.method, minlength=4).tolist())

@@ -20,12 +20,15 @@ __all__ = ["tile"]
 def tile(
     input: str | os.PathLike, store: str, *, tile_size: float | None = None, scheduler: str = "auto",
     workers: int | None = None, overwrite: bool = False, quiet: bool = False, chunk: int | None = None,
+    classes=None, keep_noise: bool = False,
 ) -> Store:
     """Ingest only: cut ``input`` into a tiled store at ``store`` (a path or fsspec URL).
 
     A later job given ``store=`` starts from it (``patchcloud normals IN
     OUT --store STORE``).  The options are those of
-    :class:`~patchcloud.stream.engine.job.RunOptions`.
+    :class:`~patchcloud.stream.engine.job.RunOptions` (``classes`` and
+    ``keep_noise``: the points the tiles hold, as the job run on the store
+    must ask for them, else it tiles again).
 
     Examples
     --------
@@ -33,7 +36,8 @@ def tile(
     >>> len(s.tiles), int(s.tile_counts.sum())
     (4, 60653)
     """
-    run = RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, overwrite=overwrite, quiet=quiet, chunk=chunk)
+    run = RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, overwrite=overwrite, quiet=quiet, chunk=chunk,
+                     classes=classes, keep_noise=keep_noise)
     src = open_source(input)
     local = "://" not in store
     if local:
@@ -44,5 +48,5 @@ def tile(
         else:
             Store.check_new(store)  # before any worker starts
         with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
-            s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk)
+            s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk, run.selection)
     return s
