@@ -124,8 +124,8 @@ def _route(grid: Grid, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     keys = pack_tile_keys(grid.tile_of(local))
     order = np.argsort(keys, kind="stable")
     sk = keys[order]
-    starts = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
-    return order, sk, starts, np.r_[starts[1:], sk.size]
+    starts = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]]) if sk.size else np.zeros(0, dtype=np.int64)
+    return order, sk, starts, np.r_[starts[1:], sk.size] if sk.size else starts
 
 
 def part_size(point_count: int, slots: int, chunk: int | None = None) -> int:
