@@ -37,8 +37,9 @@ def segment_command(
     points closer than --tolerance are joined into segments (Euclidean
     clustering).  OUTPUT holds the input points as they are, plus DoN,
     DoNX, DoNY, DoNZ and ClusterID (uint64): 1, 2, ... in order of each
-    segment's first point in the file, 0 for no segment.  Segments that
-    cross tile faces get one id.
+    segment's first point in the file, 0 for no segment (and for the
+    points left out: --classes; noise and withheld points unless
+    --keep-noise).  Segments that cross tile faces get one id.
 
     \b
     Example:

@@ -461,7 +461,8 @@ def normal_statistics(
     The reference normals are the input's ``TrueNormalX/Y/Z`` (read from the
     output, which copies every input dimension) or else its
     ``NormalX/Y/Z`` (read from the input, since the output's are the new
-    ones).  Points whose reference is zero or not finite are not compared.
+    ones).  Points whose reference is zero or not finite are not compared;
+    points without a normal (``NormalMethod`` 0) are in neither histogram.
     Both files are read in chunks of ``chunk`` points into fixed bins: the
     memory does not depend on the file.
 
@@ -517,6 +518,8 @@ def normal_statistics(
     ref_chunks = read_chunks(in_src, chunk) if (ref_dims is not None and not ref_in_output) else None
     for _, rec in read_chunks(out_src, chunk):
         c = np.asarray(rec["Curvature"], dtype=np.float64)
+        if "NormalMethod" in out_dims:  # points without a normal (NormalMethod 0: left out by --classes, noise) hold 0
+            c = c[np.asarray(rec["NormalMethod"]) > 0]
         c = c[np.isfinite(c)]
         curv += np.histogram(np.clip(c, 0.0, CURVATURE_MAX), bins=curv_edges)[0]
         if ref_dims is None:
