@@ -193,3 +193,21 @@ def test_autzen_in_international_feet_is_labelled_in_feet(tmp_path):
     img = render_array(path, color="elevation", width=500, width_of="figure")
     assert img.axis_labels == ("Easting (ft)", "Northing (ft)")
     assert "Elevation (ft)" in [t for t, _ in texts(render_figure(img))]
+
+
+def test_units_override_the_crs_on_the_axes_as_in_the_jobs(tmp_path):
+    xyz = np.column_stack([np.arange(100.0) % 10, np.arange(100.0) // 10, np.arange(100.0) / 50])
+    path = write_las(tmp_path / "c.las", xyz, crs=None)
+    img = render_array(path, color="elevation", view="side", width=400, width_of="figure", units="ft")
+    assert img.axis_labels == ("X (ft)", "Z (ft)")
+    img = render_array(write_las(tmp_path / "l93.las", xyz, crs="EPSG:2154"), color="elevation", view="top", width=400,
+                       width_of="figure", units="us-ft")  # a wrong CRS unit: names from the CRS, unit from --units
+    assert img.axis_labels == ("Easting (US ft)", "Northing (US ft)")
+    out = tmp_path / "c.png"
+    r = CliRunner().invoke(main, ["render", str(path), str(out), "--color", "elevation", "--units", "ft", "--width", "300"])
+    assert r.exit_code == 0, r.output
+    assert " ft," in r.output and imread(out).shape[1] == 300
+    with pytest.raises(PatchcloudValueError, match="units must be one of m, ft, us-ft"):
+        render_array(path, color="elevation", units="yd")
+    r = CliRunner().invoke(main, ["render", str(path), str(out), "--color", "elevation", "--units", "yd"])
+    assert r.exit_code == 2 and "'yd' is not one of" in r.output

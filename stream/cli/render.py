@@ -36,12 +36,15 @@ _MODES = ["normals", "curvature", "don", "segments", "patches", "classification"
 @click.option("--heights", type=click.Choice(["robust", "all"]), default="robust", show_default=True,
               help="robust: frame the heights of a sample of the file, so noise far above or below (birds, low "
               "returns) does not squash the picture; all: frame the header's bounds.")
+@click.option("--units", type=click.Choice(["m", "ft", "us-ft"]), default=None,
+              help="The unit of the file's coordinates on the axes and in the summary, instead of its CRS's (a file without "
+              "a CRS, or a wrong one; as in the jobs). Default: the CRS's units, \"file units\" without a CRS.")
 @options.catalog_options
 @options.max_memory
 @options.quiet
 @options.summary_json
 @options.reports_errors
-def render_command(paths, color, view, bbox, width, shade, value_range, fill, heights, out_dir, assume_crs, quiet):
+def render_command(paths, color, view, bbox, width, shade, value_range, fill, heights, units, out_dir, assume_crs, quiet):
     """A PNG picture of INPUT (LAS/LAZ/COPC, any size) in OUTPUT.
 
     Several inputs (files, directories, quoted globs) before OUTPUT are
@@ -87,7 +90,7 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
     summaries = []
     for input, output in jobs:
         s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
-                   heights=heights, assume_crs=assume_crs)
+                   heights=heights, assume_crs=assume_crs, units=units)
         summaries.append(s)
         if not quiet:
             click.echo(s.format())

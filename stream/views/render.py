@@ -58,6 +58,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.catalog import open_catalog
+from patchcloud.stream.io.crs import UNITS
 from patchcloud.stream.io.las import LasSource, check_not_input, laz_backend, open_source, read_chunks
 from patchcloud.stream.views.layout import MIN_WIDTH, FigureLayout, figure_layout, layout_around
 from patchcloud.stream.views.units import AxisNames, axis_names
@@ -807,7 +808,7 @@ def auto_fill(drawn: np.ndarray) -> float:
 def render_array(
     input, *, color: str, view: str | None = None, bbox=None, width: int = 1600,
     shade: bool | None = None, value_range=None, fill: float | None = None, heights: str = "robust", chunk: int = 1 << 20,
-    assume_crs: str | None = None, width_of: str = "image",
+    assume_crs: str | None = None, width_of: str = "image", units: str | None = None,
 ) -> RenderImage:
     """The picture of a LAS/LAZ file of any size, or of a catalog of them, as an RGB array, read out of core.
 
@@ -855,6 +856,10 @@ def render_array(
         Points read at a time (the result does not depend on it).
     assume_crs : str, optional
         In a catalog, the CRS of files without one (as ``RunOptions.assume_crs``).
+    units : {"m", "ft", "us-ft"}, optional
+        The unit of the coordinates, instead of the CRS's (``--units``, as
+        in the jobs): the axis labels and the pixel size say it.  Default:
+        the CRS's units; "file units" for a file without a CRS.
 
     Returns
     -------
@@ -877,7 +882,7 @@ def render_array(
     (60653, True, False)
     """
     return render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range,
-                         fill=fill, heights=heights, chunk=chunk, assume_crs=assume_crs, width_of=width_of)[0]
+                         fill=fill, heights=heights, chunk=chunk, assume_crs=assume_crs, width_of=width_of, units=units)[0]
 
 
 def input_sources(input, assume_crs: str | None = None) -> tuple[list[LasSource], str]:
@@ -927,7 +932,7 @@ WIDTH_OF = ("image", "figure")
 def render_arrays(
     input, *, colors: Sequence[str], view: str | None = None, bbox=None, width: int = 1600,
     shade: bool | None = None, value_range=None, fill: float | None = None, heights: str = "robust", chunk: int = 1 << 20,
-    assume_crs: str | None = None, output: str | os.PathLike | None = None, width_of: str = "image",
+    assume_crs: str | None = None, output: str | os.PathLike | None = None, width_of: str = "image", units: str | None = None,
 ) -> list[RenderImage]:
     """Pictures of one file, or of a catalog as one cloud, in several colour modes, from one read (see :func:`render_array`).
 
@@ -973,6 +978,8 @@ def render_arrays(
                                    f"legend included); got {width!r}")
     if heights not in HEIGHTS:
         raise PatchcloudValueError(f"heights must be one of {', '.join(HEIGHTS)}; got {heights!r}")
+    if units is not None and units not in UNITS:
+        raise PatchcloudValueError(f"units must be one of {', '.join(UNITS)}; got {units!r}")
     bbox = _check_bbox(bbox)
     sources, name = input_sources(input, assume_crs)
     if output is not None:  # where the caller will write the picture: never one of the inputs
@@ -991,7 +998,7 @@ def render_arrays(
     if view is None:
         view = choose_view(lo, hi)
     R = view_axes(view, lo, hi)
-    names = axis_names(picture_crs(sources, assume_crs))
+    names = axis_names(picture_crs(sources, assume_crs), units)
     layout = None
     if width_of == "figure":  # the image gets the columns the title, axes and legend leave
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
@@ -1270,7 +1277,7 @@ def render_figure(img: RenderImage):
 def render(
     input, output: str | os.PathLike, *, color: str, view: str | None = None, bbox=None,
     width: int = 1600, shade: bool | None = None, value_range=None, fill: float | None = None, heights: str = "robust",
-    chunk: int = 1 << 20, assume_crs: str | None = None,
+    chunk: int = 1 << 20, assume_crs: str | None = None, units: str | None = None,
 ) -> RenderSummary:
     """Write a PNG picture of a LAS/LAZ file of any size, or of a catalog of files in one frame
     (out of core; see :func:`render_array` for the options).
@@ -1303,7 +1310,7 @@ def render(
     t0 = time.perf_counter()
     out = check_png_path(output)
     img = render_arrays(input, colors=[color], view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
-                        heights=heights, chunk=chunk, assume_crs=assume_crs, output=out, width_of="figure")[0]
+                        heights=heights, chunk=chunk, assume_crs=assume_crs, output=out, width_of="figure", units=units)[0]
     fig = render_figure(img)
     save_png(fig, out, crop=False)
     FW, FH = fig.canvas.get_width_height()

@@ -14,7 +14,7 @@ survey foot (1200/3937 m) "US ft", degree "°"; another unit by its name.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from patchcloud.stream.io.crs import UNITS
 
@@ -80,10 +80,13 @@ def _axis(info) -> tuple[str, str]:
     return info.name, unit_abbreviation(info.unit_name, info.unit_conversion_factor)
 
 
-def axis_names(crs: str | None) -> AxisNames:
+def axis_names(crs: str | None, units: str | None = None) -> AxisNames:
     """The axis names and units of a CRS (WKT, "EPSG:2154", anything pyproj takes); X/Y/Z in file units for None.
 
     An unreadable CRS is treated as none (the picture is still drawn).
+    ``units`` (one of :data:`patchcloud.stream.io.crs.UNITS`, ``--units``)
+    overrides the CRS's units, horizontal and vertical, as it overrides them
+    for every distance of a job; the axis names still come from the CRS.
 
     Examples
     --------
@@ -98,7 +101,19 @@ def axis_names(crs: str | None) -> AxisNames:
     'Elevation (m)'
     >>> axis_names(None).x, axis_names(None).z
     ('X (file units)', 'Z (file units)')
+    >>> axis_names(None, units="ft").x, axis_names("EPSG:2154", units="us-ft").z
+    ('X (ft)', 'Elevation (US ft)')
     """
+    names = _crs_axis_names(crs)
+    if units is None:
+        return names
+    if units not in LABELS:
+        raise ValueError(f"units must be one of {', '.join(LABELS)}; got {units!r}")
+    return replace(names, horizontal=LABELS[units], vertical=LABELS[units])
+
+
+def _crs_axis_names(crs: str | None) -> AxisNames:
+    """:func:`axis_names` of the CRS alone."""
     if crs is None:
         return AxisNames()
     try:
