@@ -1,7 +1,7 @@
 """Point-wise normals for points no patch surface models (edge and sparse leaves).
 
 The paper leaves these points without a normal; here each gets the PCA
-normal of its ``k`` nearest neighbours (scipy's cKDTree), the surface
+normal of its ``k`` nearest neighbours (:mod:`.knn`), the surface
 variation of that neighbourhood, and principal curvatures from a quadric
 fitted to the neighbourhood in its PCA frame.
 """
@@ -9,9 +9,9 @@ fitted to the neighbourhood in its PCA frame.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from . import _kernels
+from .knn import PointGrid, nearest_neighbours, point_grid
 from .morton import MAX_DEPTH, decode, encode
 
 __all__ = ["knn_normals", "points_near"]
@@ -92,7 +92,7 @@ def knn_normals(
         return normals, sigma3, k1, k2, dir1, neighbours
     if grid is not None and m > n // 10:
         grid = None  # many queries: one tree over the whole cloud is cheaper than cells
-    whole: list[cKDTree] = []  # the whole-cloud tree, built at most once
+    whole: list[PointGrid] = []  # the whole-cloud grid, built at most once
     for lo in range(0, m, chunk):
         qi = query[lo : lo + chunk]
         nb = _knn(points, qi, k, grid, whole)
@@ -105,21 +105,19 @@ def knn_normals(
 def _knn(points, qi, k, grid, whole: list, reach: int = 1) -> np.ndarray:
     """Exact k nearest neighbours of ``points[qi]``, searched in as few cells as possible.
 
-    ``whole`` caches the k-d tree over the whole cloud between calls.
+    ``whole`` caches the grid over the whole cloud between calls.
     """
     if grid is None:
         if not whole:
-            whole.append(cKDTree(points, balanced_tree=False, compact_nodes=False))
-        return whole[0].query(points[qi], k=k, workers=-1)[1].reshape(qi.size, k)
+            whole.append(point_grid(points, k))
+        return nearest_neighbours(whole[0], points[qi], k)[1]
     q, keys, level, h = grid
     subset = points_near(q, keys, level, qi, reach)
     if subset.size < k:
         dist = np.full((qi.size, k), np.inf)
         nb = np.zeros((qi.size, k), dtype=np.int64)
     else:
-        tree = cKDTree(points[subset], balanced_tree=False, compact_nodes=False)
-        dist, nb = tree.query(points[qi], k=k, workers=-1)
-        dist, nb = dist.reshape(qi.size, k), subset[nb.reshape(qi.size, k)]
+        dist, nb = nearest_neighbours(point_grid(points[subset], k, ids=subset), points[qi], k)
     far = np.flatnonzero(dist[:, -1] > reach * h)
     if far.size:
         nxt = reach * 4

@@ -32,11 +32,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from . import _kernels
 from .blend import blend_across_faces
 from .fallback import knn_normals
+from .knn import nearest_neighbours, point_grid
 from .morton import encode
 from .codes import Method, PatchKind
 from .octree import Octree, build_octree, max_level_for, point_keys, sort_points
@@ -394,10 +394,8 @@ def _nearby_signs(points, votes, voters, query, nrm, k: int, reach: float) -> np
     """+1/-1 turning each normal ``nrm`` towards the sum of the nearest (at most ``k``) voters' normals within ``reach``; 0 where none."""
     rows = np.flatnonzero(voters)
     kk = int(min(k, rows.size))
-    tree = cKDTree(points[rows], balanced_tree=False, compact_nodes=False)
-    _, idx = tree.query(points[query], k=kk, distance_upper_bound=reach, workers=-1)
-    idx = idx.reshape(query.size, kk)
-    found = idx < rows.size
+    _, idx = nearest_neighbours(point_grid(points[rows], kk), points[query], kk, max_distance=reach)
+    found = idx >= 0
     total = (votes[rows[np.where(found, idx, 0)]] * found[..., None]).sum(axis=1)
     dot = np.einsum("ij,ij->i", total, nrm)
     return np.where(np.einsum("ij,ij->i", total, total) > 0, np.where(dot < 0, -1.0, 1.0), 0.0)

@@ -1,0 +1,73 @@
+"""patchcloud.core.knn: exact k nearest neighbours against a brute-force search."""
+
+import numpy as np
+import pytest
+
+from patchcloud.core.knn import nearest_neighbours, point_grid
+
+
+def brute(points, queries, k, max_distance=np.inf):
+    """Every distance, sorted by (distance, index): the answer the grid must give, ties included."""
+    d2 = ((queries[:, None, :] - points[None, :, :]) ** 2).sum(axis=2)
+    idx = np.tile(np.arange(len(points)), (len(queries), 1))
+    order = np.lexsort((idx, d2), axis=1)[:, :k]
+    d2 = np.take_along_axis(d2, order, axis=1)
+    out = np.where(d2 <= max_distance**2, order, -1)
+    return np.where(out >= 0, np.sqrt(d2), np.inf), out
+
+
+def clouds():
+    rng = np.random.default_rng(7)
+    yield "volume", rng.uniform(0, 20, (3000, 3))
+    xy = rng.uniform(0, 30, (3000, 2))
+    yield "ground, centimetre grid (many ties)", np.round(np.column_stack([xy, 0.05 * np.sin(xy[:, 0])]), 2)
+    yield "integer lattice (all ties)", np.stack(np.meshgrid(np.arange(12.0), np.arange(12.0), np.arange(3.0)), -1).reshape(-1, 3)
+    yield "two far blobs", np.concatenate([rng.normal(0, 0.2, (1500, 3)), rng.normal(500, 0.2, (1500, 3))])
+    yield "a line", np.column_stack([np.linspace(0, 100, 2000), np.zeros(2000), np.zeros(2000)])
+
+
+@pytest.mark.parametrize("name,points", list(clouds()), ids=[c[0] for c in clouds()])
+@pytest.mark.parametrize("k", [1, 8, 16])
+def test_the_neighbours_are_the_brute_force_ones_ties_by_index(name, points, k):
+    rng = np.random.default_rng(1)
+    queries = np.concatenate([points[::37], points[::53] + rng.normal(0, 0.5, (len(points[::53]), 3)),
+                              [points.min(axis=0) - 3.0], points.max(axis=0) + [[40.0, -5.0, 2.0]]])  # two outside the box
+    d, i = nearest_neighbours(point_grid(points, k), queries, k)
+    bd, bi = brute(points, queries, k)
+    assert np.array_equal(i, bi)
+    assert np.allclose(d, bd, rtol=0, atol=1e-9)
+
+
+def test_max_distance_leaves_empty_places_and_ids_are_the_callers():
+    rng = np.random.default_rng(3)
+    points = rng.uniform(0, 10, (800, 3))
+    ids = np.arange(800) * 10 + 5
+    queries = np.concatenate([rng.uniform(0, 10, (50, 3)), [[30.0, 30.0, 30.0]]])
+    d, i = nearest_neighbours(point_grid(points, 8, ids=ids), queries, 8, max_distance=1.2)
+    bd, bi = brute(points, queries, 8, max_distance=1.2)
+    assert np.array_equal(i, np.where(bi >= 0, bi * 10 + 5, -1))
+    assert np.array_equal(np.isinf(d), bi < 0) and (i[-1] == -1).all()
+    assert np.allclose(d[bi >= 0], bd[bi >= 0])
+
+
+def test_more_neighbours_than_points_and_degenerate_clouds():
+    one = np.array([[1.0, 2.0, 3.0]])
+    d, i = nearest_neighbours(point_grid(one, 4), np.array([[1.0, 2.0, 4.0]]), 4)
+    assert i.tolist() == [[0, -1, -1, -1]] and d[0, 0] == 1.0 and np.isinf(d[0, 1:]).all()
+    same = np.zeros((5, 3))  # every point at one place: ties by index
+    assert nearest_neighbours(point_grid(same, 2), np.zeros((1, 3)), 3)[1].tolist() == [[0, 1, 2]]
+    empty = point_grid(np.zeros((0, 3)), 4)
+    assert nearest_neighbours(empty, one, 2)[1].tolist() == [[-1, -1]]
+    with pytest.raises(ValueError, match="k must be at least 1"):
+        nearest_neighbours(point_grid(one, 1), one, 0)
+
+
+def test_the_answer_does_not_depend_on_the_threads():
+    from patchcloud.core.threads import single_threaded
+
+    points = np.random.default_rng(5).uniform(0, 50, (20000, 3))
+    g = point_grid(points, 16)
+    a = nearest_neighbours(g, points[::3], 16)
+    with single_threaded():
+        b = nearest_neighbours(g, points[::3], 16)
+    assert np.array_equal(a[1], b[1]) and np.array_equal(a[0], b[0])
