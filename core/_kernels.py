@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "eigh3"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "eigh3", "morton_key"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -96,6 +96,12 @@ def _spread(x):
     x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
     x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
     return x
+
+
+@njit(cache=True, nogil=True)
+def morton_key(i, j, k):
+    """The Morton key (uint64) of integer cell coordinates in [0, 2**21), as :func:`.morton.encode` gives."""
+    return _spread(np.uint64(i)) | (_spread(np.uint64(j)) << np.uint64(1)) | (_spread(np.uint64(k)) << np.uint64(2))
 
 
 @njit(cache=True, nogil=True)

@@ -1,9 +1,13 @@
-"""Exact k nearest neighbours on a grid of cubic cells (compiled), for the k-NN fallback and its orientation.
+"""Exact k nearest neighbours on an octree of cells (compiled), for the k-NN fallback and its orientation.
 
-The points are bucketed into cells of one edge, chosen so that an occupied
-cell holds about ``k`` points; a query visits the cells ring by ring
-(Chebyshev distance 0, 1, 2, ... from its own cell) and stops when its
-k-th nearest point so far is closer than any point of the next ring can be.
+The points are sorted by the Morton key of their cell in a grid whose
+cells hold about ``k`` points each; a cell of any coarser level is then one
+run of that order.  A query visits the cells of the finest level ring by
+ring (Chebyshev distance 0, 1, 2 from its own cell) and stops when its
+k-th nearest point so far is closer than any point of the next ring can
+be; when two rings are not enough (an isolated point, a sparse region) it
+starts again at the next coarser level, up to the root, which holds every
+point: so an outlier costs a few levels, not a walk through empty cells.
 Neighbours come sorted by distance, ties by index, so the result is one
 answer whatever the order the cells were visited in and the thread count.
 This replaces scipy's cKDTree, whose import alone (``scipy.spatial``,
@@ -17,52 +21,44 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from . import _kernels
 from .threads import parallel_kernel
 
-__all__ = ["PointGrid", "point_grid", "nearest_neighbours"]
+__all__ = ["PointGrid", "point_grid", "nearest_neighbours", "near_queries"]
 
 #: Points per occupied cell the grid aims at, per neighbour asked for.
 _PER_CELL = 1.0
-#: Largest number of cells along the three axes together (their product fits an int64).
-_MAX_CELLS = 1 << 60
-#: A table of every cell of the box (a cell found in one step) when it has at most this many cells per point.
-_DENSE_PER_POINT = 8
 
 
 @dataclass(frozen=True)
 class PointGrid:
-    """Points bucketed into cubic cells: the index :func:`nearest_neighbours` searches.
+    """Points sorted by the Morton key of their cell: the index :func:`nearest_neighbours` searches.
 
     Attributes
     ----------
     points : (N, 3) float64
-        The points, in cell order.
+        The points, in key order.
     ids : (N,) int64
         Their indices in the caller's array.
-    cells : (C,) int64
-        The occupied cells' linear numbers ``(i * ny + j) * nz + k``, ascending.
-    table : (nx * ny * nz,) int64 or (0,)
-        Each cell number's row in ``cells`` (-1: empty), where the box has
-        few enough cells (at most :data:`_DENSE_PER_POINT` per point);
-        otherwise empty, and a cell is found by bisection.
+    cells : (C,) uint64
+        The occupied cells' Morton keys (level ``levels``), ascending.
     starts : (C + 1,) int64
         Where each cell's points begin in ``points``.
     corner : (3,) float64
-        The low corner of cell (0, 0, 0).
+        The low corner of the root cube.
     edge : float
-        The cells' edge (the points' unit).
-    dims : (3,) int64
-        Cells along x, y, z.
+        The cells' edge (the points' unit); the root cube's is ``edge * 2**levels``.
+    levels : int
+        The cells' level below the root cube (0 to 21).
     """
 
     points: np.ndarray
     ids: np.ndarray
     cells: np.ndarray
-    table: np.ndarray
     starts: np.ndarray
     corner: np.ndarray
     edge: float
-    dims: np.ndarray
+    levels: int
 
 
 def _cell_numbers(points: np.ndarray, corner: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray]:
@@ -74,11 +70,12 @@ def _cell_numbers(points: np.ndarray, corner: np.ndarray, edge: float) -> tuple[
 def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> PointGrid:
     """Bucket ``points`` ((N, 3) float64) into cells holding about ``k`` points each.
 
-    The edge is found from the occupancy (points per occupied cell, on a
-    strided sample of at most 65,536 points): from cells of the bounding
-    box's volume per ``k`` points, a few secant steps in log-log towards
-    ``k`` per cell (the occupancy grows with the edge squared on surfaces,
-    cubed in volumes).
+    The edge is found from the occupancy (points per occupied cell) of a
+    strided sample of at most 65,536 points: a few secant steps in log-log
+    find the edge where the sample holds about max(k / stride, 8) points per
+    cell (enough to measure it), and the growth of the occupancy there (the
+    edge squared on surfaces, cubed in volumes) takes it down to ``k``
+    points of the whole cloud per cell.
     ``ids``: the points' indices to report (default 0 to N-1).
 
     >>> g = point_grid(np.random.default_rng(0).uniform(0, 10, (1000, 3)), k=8)
@@ -97,34 +94,76 @@ def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> Poi
         want = max(k, 1) * _PER_CELL
         step = max(1, n // 65536)
         sample = pts[::step]
+        goal = max(want / step, 8.0)  # sample points per cell where the sample still measures the occupancy
 
-        def per_cell(e: float) -> float:  # points per occupied cell at edge e
-            return len(sample) / np.unique(_cell_numbers(sample, corner, e)[0]).size * step
+        def per_cell(e: float) -> float:  # sample points per occupied cell at edge e
+            return len(sample) / np.unique(_cell_numbers(sample, corner, e)[0]).size
 
-        edge = float(np.cbrt(np.prod(span) * want / n))
+        edge = float(np.cbrt(np.prod(span) * goal * step / n))
         got, growth = per_cell(edge), 2.0  # as for points on surfaces
-        for _ in range(6):  # secant steps in log-log: the occupancy grows as edge**growth, growth 1 (lines) to 3 (volumes)
-            if 0.7 * want <= got <= 1.5 * want:
+        for _ in range(8):  # secant steps in log-log: the occupancy grows as edge**growth, growth 1 (lines) to 3 (volumes)
+            if 0.7 * goal <= got <= 1.5 * goal:
                 break
-            nxt = edge * float(np.clip((want / got) ** (1.0 / growth), 1 / 64, 64))
+            nxt = edge * float(np.clip((goal / got) ** (1.0 / growth), 1 / 64, 64))
             now = per_cell(nxt)
             if now != got:
                 growth = float(np.clip(np.log(now / got) / np.log(nxt / edge), 1.0, 3.0))
             edge, got = nxt, now
-    edge = max(edge, extent * 2.0 ** -20, np.finfo(np.float64).tiny)
-    while extent / edge + 1 > _MAX_CELLS ** (1 / 3):
-        edge *= 2.0
-    numbers, dims = _cell_numbers(pts, corner, edge)
-    order = np.argsort(numbers, kind="stable")
-    numbers = numbers[order]
-    first = np.flatnonzero(np.r_[True, numbers[1:] != numbers[:-1]]) if n else np.zeros(0, np.int64)
-    cells = numbers[first]
-    table = np.zeros(0, np.int64)
-    if int(np.prod(dims)) <= _DENSE_PER_POINT * n + 1024:
-        table = np.full(int(np.prod(dims)), -1, np.int64)
-        table[cells] = np.arange(cells.size)
-    return PointGrid(points=pts[order], ids=ids[order], cells=cells, table=table, starts=np.r_[first, n].astype(np.int64),
-                     corner=corner.astype(np.float64), edge=edge, dims=dims.astype(np.int64))
+        half = per_cell(edge / 2)  # the growth at this scale, to go down to want points per cell of the whole cloud
+        growth = float(np.clip(np.log2(got / half), 1.0, 3.0)) if half < got else 2.0
+        edge *= float((want / (got * step)) ** (1.0 / growth))
+    edge = max(edge, extent * 2.0 ** -21, np.finfo(np.float64).tiny)
+    levels = int(np.clip(np.ceil(np.log2(max(extent, edge) / edge)), 0, 21)) if n else 0
+    edge = max(edge, extent / 2.0**levels * (1.0 + 1e-12))  # the root cube holds every point
+    q = np.clip(np.floor((pts - corner) / edge), 0, 2**levels - 1).astype(np.int64) if n else np.zeros((0, 3), np.int64)
+    keys = np.empty(n, np.uint64)
+    _morton_keys(q, keys)
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if n else np.zeros(0, np.int64)
+    return PointGrid(points=pts[order], ids=ids[order], cells=keys[first], starts=np.r_[first, n].astype(np.int64),
+                     corner=corner.astype(np.float64), edge=float(edge), levels=levels)
+
+
+def near_queries(points: np.ndarray, queries: np.ndarray, reach: float) -> np.ndarray:
+    """Which ``points`` may lie within ``reach`` of a query: a superset, found without a search.
+
+    A point is kept when its cell, in a grid of cells of edge ``reach``, is
+    one of the 27 around a query's cell; so every point within ``reach`` of
+    a query is kept.  Searching the points kept instead of all of them
+    gives the same neighbours within ``reach`` at a fraction of the cost
+    when the queries are few.  (N, 3) and (M, 3) float64 in, (N,) bool out.
+
+    >>> near_queries(np.array([[0.0, 0, 0], [2.5, 0, 0], [9.0, 0, 0]]), np.array([[1.0, 0, 0]]), 1.0).tolist()
+    [True, False, False]
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    q = np.asarray(queries, dtype=np.float64).reshape(-1, 3)
+    keep = np.zeros(len(pts), dtype=bool)
+    if len(q) == 0 or len(pts) == 0 or not reach > 0:
+        return keep
+    lo, hi = q.min(axis=0) - reach, q.max(axis=0) + reach
+    box = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
+    dims = np.floor((hi - lo) / reach).astype(np.int64) + 1
+
+    def number(ijk):
+        return (ijk[..., 0] * dims[1] + ijk[..., 1]) * dims[2] + ijk[..., 2]
+
+    cells = np.minimum(np.floor((q - lo) / reach).astype(np.int64), dims - 1)
+    r = np.arange(-1, 2)
+    steps = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+    around = np.clip(cells[:, None, :] + steps[None, :, :], 0, dims - 1)
+    wanted = np.unique(number(around))
+    found = number(np.minimum(np.floor((pts[box] - lo) / reach).astype(np.int64), dims - 1))
+    at = np.minimum(np.searchsorted(wanted, found), wanted.size - 1)
+    keep[box[wanted[at] == found]] = True
+    return keep
+
+
+@njit(cache=True, nogil=True)
+def _morton_keys(q, keys):
+    for p in range(q.shape[0]):
+        keys[p] = _kernels.morton_key(q[p, 0], q[p, 1], q[p, 2])
 
 
 def nearest_neighbours(
@@ -164,30 +203,28 @@ def nearest_neighbours(
     idx = np.full((len(q), k), -1, dtype=np.int64)
     if len(q) and len(grid.ids):
         limit = float(max_distance) ** 2 if np.isfinite(max_distance) else np.inf
-        _search(grid.points, grid.ids, grid.cells, grid.table, grid.starts, grid.corner, float(grid.edge), grid.dims, q, limit, dist, idx)
+        _search(grid.points, grid.ids, grid.cells, grid.starts, grid.corner, float(grid.edge), grid.levels, q, limit, dist, idx)
         np.sqrt(dist, out=dist)
     return dist, idx
 
 
 @njit(cache=True, nogil=True)
-def _find(cells, number):
+def _lower_bound(cells, key):
     lo, hi = 0, cells.size
     while lo < hi:
         mid = (lo + hi) >> 1
-        if cells[mid] < number:
+        if cells[mid] < key:
             lo = mid + 1
         else:
             hi = mid
-    if lo < cells.size and cells[lo] == number:
-        return lo
-    return -1
+    return lo
 
 
 @njit(cache=True, nogil=True)
-def _offer(points, ids, starts, c, qx, qy, qz, limit, bd, bi):
-    """Offer the points of cell ``c`` to the sorted best lists ``bd`` (squared distances) and ``bi``."""
+def _offer(points, ids, a, b, qx, qy, qz, limit, bd, bi):
+    """Offer points ``a`` to ``b`` to the lists ``bd`` (squared distances) and ``bi``, kept sorted by (distance, index)."""
     k = bd.size
-    for p in range(starts[c], starts[c + 1]):
+    for p in range(a, b):
         dx = points[p, 0] - qx
         dy = points[p, 1] - qy
         dz = points[p, 2] - qz
@@ -195,7 +232,7 @@ def _offer(points, ids, starts, c, qx, qy, qz, limit, bd, bi):
         if d > limit:
             continue
         i = ids[p]
-        j = k - 1  # the lists are ordered by (distance, index); an empty place holds (inf, -1) and sorts last
+        j = k - 1  # an empty place holds (inf, -1) and sorts last
         if not (d < bd[j] or (d == bd[j] and i < bi[j])):
             continue
         while j > 0 and (d < bd[j - 1] or (d == bd[j - 1] and i < bi[j - 1])):
@@ -206,44 +243,60 @@ def _offer(points, ids, starts, c, qx, qy, qz, limit, bd, bi):
         bi[j] = i
 
 
+@njit(cache=True, nogil=True)
+def _rings(points, ids, cells, starts, corner, edge, level, levels, qx, qy, qz, limit, bd, bi):
+    """Rings 0 to 2 of the cells of ``level`` around the query; True when the lists are final."""
+    n = np.int64(1) << np.int64(level)
+    shift = np.uint64(3 * (levels - level))
+    fx = (qx - corner[0]) / edge
+    fy = (qy - corner[1]) / edge
+    fz = (qz - corner[2]) / edge
+    cx = np.int64(np.floor(fx))
+    cy = np.int64(np.floor(fy))
+    cz = np.int64(np.floor(fz))
+    # the query's distance to the nearest face of its own cell: a point beyond ring r is at least r edges farther
+    inner = min(min(min(fx - cx, cx + 1 - fx), min(fy - cy, cy + 1 - fy)), min(fz - cz, cz + 1 - fz)) * edge
+    far = max(max(max(abs(cx), abs(cx - n + 1)), max(abs(cy), abs(cy - n + 1))), max(abs(cz), abs(cz - n + 1)))
+    for r in range(3):
+        for i in range(max(cx - r, 0), min(cx + r, n - 1) + 1):
+            for j in range(max(cy - r, 0), min(cy + r, n - 1) + 1):
+                side = abs(i - cx) == r or abs(j - cy) == r
+                for t in range(2 * r + 1 if side else 2):
+                    z = cz - r + t if side else (cz - r if t == 0 else cz + r)
+                    if z < 0 or z >= n:
+                        continue
+                    key = _kernels.morton_key(i, j, z) << shift
+                    a = _lower_bound(cells, key)
+                    if shift == 0:  # a finest cell: one key
+                        b = a + 1 if a < cells.size and cells[a] == key else a
+                    else:
+                        b = _lower_bound(cells, key + (np.uint64(1) << shift))
+                    if b > a:
+                        _offer(points, ids, starts[a], starts[b], qx, qy, qz, limit, bd, bi)
+        reach = r * edge + inner
+        if r >= far or reach * reach >= limit:
+            return True  # every cell of the grid seen, or the rest beyond max_distance
+        if bi[bd.size - 1] >= 0 and bd[bd.size - 1] <= reach * reach:
+            return True
+    return False
+
+
 @parallel_kernel
-def _search(points, ids, cells, table, starts, corner, edge, dims, queries, limit, dist, idx):
-    nx, ny, nz = dims[0], dims[1], dims[2]
-    dense = table.size > 0
+def _search(points, ids, cells, starts, corner, edge, levels, queries, limit, dist, idx):
     for m in prange(queries.shape[0]):
-        qx, qy, qz = queries[m, 0], queries[m, 1], queries[m, 2]
-        fx = (qx - corner[0]) / edge
-        fy = (qy - corner[1]) / edge
-        fz = (qz - corner[2]) / edge
-        cx = np.int64(np.floor(fx))
-        cy = np.int64(np.floor(fy))
-        cz = np.int64(np.floor(fz))
-        # the query's distance to the nearest face of its own cell: a point outside ring r is at least r edges farther
-        inner = min(min(min(fx - cx, cx + 1 - fx), min(fy - cy, cy + 1 - fy)), min(fz - cz, cz + 1 - fz)) * edge
         bd = dist[m]
         bi = idx[m]
-        # rings beyond this one hold no cell of the grid
-        far = max(max(abs(cx), abs(cx - nx + 1)), max(max(abs(cy), abs(cy - ny + 1)), max(abs(cz), abs(cz - nz + 1))))
-        r = 0
-        while r <= far:
-            for i in range(max(cx - r, 0), min(cx + r, nx - 1) + 1):
-                for j in range(max(cy - r, 0), min(cy + r, ny - 1) + 1):
-                    side = abs(i - cx) == r or abs(j - cy) == r
-                    zs = 1 if side else 2
-                    for t in range(2 * r + 1 if side else zs):
-                        if side:
-                            z = cz - r + t
-                        else:
-                            z = cz - r if t == 0 else cz + r
-                        if z < 0 or z >= nz or (r == 0 and t > 0):
-                            continue
-                        number = (i * ny + j) * nz + z
-                        c = table[number] if dense else _find(cells, number)
-                        if c >= 0:
-                            _offer(points, ids, starts, c, qx, qy, qz, limit, bd, bi)
-            reach = r * edge + inner
-            if reach * reach >= limit:
+        level = levels
+        e = edge
+        while True:
+            if level == 0:  # the root cell: every point
+                _offer(points, ids, 0, points.shape[0], queries[m, 0], queries[m, 1], queries[m, 2], limit, bd, bi)
                 break
-            if bi[bd.size - 1] >= 0 and bd[bd.size - 1] <= reach * reach:
+            if _rings(points, ids, cells, starts, corner, e, level, levels, queries[m, 0], queries[m, 1], queries[m, 2],
+                      limit, bd, bi):
                 break
-            r += 1
+            # two rings were not enough: start again on cells twice as large (the root cell holds every point)
+            bd[:] = np.inf
+            bi[:] = -1
+            level -= 1
+            e *= 2.0

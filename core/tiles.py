@@ -36,7 +36,7 @@ import numpy as np
 from . import _kernels
 from .blend import blend_across_faces
 from .fallback import knn_normals
-from .knn import nearest_neighbours, point_grid
+from .knn import near_queries, nearest_neighbours, point_grid
 from .morton import encode
 from .codes import Method, PatchKind
 from .octree import Octree, build_octree, max_level_for, point_keys, sort_points
@@ -394,6 +394,7 @@ def _nearby_signs(points, votes, voters, query, nrm, k: int, reach: float) -> np
     """+1/-1 turning each normal ``nrm`` towards the sum of the nearest (at most ``k``) voters' normals within ``reach``; 0 where none."""
     rows = np.flatnonzero(voters)
     kk = int(min(k, rows.size))
+    rows = rows[near_queries(points[rows], points[query], reach)]  # the voters that may be within reach: the same answer, sooner
     _, idx = nearest_neighbours(point_grid(points[rows], kk), points[query], kk, max_distance=reach)
     found = idx >= 0
     total = (votes[rows[np.where(found, idx, 0)]] * found[..., None]).sum(axis=1)

@@ -71,3 +71,29 @@ def test_the_answer_does_not_depend_on_the_threads():
     with single_threaded():
         b = nearest_neighbours(g, points[::3], 16)
     assert np.array_equal(a[1], b[1]) and np.array_equal(a[0], b[0])
+
+
+def test_isolated_points_and_far_queries_find_their_neighbours_through_coarser_cells():
+    rng = np.random.default_rng(11)
+    ground = np.column_stack([rng.uniform(0, 100, (20000, 2)), rng.normal(0, 0.01, 20000)])
+    birds = np.array([[50.0, 50.0, 300.0], [0.0, 100.0, 150.0], [99.0, 1.0, 80.0]])  # far above a dense ground
+    points = np.concatenate([ground, birds])
+    queries = np.concatenate([birds, [[-500.0, -500.0, -500.0]], ground[::997]])
+    for k in (1, 8):
+        d, i = nearest_neighbours(point_grid(points, k), queries, k)
+        bd, bi = brute(points, queries, k)
+        assert np.array_equal(i, bi) and np.allclose(d, bd)
+
+
+def test_near_queries_keeps_every_point_within_reach():
+    from patchcloud.core.knn import near_queries
+
+    rng = np.random.default_rng(2)
+    points = rng.uniform(0, 100, (30000, 3))
+    queries = rng.uniform(20, 60, (40, 3))
+    for reach in (0.5, 3.0, 40.0):
+        keep = near_queries(points, queries, reach)
+        within = (((points[:, None, :] - queries[None, :, :]) ** 2).sum(axis=2) <= reach**2).any(axis=1)
+        assert keep[within].all()
+        assert keep.sum() < len(points) or reach == 40.0  # and it does leave the far points out
+    assert not near_queries(points, queries[:0], 1.0).any()
