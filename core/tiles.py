@@ -395,6 +395,8 @@ def _nearby_signs(points, votes, voters, query, nrm, k: int, reach: float) -> np
     rows = np.flatnonzero(voters)
     kk = int(min(k, rows.size))
     rows = rows[near_queries(points[rows], points[query], reach)]  # the voters that may be within reach: the same answer, sooner
+    if rows.size == 0:
+        return np.zeros(query.size)
     _, idx = nearest_neighbours(point_grid(points[rows], kk), points[query], kk, max_distance=reach)
     found = idx >= 0
     total = (votes[rows[np.where(found, idx, 0)]] * found[..., None]).sum(axis=1)

@@ -97,3 +97,17 @@ def test_near_queries_keeps_every_point_within_reach():
         assert keep[within].all()
         assert keep.sum() < len(points) or reach == 40.0  # and it does leave the far points out
     assert not near_queries(points, queries[:0], 1.0).any()
+
+
+def test_fallback_points_far_from_every_patch_take_the_global_rule():
+    """A plane (patches) and, far from it, a scatter no patch models: no patch normal within reach of the scatter."""
+    from patchcloud.core import Method, estimate_normals
+
+    rng = np.random.default_rng(4)
+    plane = np.column_stack([rng.uniform(0, 20, (20000, 2)), rng.normal(0, 0.002, 20000)])
+    scatter = rng.uniform(0, 3, (300, 3)) + [200.0, 200.0, 50.0]
+    r = estimate_normals(np.concatenate([plane, scatter]), orient="up")
+    far = r.method[len(plane):] == Method.KNN
+    assert far.any()
+    assert (r.normals[len(plane):][far, 2] >= 0).all()  # the rule, point by point
+    assert (r.method[: len(plane)] != Method.KNN).mean() > 0.9
