@@ -113,11 +113,7 @@ def _knn(points, qi, k, grid, whole: list, reach: int = 1) -> np.ndarray:
         return nearest_neighbours(whole[0], points[qi], k)[1]
     q, keys, level, h = grid
     subset = points_near(q, keys, level, qi, reach)
-    if subset.size < k:
-        dist = np.full((qi.size, k), np.inf)
-        nb = np.zeros((qi.size, k), dtype=np.int64)
-    else:
-        dist, nb = nearest_neighbours(point_grid(points[subset], k, ids=subset), points[qi], k)
+    dist, nb = nearest_neighbours(point_grid(points[subset], k, ids=subset), points[qi], k)  # inf where fewer than k
     far = np.flatnonzero(dist[:, -1] > reach * h)
     if far.size:
         nxt = reach * 4

@@ -22,12 +22,10 @@ import numpy as np
 from numba import njit, prange
 
 from . import _kernels
+from .morton import encode
 from .threads import parallel_kernel
 
 __all__ = ["PointGrid", "point_grid", "nearest_neighbours", "near_queries"]
-
-#: Points per occupied cell the grid aims at, per neighbour asked for.
-_PER_CELL = 1.0
 
 
 @dataclass(frozen=True)
@@ -61,10 +59,11 @@ class PointGrid:
     levels: int
 
 
-def _cell_numbers(points: np.ndarray, corner: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray]:
+def _cell_numbers(points: np.ndarray, corner: np.ndarray, edge: float) -> np.ndarray:
+    """One number per cell of edge ``edge`` from ``corner``, for the points (N, 3) >= ``corner``."""
     ijk = np.floor((points - corner) / edge).astype(np.int64)
-    dims = ijk.max(axis=0) + 1 if len(ijk) else np.ones(3, np.int64)
-    return (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2], dims
+    dims = ijk.max(axis=0) + 1
+    return (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
 
 
 def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> PointGrid:
@@ -91,13 +90,13 @@ def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> Poi
         edge = 1.0
     else:
         span = np.maximum(pts.max(axis=0) - corner, extent * 1e-6)
-        want = max(k, 1) * _PER_CELL
+        want = float(max(k, 1))
         step = max(1, n // 65536)
         sample = pts[::step]
         goal = max(want / step, 8.0)  # sample points per cell where the sample still measures the occupancy
 
         def per_cell(e: float) -> float:  # sample points per occupied cell at edge e
-            return len(sample) / np.unique(_cell_numbers(sample, corner, e)[0]).size
+            return len(sample) / np.unique(_cell_numbers(sample, corner, e)).size
 
         edge = float(np.cbrt(np.prod(span) * goal * step / n))
         got, growth = per_cell(edge), 2.0  # as for points on surfaces
@@ -116,8 +115,7 @@ def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> Poi
     levels = int(np.clip(np.ceil(np.log2(max(extent, edge) / edge)), 0, 21)) if n else 0
     edge = max(edge, extent / 2.0**levels * (1.0 + 1e-12))  # the root cube holds every point
     q = np.clip(np.floor((pts - corner) / edge), 0, 2**levels - 1).astype(np.int64) if n else np.zeros((0, 3), np.int64)
-    keys = np.empty(n, np.uint64)
-    _morton_keys(q, keys)
+    keys = encode(q)
     order = np.argsort(keys, kind="stable")
     keys = keys[order]
     first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if n else np.zeros(0, np.int64)
@@ -158,12 +156,6 @@ def near_queries(points: np.ndarray, queries: np.ndarray, reach: float) -> np.nd
     at = np.minimum(np.searchsorted(wanted, found), wanted.size - 1)
     keep[box[wanted[at] == found]] = True
     return keep
-
-
-@njit(cache=True, nogil=True)
-def _morton_keys(q, keys):
-    for p in range(q.shape[0]):
-        keys[p] = _kernels.morton_key(q[p, 0], q[p, 1], q[p, 2])
 
 
 def nearest_neighbours(

@@ -304,6 +304,8 @@ def finish_tile(
         tile's faces, for the k-NN normals of edge and sparse points.
 
     Returns
+    -------
+    TileNormals
 
     Notes
     -----
@@ -315,8 +317,6 @@ def finish_tile(
     reaches, and no k-NN normal depends on another's sign, so a point gets
     the same sign in a tiled run as in a run on the whole cloud (unless its
     k-th neighbour lies beyond the skin, where its neighbours differ).
-    -------
-    TileNormals
     """
     corner = np.asarray(patches.root_corner, dtype=np.float64)
     edge = float(patches.root_edge)
@@ -395,11 +395,9 @@ def _nearby_signs(points, votes, voters, query, nrm, k: int, reach: float) -> np
     rows = np.flatnonzero(voters)
     kk = int(min(k, rows.size))
     rows = rows[near_queries(points[rows], points[query], reach)]  # the voters that may be within reach: the same answer, sooner
-    if rows.size == 0:
-        return np.zeros(query.size)
-    _, idx = nearest_neighbours(point_grid(points[rows], kk), points[query], kk, max_distance=reach)
-    found = idx >= 0
-    total = (votes[rows[np.where(found, idx, 0)]] * found[..., None]).sum(axis=1)
+    _, idx = nearest_neighbours(point_grid(points[rows], kk, ids=rows), points[query], kk, max_distance=reach)
+    found = idx >= 0  # idx: rows of votes, -1 where none
+    total = (votes[np.maximum(idx, 0)] * found[..., None]).sum(axis=1)
     dot = np.einsum("ij,ij->i", total, nrm)
     return np.where(np.einsum("ij,ij->i", total, total) > 0, np.where(dot < 0, -1.0, 1.0), 0.0)
 

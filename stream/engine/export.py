@@ -43,7 +43,7 @@ import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, part_selection, read_part, store_selection, tile_keys
+from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, read_part, store_selection, tile_keys
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io import las_output
 from patchcloud.stream.io.las import check_writable, is_laz_name, output_header
@@ -124,8 +124,7 @@ def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: 
     starts = store.get("index/tile_start", slice(int(lo), int(hi)))
     records = read_part(store, p, src, first, count, laz_parallel)
     n = len(records)
-    keep, _, _ = part_selection(store_selection(store), records)
-    kept = np.flatnonzero(keep)  # the points the tiles hold; the others get each column's empty value
+    kept = np.flatnonzero(store_selection(store).mask(records))  # the points the tiles hold; the others get each column's empty value
     xyz = cat.common(f, records["X"][kept], records["Y"][kept], records["Z"][kept])
     tid = np.searchsorted(pack_tile_keys(np.asarray(tiles, dtype=np.int64)), tile_keys(store.grid, xyz))
     counts = np.bincount(tid, minlength=len(tiles))
