@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "eigh3", "morton_key"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "interpolated_pca", "eigh3", "morton_key"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -620,3 +620,80 @@ def shift_to_parents(moments, gstart, octant, rows, cols, coef, out):
             o = octant[c]
             for t in range(T):
                 out[p, rows[t]] += coef[o, t] * moments[c, cols[t]]
+
+
+
+@parallel_kernel
+def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2, sigma3, dir1, votes, count):
+    """PCA of cell moments interpolated at each query point (:mod:`patchcloud.core.moment_normals`).
+
+    The cells have edge ``h`` and are anchored at the origin; cell ``c``
+    (integer coordinates) has key ``((c - lo) . (span1 span2, span2, 1))``
+    in the sorted ``ckeys``, moments ``cmom`` (count, the 3 first and the 6
+    second moments about its centre, in the order of
+    :data:`patchcloud.core.moments.EXPONENTS`) and summed votes ``cvotes``.
+    For query ``m`` the 8 cells whose centres surround it weigh trilinearly;
+    their moments, moved to the query point, are summed with these weights.
+    Writes the PCA normal (e3 made to point along (0.001, 0.01, 1)),
+    ``lambda2 / sum`` and ``lambda3 / sum``, the first axis, the weighted
+    votes and the points of the cells of non-zero weight.
+    """
+    M = queries.shape[0]
+    C = ckeys.shape[0]
+    for m in prange(M):
+        f0 = queries[m, 0] / h - 0.5
+        f1 = queries[m, 1] / h - 0.5
+        f2 = queries[m, 2] / h - 0.5
+        b0, b1, b2 = np.floor(f0), np.floor(f1), np.floor(f2)
+        t0, t1, t2 = f0 - b0, f1 - b1, f2 - b2
+        W = 0.0
+        s = np.zeros(3)
+        Q = np.zeros((3, 3))
+        v = np.zeros(3)
+        n_all = 0.0
+        for o in range(8):
+            o0, o1, o2 = o & 1, (o >> 1) & 1, (o >> 2) & 1
+            w = (t0 if o0 else 1.0 - t0) * (t1 if o1 else 1.0 - t1) * (t2 if o2 else 1.0 - t2)
+            if w <= 0.0:
+                continue
+            c0, c1, c2 = int(b0) + o0, int(b1) + o1, int(b2) + o2
+            key = ((c0 - lo[0]) * span[1] + (c1 - lo[1])) * span[2] + (c2 - lo[2])
+            pos = np.searchsorted(ckeys, key)
+            if pos >= C or ckeys[pos] != key:
+                continue
+            n = cmom[pos, 0]
+            n_all += n
+            # the cell's moments about the query point: coordinates p - q = (p - centre) + d
+            d = np.array([(c0 + 0.5) * h - queries[m, 0], (c1 + 0.5) * h - queries[m, 1], (c2 + 0.5) * h - queries[m, 2]])
+            cs = np.array([cmom[pos, 1], cmom[pos, 2], cmom[pos, 3]])
+            cq = np.array([[cmom[pos, 4], cmom[pos, 5], cmom[pos, 6]],
+                           [cmom[pos, 5], cmom[pos, 7], cmom[pos, 8]],
+                           [cmom[pos, 6], cmom[pos, 8], cmom[pos, 9]]])
+            W += w * n
+            for a in range(3):
+                s[a] += w * (cs[a] + n * d[a])
+                v[a] += w * cvotes[pos, a]
+                for b in range(3):
+                    Q[a, b] += w * (cq[a, b] + d[a] * cs[b] + cs[a] * d[b] + n * d[a] * d[b])
+        count[m] = n_all
+        votes[m, 0], votes[m, 1], votes[m, 2] = v[0], v[1], v[2]
+        if W <= 0.0:
+            normals[m, 0], normals[m, 1], normals[m, 2] = 0.0, 0.0, 0.0
+            sigma2[m] = 0.0
+            sigma3[m] = 0.0
+            dir1[m, 0], dir1[m, 1], dir1[m, 2] = 0.0, 0.0, 0.0
+            continue
+        cov = np.empty((3, 3))
+        for a in range(3):
+            for b in range(3):
+                cov[a, b] = Q[a, b] / W - (s[a] / W) * (s[b] / W)
+        ev, vec = eigh3(cov)
+        l0, l1, l2 = max(ev[0], 0.0), max(ev[1], 0.0), max(ev[2], 0.0)
+        tot = l0 + l1 + l2
+        sigma3[m] = l0 / tot if tot > 0 else 0.0
+        sigma2[m] = l1 / tot if tot > 0 else 0.0
+        e3 = vec[:, 0].copy()
+        if e3[0] * 1e-3 + e3[1] * 1e-2 + e3[2] < 0:
+            e3 = -e3
+        normals[m, 0], normals[m, 1], normals[m, 2] = e3[0], e3[1], e3[2]
+        dir1[m, 0], dir1[m, 1], dir1[m, 2] = vec[0, 2], vec[1, 2], vec[2, 2]

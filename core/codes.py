@@ -5,7 +5,7 @@
 The README and the command line's help quote :meth:`Method.describe`.
 
 >>> Method.describe()
-'1 quadric 2 blended 3 kNN'
+'1 quadric 2 blended 3 kNN 4 cell'
 >>> int(PatchKind.SURFACE), [k.name.lower() for k in PatchKind]
 (0, ['surface', 'edge', 'sparse'])
 """
@@ -24,16 +24,20 @@ class Method(IntEnum):
     QUADRIC = 1
     #: The own quadric blended with neighbouring patches' (near a leaf face).
     BLENDED = 2
-    #: PCA of the k nearest neighbours (points of edge and sparse leaves).
+    #: PCA of the k nearest neighbours (points of edge and sparse leaves without a moment normal).
     KNN = 3
+    #: PCA of the moments of the point's finest octree cell, or of its 3 x 3 x 3 block
+    #: (points of edge and sparse leaves; :mod:`patchcloud.core.cell_normals`).
+    MOMENTS = 4
 
     @classmethod
     def describe(cls, long: bool = False) -> str:
         """The codes in one line: short (the LAS dimension's description) or long (the help's)."""
         if long:
-            words = {cls.QUADRIC: "quadric patch", cls.BLENDED: "blended across patches", cls.KNN: "k-nearest-neighbour fallback"}
+            words = {cls.QUADRIC: "quadric patch", cls.BLENDED: "blended across patches", cls.KNN: "k-nearest-neighbour fallback",
+                     cls.MOMENTS: "cell moments"}
             return ", ".join(f"{m.value} {words[m]}" for m in cls)
-        words = {cls.QUADRIC: "quadric", cls.BLENDED: "blended", cls.KNN: "kNN"}
+        words = {cls.QUADRIC: "quadric", cls.BLENDED: "blended", cls.KNN: "kNN", cls.MOMENTS: "cell"}
         return " ".join(f"{m.value} {words[m]}" for m in cls)
 
 

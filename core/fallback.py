@@ -117,7 +117,8 @@ def _knn(points, qi, k, grid, whole: list, reach: int = 1) -> np.ndarray:
     far = np.flatnonzero(dist[:, -1] > reach * h)
     if far.size:
         nxt = reach * 4
-        if nxt >= (1 << level) or far.size > 256:  # the whole cloud
+        # the whole cloud when the cells around the queries would be many (a lone point: (2 reach + 1)^3 cells each)
+        if nxt >= (1 << level) or far.size > 256 or far.size * (2 * nxt + 1) ** 3 > 1 << 20:
             nb[far] = _knn(points, qi[far], k, None, whole)
         else:
             nb[far] = _knn(points, qi[far], k, grid, whole, nxt)

@@ -199,7 +199,8 @@ def estimate_normals(
     sign, _ = patch_signs(len(fit.patches), fit.links, fit.agreement, fit.score, orient)
     clock.lap("orient")
     tile = finish_tile(
-        fit.local, fit.patches, sign, d_min=d_min, k_fallback=k_fallback, orient=orient, viewpoint=vp, centre=centre,
+        fit.local, fit.patches, sign, d_min=d_min, min_sigma2=min_sigma2, k_fallback=k_fallback, orient=orient,
+        viewpoint=vp, centre=centre,
         blend=blend,
     )
     clock.lap("evaluate")

@@ -35,6 +35,7 @@ import numpy as np
 
 from . import _kernels
 from .blend import blend_across_faces
+from .moment_normals import moment_normals
 from .fallback import knn_normals
 from .knn import near_queries, nearest_neighbours, point_grid
 from .morton import encode
@@ -54,13 +55,23 @@ from .orient import (
 from .patches import PatchTable
 from .quadric import NodeFit, turn_over
 
-__all__ = ["SKIN_HALO", "TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile"]
+__all__ = ["SKIN_HALO", "SIGN_REACH", "TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile"]
 
 #: Width of a tile's skin, in ``d_min``: the points of the neighbouring tiles
-#: within this distance of its faces.  A k-NN normal's sign comes from patch
-#: normals no farther than this from its point (:func:`finish_tile`), so that a
-#: tiled run orients it as a run on the whole cloud does.
-SKIN_HALO = 2.0
+#: within this distance of its faces.  A moment normal's cells reach less
+#: than ``3 d_min`` beyond its point (:mod:`patchcloud.core.moment_normals`),
+#: and the sign of a moment or k-NN normal comes from patch normals no
+#: farther than :data:`SIGN_REACH` from it (:func:`finish_tile`), so that a
+#: tiled run gives them as a run on the whole cloud does.
+SKIN_HALO = 3.0
+#: How far (in ``d_min``) a patch normal may lie from a point and still orient its moment or k-NN normal.
+SIGN_REACH = 2.0
+#: How many of the nearest patch normals within reach orient a moment normal that its own cells' do not.
+SIGN_VOTERS = 16
+#: Smallest |cos| between a moment normal and the patch normals summed around it for them to orient it:
+#: nearly perpendicular to them (a vertical normal in a bush above the ground), a small change of the
+#: patches (another tiling splits them at its faces) would turn it, so the next rule decides.
+SIGN_MIN_COS = 0.2
 
 
 @dataclass(frozen=True)
@@ -274,6 +285,7 @@ def finish_tile(
     sign: np.ndarray,
     *,
     d_min: float,
+    min_sigma2: float,
     k_fallback: int,
     orient: str,
     viewpoint: np.ndarray | None = None,
@@ -292,7 +304,7 @@ def finish_tile(
         The tile's patch table as fitted (:attr:`TileFit.patches`).
     sign : (P,) float64
         +1/-1 per patch (:func:`patch_signs`).
-    d_min, k_fallback, orient, blend :
+    d_min, min_sigma2, k_fallback, orient, blend :
         As :func:`patchcloud.core.estimate_normals`, resolved.
     viewpoint, centre : (3,) float64, optional
         Caller's frame.
@@ -301,7 +313,7 @@ def finish_tile(
         -z, +z (caller's frame), for blending across the tile's faces.
     skin : Skin, optional
         Neighbouring tiles' points within ``SKIN_HALO * d_min`` of this
-        tile's faces, for the k-NN normals of edge and sparse points.
+        tile's faces, for the normals of edge and sparse points.
 
     Returns
     -------
@@ -309,14 +321,20 @@ def finish_tile(
 
     Notes
     -----
-    A k-NN normal is oriented by patch normals only (the quadric normals of
-    surface points, before blending), in this order: towards the sum of the
-    patch normals among its k neighbours; else towards the sum of the (at
-    most k) nearest patch normals within ``SKIN_HALO * d_min``; else by the
-    global rule on its own.  Every step looks no farther than the skin
-    reaches, and no k-NN normal depends on another's sign, so a point gets
-    the same sign in a tiled run as in a run on the whole cloud (unless its
-    k-th neighbour lies beyond the skin, where its neighbours differ).
+    The points of edge and sparse leaves get, where it is defined, the
+    normal of the cell moments interpolated at the point
+    (:mod:`patchcloud.core.moment_normals`, ``Method.MOMENTS``); the others
+    a k-NN normal (``Method.KNN``).  Both are oriented by patch normals only
+    (the quadric normals of surface points, before blending), in this
+    order: a moment normal towards the patch normals summed with the
+    moments' weights, a k-NN normal towards the sum of those among its k
+    neighbours; else towards the sum of the nearest patch normals (at most
+    :data:`SIGN_VOTERS` for a moment normal, k for a k-NN one) within
+    ``SIGN_REACH * d_min`` of the point; else by the global rule on its own.  Every step looks no farther
+    than the skin reaches, and no such normal depends on another's sign, so
+    a point gets the same sign in a tiled run as in a run on the whole
+    cloud (unless a k-NN point's k-th neighbour lies beyond the skin, where
+    its neighbours differ).
     """
     corner = np.asarray(patches.root_corner, dtype=np.float64)
     edge = float(patches.root_edge)
@@ -342,28 +360,66 @@ def finish_tile(
         skin = Skin(skin.points - corner, skin.normals, skin.oriented)
     else:
         skin = None
-    _fallback(tree, normals, scalars, dir1, method, patch_normals, k_fallback, SKIN_HALO * d_min, orient, vp, ctr, skin)
+    voters = method != 0  # surface points: their patch normals orient the others
+    if skin is None:
+        votes_all, voters_all = patch_normals, voters
+    else:
+        votes_all, voters_all = np.concatenate([patch_normals, skin.normals]), np.concatenate([voters, skin.oriented])
+    reach = SIGN_REACH * d_min
+    _moment_fallback(tree, normals, scalars, dir1, method, votes_all, voters_all, min_sigma2, reach, orient, vp, ctr, skin)
+    _fallback(tree, normals, scalars, dir1, method, votes_all, voters_all, k_fallback, reach, orient, vp, ctr, skin)
     return TileNormals(normals, scalars, dir1, method, tree.point_leaf(), oriented)
 
 
-def _fallback(tree: Octree, normals, scalars, dir1, method, patch_normals, k, reach, orient, vp, centre, skin: Skin | None) -> None:
-    """k-NN PCA normals for points of edge and sparse leaves, oriented by patch normals near them, in place.
+def _moment_fallback(tree: Octree, normals, scalars, dir1, method, votes, voters, min_sigma2, reach, orient, vp, centre,
+                     skin: Skin | None) -> None:
+    """Moment normals for the points of edge and sparse leaves where defined, oriented, in place.
 
-    ``patch_normals`` holds the oriented quadric normal of every surface
-    point (rows where ``method != 0``); ``reach`` is the farthest a patch
-    normal may lie and still orient a k-NN normal (metres).
+    ``votes`` and ``voters`` cover the tile's sorted points, then the skin's.
     """
     query = np.flatnonzero(method == 0)
     if query.size == 0:
         return
-    voters = method != 0
+    points = tree.local if skin is None else np.concatenate([tree.local, skin.points])
+    mn = moment_normals(points, query, tree.edge / 2.0**tree.max_level, min_sigma2=min_sigma2, votes=votes, voters=voters)
+    ok = np.flatnonzero(mn.defined)
+    if ok.size == 0:
+        return
+    rows = query[ok]
+    nrm, vote = mn.normal[ok], mn.votes[ok]
+    normals[rows] = nrm
+    scalars[rows] = np.column_stack([mn.sigma3[ok], np.zeros(ok.size), np.zeros(ok.size)])
+    dir1[rows] = mn.dir1[ok]
+    method[rows] = Method.MOMENTS
+    # 1. towards the patch normals weighed with the moments, where they are not nearly perpendicular to it
+    sign = _agreeing_signs(vote, nrm, SIGN_MIN_COS)
+    # 2. towards the nearest patch normals within reach
+    todo = sign == 0
+    if todo.any() and voters.any():
+        sign[todo] = _nearby_signs(points, votes, voters, points[rows[todo]], nrm[todo], SIGN_VOTERS, reach, SIGN_MIN_COS)
+    done = sign != 0
+    _turn(normals, scalars, dir1, rows[done], sign[done])
+    # 3. the global rule, point by point
+    rest = rows[~done]
+    if rest.size and orient != "none":
+        _turn(normals, scalars, dir1, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
+
+
+def _fallback(tree: Octree, normals, scalars, dir1, method, votes, voters, k, reach, orient, vp, centre, skin: Skin | None) -> None:
+    """k-NN PCA normals for the points still without one, oriented by patch normals near them, in place.
+
+    ``votes`` holds the oriented quadric normal of every surface point
+    (rows where ``voters``), the tile's sorted points then the skin's;
+    ``reach`` is the farthest a patch normal may lie and still orient a
+    k-NN normal (metres).
+    """
+    query = np.flatnonzero(method == 0)
+    if query.size == 0:
+        return
     if skin is None:
         points, grid = tree.local, (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level)
-        votes = patch_normals
     else:  # the neighbours' skin points take part in the search; one tree over both
         points, grid = np.concatenate([tree.local, skin.points]), None
-        votes = np.concatenate([patch_normals, skin.normals])
-        voters = np.concatenate([voters, skin.oriented])
     nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grid=grid)
     normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])
@@ -381,7 +437,7 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, patch_normals, k, re
     # 2. towards the nearest patch normals within reach
     todo = sign == 0
     if todo.any() and voters.any():
-        sign[todo] = _nearby_signs(points, votes, voters, query[todo], nrm[todo], k, reach)
+        sign[todo] = _nearby_signs(points, votes, voters, points[query[todo]], nrm[todo], k, reach)
     done = sign != 0
     _turn(normals, scalars, dir1, query[done], sign[done])
     # 3. the global rule, point by point
@@ -390,16 +446,25 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, patch_normals, k, re
         _turn(normals, scalars, dir1, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
 
 
-def _nearby_signs(points, votes, voters, query, nrm, k: int, reach: float) -> np.ndarray:
-    """+1/-1 turning each normal ``nrm`` towards the sum of the nearest (at most ``k``) voters' normals within ``reach``; 0 where none."""
+def _agreeing_signs(total: np.ndarray, nrm: np.ndarray, min_cos: float = 0.0) -> np.ndarray:
+    """+1/-1 turning each normal ``nrm`` towards ``total``; 0 where ``total`` is zero or within ``acos(min_cos)`` of perpendicular to it."""
+    dot = np.einsum("ij,ij->i", total, nrm)
+    length = np.sqrt(np.einsum("ij,ij->i", total, total))
+    return np.where((length > 0) & (np.abs(dot) >= min_cos * length), np.where(dot < 0, -1.0, 1.0), 0.0)
+
+
+def _nearby_signs(points, votes, voters, where, nrm, k: int, reach: float, min_cos: float = 0.0) -> np.ndarray:
+    """+1/-1 turning each normal ``nrm`` towards the sum of the nearest (at most ``k``) voters' normals within ``reach`` of ``where``.
+
+    0 where there is none, or where their sum is within ``acos(min_cos)`` of perpendicular to the normal.
+    """
     rows = np.flatnonzero(voters)
     kk = int(min(k, rows.size))
-    rows = rows[near_queries(points[rows], points[query], reach)]  # the voters that may be within reach: the same answer, sooner
-    _, idx = nearest_neighbours(point_grid(points[rows], kk, ids=rows), points[query], kk, max_distance=reach)
+    rows = rows[near_queries(points[rows], where, reach)]  # the voters that may be within reach: the same answer, sooner
+    _, idx = nearest_neighbours(point_grid(points[rows], kk, ids=rows), where, kk, max_distance=reach)
     found = idx >= 0  # idx: rows of votes, -1 where none
     total = (votes[np.maximum(idx, 0)] * found[..., None]).sum(axis=1)
-    dot = np.einsum("ij,ij->i", total, nrm)
-    return np.where(np.einsum("ij,ij->i", total, total) > 0, np.where(dot < 0, -1.0, 1.0), 0.0)
+    return _agreeing_signs(total, nrm, min_cos)
 
 
 def _turn(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:

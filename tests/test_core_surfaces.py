@@ -95,8 +95,8 @@ def test_box_sharp_edges_every_point_has_a_normal(rng):
     assert np.allclose(np.linalg.norm(res.normals, axis=1), 1.0, atol=1e-5)
     ang = angles_deg(res.normals, n)
     assert np.median(ang) < 1.0
-    # points along the sharp edges live in edge leaves and get the k-NN fallback
-    assert np.any(res.method == Method.KNN)
+    # points along the sharp edges live in edge leaves and get moment normals
+    assert np.any(res.method == Method.MOMENTS)
     assert np.any(res.patches.kind == PatchKind.EDGE)
     # away from the edges the faces are exact
     half = np.array([1.0, 1.5, 0.75])
@@ -113,10 +113,10 @@ def test_noisy_plane(rng):
 
 
 def test_principal_curvatures_stay_ordered_for_every_method(rng):
-    # a box: edge points get k-NN normals, about half of which are turned by orientation
+    # a box: edge points get moment normals, about half of which are turned by orientation
     p, _ = synthetic.box(rng, 30000, size=(2.0, 3.0, 1.5), noise=0.002)
     res = estimate_normals(p, orient="outward")
-    assert np.any(res.method == Method.KNN)
+    assert np.any(res.method == Method.MOMENTS)
     assert np.all(res.k1 >= res.k2)
     # dir1 is tangent: orthogonal to the normal
     assert np.max(np.abs(np.einsum("ij,ij->i", res.dir1, res.normals))) < 1e-3

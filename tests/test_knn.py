@@ -100,14 +100,19 @@ def test_near_queries_keeps_every_point_within_reach():
 
 
 def test_fallback_points_far_from_every_patch_take_the_global_rule():
-    """A plane (patches) and, far from it, a scatter no patch models: no patch normal within reach of the scatter."""
+    """A plane (patches) and, far from it, a scatter no patch models: no patch normal within reach of the scatter.
+
+    The scatter's dense part gets moment normals; its lone points, 40 m apart, too few for
+    moments, get k-NN normals; both kinds take the global rule, point by point.
+    """
     from patchcloud.core import Method, estimate_normals
 
     rng = np.random.default_rng(4)
     plane = np.column_stack([rng.uniform(0, 20, (20000, 2)), rng.normal(0, 0.002, 20000)])
     scatter = rng.uniform(0, 3, (300, 3)) + [200.0, 200.0, 50.0]
-    r = estimate_normals(np.concatenate([plane, scatter]), orient="up")
-    far = r.method[len(plane):] == Method.KNN
-    assert far.any()
-    assert (r.normals[len(plane):][far, 2] >= 0).all()  # the rule, point by point
+    lone = np.column_stack([np.arange(8) * 40.0, np.full(8, 150.0), 30.0 + 7.0 * (np.arange(8) % 3)])
+    r = estimate_normals(np.concatenate([plane, scatter, lone]), orient="up")
+    far = r.method[len(plane):]
+    assert (far[:300] == Method.MOMENTS).any() and (far[300:] == Method.KNN).all()
+    assert (r.normals[len(plane):, 2] >= 0).all()  # the rule, point by point
     assert (r.method[: len(plane)] != Method.KNN).mean() > 0.9

@@ -101,8 +101,9 @@ def test_the_command_line_takes_its_defaults_from_the_options_objects():
 # --- codes -----------------------------------------------------------------------------------------------------
 
 def test_codes_are_defined_once_and_written_as_documented(tmp_path):
-    assert [int(m) for m in Method] == [1, 2, 3] and [int(k) for k in PatchKind] == [0, 1, 2]
-    assert dict((d[0], d[2]) for d in NORMALS_DIMS)["NormalMethod"] == Method.describe() == "1 quadric 2 blended 3 kNN"
+    assert [int(m) for m in Method] == [1, 2, 3, 4] and [int(k) for k in PatchKind] == [0, 1, 2]
+    assert dict((d[0], d[2]) for d in NORMALS_DIMS)["NormalMethod"] == Method.describe() == "1 quadric 2 blended 3 kNN 4 cell"
+    assert len(Method.describe()) <= 32  # a LAS extra-bytes description
     out = tmp_path / "n.las"
     s = normals(SAMPLE, out, quiet=True, scheduler="synchronous")
     las = laspy.read(out)

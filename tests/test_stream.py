@@ -75,7 +75,7 @@ def test_multi_tile_run_keeps_every_point_and_dimension(scene_las, tmp_path):
     assert np.median(ang) < 1.0
     ground = (np.abs(pts[:, 2] - OFFSET[2]) < 0.01) & (true[:, 2] > 0.99)
     assert np.mean(nrm[ground, 2] > 0) > 0.995
-    assert set(np.unique(las.NormalMethod)) <= {1, 2, 3}
+    assert set(np.unique(las.NormalMethod)) <= {1, 2, 3, 4}
     assert not (tmp_path / "out.laz.store").exists() and not (tmp_path / "out.laz.partial").exists()
 
 

@@ -96,14 +96,14 @@ def main(argv: list[str] | None = None) -> int:
 
     t = res.patches
     kinds = np.bincount(t.kind, minlength=3)
-    methods = np.bincount(res.method, minlength=4)
+    methods = np.bincount(res.method, minlength=len(Method) + 1)
     p = res.parameters
     print(f"{a.input} -> {a.output}")
     print(f"  points            {n:,}")
     print(f"  patches           {len(t):,}  (surface {kinds[PatchKind.SURFACE]:,}, edge {kinds[PatchKind.EDGE]:,}, sparse {kinds[PatchKind.SPARSE]:,})")
     print(
         f"  normals by        quadric {methods[Method.QUADRIC] / n:.1%}, blended {methods[Method.BLENDED] / n:.1%}, "
-        f"k-NN fallback {methods[Method.KNN] / n:.1%}"
+        f"cell moments {methods[Method.MOMENTS] / n:.1%}, k-NN fallback {methods[Method.KNN] / n:.1%}"
     )
     print(f"  criterion         {p.criterion}, threshold {p.threshold:.4g}, d_min {p.d_min:.3g}, n_min {p.n_min}, spacing {p.spacing:.3g}")
     print(f"  normals up        {np.mean(res.normals[:, 2] > 0):.1%} (orient={p.orient})")

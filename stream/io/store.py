@@ -57,8 +57,9 @@ __all__ = [
 ]
 
 FORMAT = "patchcloud-store"
-#: 2: arrays carry chunk checksums and the store's uid; 3: and their own path (an array moved to another tile is refused).
-VERSION = 3
+#: 2: arrays carry chunk checksums and the store's uid; 3: and their own path (an array moved to another tile is refused);
+#: 4: normals of edge and sparse leaves from cell moments (NormalMethod 4), so a version-3 store's normals are not reused.
+VERSION = 4
 #: What a damaged store's error tells the user to do.
 START_OVER = "remove the store to start over"
 #: The grid origin is a multiple of this (metres), so grids of every power-of-two tile size up to it align.

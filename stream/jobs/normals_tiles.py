@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from patchcloud.core import (
-    LeafSet, PatchKind, Skin, cross_face_pairs, finish_tile, fit_tile, link_agreements, point_keys, rmse_histograms,
+    LeafSet, Method, PatchKind, Skin, cross_face_pairs, finish_tile, fit_tile, link_agreements, point_keys, rmse_histograms,
     surface_normals,
 )
 
@@ -143,8 +143,8 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
         outside.append(oriented_table(n) if n in present else None)
     halo = params["halo"]
     sk_pts, sk_nrm, sk_ok = [], [], []
-    needs_knn = bool(np.any(table.kind != PatchKind.SURFACE))  # only k-NN normals look at the skin
-    for n in sorted(present) if needs_knn else []:
+    needs_skin = bool(np.any(table.kind != PatchKind.SURFACE))  # only moment and k-NN normals look at the skin
+    for n in sorted(present) if needs_skin else []:
         sx = store.read(n, "skin")
         if sx.shape[0] == 0:
             continue
@@ -166,7 +166,8 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
     skin = Skin(np.concatenate(sk_pts), np.concatenate(sk_nrm), np.concatenate(sk_ok)) if sk_pts else None
     vp = params.get("viewpoint_local")
     res = finish_tile(
-        local, table, sign, d_min=params["d_min"], k_fallback=params["k_fallback"], orient=params["orient"],
+        local, table, sign, d_min=params["d_min"], min_sigma2=params["min_sigma2"],
+        k_fallback=params["k_fallback"], orient=params["orient"],
         viewpoint=None if vp is None else np.asarray(vp), centre=np.asarray(params["centre_local"]), blend=params["blend"],
         outside=outside, skin=skin,
     )
@@ -194,6 +195,6 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
         out_d[rank] = np.nan_to_num(dir1, nan=0.0, posinf=0.0, neginf=0.0)
         store.write(ijk, "principal", out_k)
         store.write(ijk, "direction", out_d)
-    info = dict(methods=np.bincount(res.method, minlength=4).tolist())
+    info = dict(methods=np.bincount(res.method, minlength=len(Method) + 1).tolist())
     store.mark_tile(ijk, "finish", finish=info)
     return info
