@@ -25,6 +25,8 @@ __all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bo
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
+#: Column of the second moment of axes (a, b) in a moments row (``moments.EXPONENTS`` 4..9: xx xy xz yy yz zz).
+_SECOND = np.array([[4, 5, 6], [5, 7, 8], [6, 8, 9]])
 
 
 @njit(cache=True, nogil=True)
@@ -403,6 +405,15 @@ def _cholesky_solve6(G, b):
 
 
 @njit(cache=True, nogil=True)
+def _plane_normal(vec):
+    """The eigenvector of the smallest eigenvalue (first column of ``vec``), made to point along (0.001, 0.01, 1)."""
+    e3 = vec[:, 0].copy()
+    if e3[0] * 1e-3 + e3[1] * 1e-2 + e3[2] < 0:
+        e3 = -e3
+    return e3
+
+
+@njit(cache=True, nogil=True)
 def eigh3(A):
     """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric 3x3 matrix, cyclic Jacobi."""
     a = A.copy()
@@ -466,9 +477,7 @@ def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
         tot = w[0] + w[1] + w[2]
         sigma3[m] = max(w[0], 0.0) / tot if tot > 0 else 0.0
         frame = np.empty((1, 3, 3))
-        e3 = v[:, 0].copy()
-        if e3[0] * 1e-3 + e3[1] * 1e-2 + e3[2] < 0:
-            e3 = -e3
+        e3 = _plane_normal(v)
         e1 = v[:, 2].copy()
         e2 = np.array([e3[1] * e1[2] - e3[2] * e1[1], e3[2] * e1[0] - e3[0] * e1[2], e3[0] * e1[1] - e3[1] * e1[0]])
         for a in range(3):
@@ -650,6 +659,8 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
         s = np.zeros(3)
         Q = np.zeros((3, 3))
         v = np.zeros(3)
+        d = np.empty(3)
+        cs = np.empty(3)
         n_all = 0.0
         for o in range(8):
             o0, o1, o2 = o & 1, (o >> 1) & 1, (o >> 2) & 1
@@ -664,17 +675,16 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
             n = cmom[pos, 0]
             n_all += n
             # the cell's moments about the query point: coordinates p - q = (p - centre) + d
-            d = np.array([(c0 + 0.5) * h - queries[m, 0], (c1 + 0.5) * h - queries[m, 1], (c2 + 0.5) * h - queries[m, 2]])
-            cs = np.array([cmom[pos, 1], cmom[pos, 2], cmom[pos, 3]])
-            cq = np.array([[cmom[pos, 4], cmom[pos, 5], cmom[pos, 6]],
-                           [cmom[pos, 5], cmom[pos, 7], cmom[pos, 8]],
-                           [cmom[pos, 6], cmom[pos, 8], cmom[pos, 9]]])
+            d[0] = (c0 + 0.5) * h - queries[m, 0]
+            d[1] = (c1 + 0.5) * h - queries[m, 1]
+            d[2] = (c2 + 0.5) * h - queries[m, 2]
+            cs[0], cs[1], cs[2] = cmom[pos, 1], cmom[pos, 2], cmom[pos, 3]
             W += w * n
             for a in range(3):
                 s[a] += w * (cs[a] + n * d[a])
                 v[a] += w * cvotes[pos, a]
                 for b in range(3):
-                    Q[a, b] += w * (cq[a, b] + d[a] * cs[b] + cs[a] * d[b] + n * d[a] * d[b])
+                    Q[a, b] += w * (cmom[pos, _SECOND[a, b]] + d[a] * cs[b] + cs[a] * d[b] + n * d[a] * d[b])
         count[m] = n_all
         votes[m, 0], votes[m, 1], votes[m, 2] = v[0], v[1], v[2]
         if W <= 0.0:
@@ -692,8 +702,6 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
         tot = l0 + l1 + l2
         sigma3[m] = l0 / tot if tot > 0 else 0.0
         sigma2[m] = l1 / tot if tot > 0 else 0.0
-        e3 = vec[:, 0].copy()
-        if e3[0] * 1e-3 + e3[1] * 1e-2 + e3[2] < 0:
-            e3 = -e3
+        e3 = _plane_normal(vec)
         normals[m, 0], normals[m, 1], normals[m, 2] = e3[0], e3[1], e3[2]
         dir1[m, 0], dir1[m, 1], dir1[m, 2] = vec[0, 2], vec[1, 2], vec[2, 2]

@@ -151,14 +151,14 @@ def _at_points(points, weighted, where, edge):
     lo = base.min(axis=0)
     span = base.max(axis=0) - lo + 2
     if float(np.prod(span.astype(np.float64))) >= 2.0**62:  # the keys would overflow: two halves along the widest axis
-        a = int(np.argmax(span))  # > 2^20 cells wide, so the queries' cells there differ
-        left = base[:, a] <= np.median(base[:, a])
+        axis = int(np.argmax(span))  # > 2^20 cells wide, so the queries' cells there differ
+        left = base[:, axis] <= np.median(base[:, axis])
         if left.all():
-            left = base[:, a] < base[:, a].max()
+            left = base[:, axis] < base[:, axis].max()
         out = [np.empty(shape) for shape in ((m, 3), m, m, (m, 3), (m, 3), m)]
         for part in (left, ~left):
-            for o, a in zip(out, _at_points(points, weighted, where[part], edge)):
-                o[part] = a
+            for o, values in zip(out, _at_points(points, weighted, where[part], edge)):
+                o[part] = values
         return tuple(out)
     cells = np.floor(points / edge).astype(np.int64)
     inside = np.flatnonzero(np.all((cells >= lo) & (cells < lo + span), axis=1))

@@ -361,66 +361,81 @@ def finish_tile(
     else:
         skin = None
     voters = method != 0  # surface points: their patch normals orient the others
-    if skin is None:
-        votes_all, voters_all = patch_normals, voters
+    if skin is None:  # the points the fallbacks see: the tile's, then the skin's
+        points, votes_all, voters_all = tree.local, patch_normals, voters
     else:
+        points = np.concatenate([tree.local, skin.points])
         votes_all, voters_all = np.concatenate([patch_normals, skin.normals]), np.concatenate([voters, skin.oriented])
-    reach = SIGN_REACH * d_min
-    _moment_fallback(tree, normals, scalars, dir1, method, votes_all, voters_all, min_sigma2, reach, orient, vp, ctr, skin)
-    _fallback(tree, normals, scalars, dir1, method, votes_all, voters_all, k_fallback, reach, orient, vp, ctr, skin)
+    orienting = _Orienting(points, votes_all, voters_all, SIGN_REACH * d_min, orient, tree.local, vp, ctr)
+    _moment_fallback(tree, normals, scalars, dir1, method, points, min_sigma2, orienting)
+    _fallback(tree, normals, scalars, dir1, method, points, k_fallback, orienting, grid=skin is None)
     return TileNormals(normals, scalars, dir1, method, tree.point_leaf(), oriented)
 
 
-def _moment_fallback(tree: Octree, normals, scalars, dir1, method, votes, voters, min_sigma2, reach, orient, vp, centre,
-                     skin: Skin | None) -> None:
-    """Moment normals for the points of edge and sparse leaves where defined, oriented, in place.
+@dataclass(frozen=True)
+class _Orienting:
+    """What orients the fallback normals of one tile: patch normals near them, then the global rule.
 
-    ``votes`` and ``voters`` cover the tile's sorted points, then the skin's.
+    ``points`` are the tile's sorted points then the skin's; ``votes`` their
+    oriented patch normals where ``voters``; ``reach`` (metres) how far a
+    patch normal may lie from a point and still orient it; ``local`` the
+    tile's points, for the rule.
     """
+
+    points: np.ndarray
+    votes: np.ndarray
+    voters: np.ndarray
+    reach: float
+    orient: str
+    local: np.ndarray
+    viewpoint: np.ndarray | None
+    centre: np.ndarray | None
+
+    def finish(self, normals, scalars, dir1, rows, nrm, sign, k: int, min_cos: float = 0.0) -> None:
+        """Turn the normals of ``rows`` (``nrm``), in place: by ``sign`` where it is not 0, else towards the nearest patch normals, else by the rule."""
+        todo = sign == 0
+        if todo.any() and self.voters.any():
+            sign[todo] = _nearby_signs(self.points, self.votes, self.voters, self.points[rows[todo]], nrm[todo], k, self.reach, min_cos)
+        done = sign != 0
+        _turn(normals, scalars, dir1, rows[done], sign[done])
+        rest = rows[~done]  # the global rule, point by point
+        if rest.size and self.orient != "none":
+            _turn(normals, scalars, dir1, rest, point_rule_signs(self.orient, normals[rest], self.local[rest], self.viewpoint, self.centre))
+
+
+def _moment_fallback(tree: Octree, normals, scalars, dir1, method, points, min_sigma2, orienting: _Orienting) -> None:
+    """Moment normals for the points of edge and sparse leaves where defined, oriented, in place."""
     query = np.flatnonzero(method == 0)
     if query.size == 0:
         return
-    points = tree.local if skin is None else np.concatenate([tree.local, skin.points])
-    mn = moment_normals(points, query, tree.edge / 2.0**tree.max_level, min_sigma2=min_sigma2, votes=votes, voters=voters)
+    mn = moment_normals(points, query, tree.edge / 2.0**tree.max_level, min_sigma2=min_sigma2, votes=orienting.votes,
+                        voters=orienting.voters)
     ok = np.flatnonzero(mn.defined)
     if ok.size == 0:
         return
     rows = query[ok]
-    nrm, vote = mn.normal[ok], mn.votes[ok]
+    nrm = mn.normal[ok]
     normals[rows] = nrm
     scalars[rows] = np.column_stack([mn.sigma3[ok], np.zeros(ok.size), np.zeros(ok.size)])
     dir1[rows] = mn.dir1[ok]
     method[rows] = Method.MOMENTS
-    # 1. towards the patch normals weighed with the moments, where they are not nearly perpendicular to it
-    sign = _agreeing_signs(vote, nrm, SIGN_MIN_COS)
-    # 2. towards the nearest patch normals within reach
-    todo = sign == 0
-    if todo.any() and voters.any():
-        sign[todo] = _nearby_signs(points, votes, voters, points[rows[todo]], nrm[todo], SIGN_VOTERS, reach, SIGN_MIN_COS)
-    done = sign != 0
-    _turn(normals, scalars, dir1, rows[done], sign[done])
-    # 3. the global rule, point by point
-    rest = rows[~done]
-    if rest.size and orient != "none":
-        _turn(normals, scalars, dir1, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
+    # towards the patch normals weighed with the moments, where they are not nearly perpendicular to it
+    sign = _agreeing_signs(mn.votes[ok], nrm, SIGN_MIN_COS)
+    orienting.finish(normals, scalars, dir1, rows, nrm, sign, SIGN_VOTERS, SIGN_MIN_COS)
 
 
-def _fallback(tree: Octree, normals, scalars, dir1, method, votes, voters, k, reach, orient, vp, centre, skin: Skin | None) -> None:
+def _fallback(tree: Octree, normals, scalars, dir1, method, points, k, orienting: _Orienting, grid: bool) -> None:
     """k-NN PCA normals for the points still without one, oriented by patch normals near them, in place.
 
-    ``votes`` holds the oriented quadric normal of every surface point
-    (rows where ``voters``), the tile's sorted points then the skin's;
-    ``reach`` is the farthest a patch normal may lie and still orient a
-    k-NN normal (metres).
+    With ``grid`` (``points`` are the tile's only) the search runs in the
+    octree's cells around the queries; else (the skin takes part) over all
+    of ``points``.
     """
     query = np.flatnonzero(method == 0)
     if query.size == 0:
         return
-    if skin is None:
-        points, grid = tree.local, (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level)
-    else:  # the neighbours' skin points take part in the search; one tree over both
-        points, grid = np.concatenate([tree.local, skin.points]), None
-    nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grid=grid)
+    cells = (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level) if grid else None
+    nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grid=cells)
     normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])
     # the quadric's k1 direction lies in the quadric's tangent plane at the point;
@@ -431,19 +446,10 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, votes, voters, k, re
     t[flat] = np.cross(nrm[flat], np.where(np.abs(nrm[flat, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
     dir1[query] = t / np.linalg.norm(t, axis=1)[:, None]
     method[query] = Method.KNN
-    # 1. towards the patch normals among the point's k neighbours
+    # towards the patch normals among the point's k neighbours
     sign = np.zeros(query.size)
-    _kernels.neighbour_signs(nrm, nb, votes, voters, sign)
-    # 2. towards the nearest patch normals within reach
-    todo = sign == 0
-    if todo.any() and voters.any():
-        sign[todo] = _nearby_signs(points, votes, voters, points[query[todo]], nrm[todo], k, reach)
-    done = sign != 0
-    _turn(normals, scalars, dir1, query[done], sign[done])
-    # 3. the global rule, point by point
-    rest = query[~done]
-    if rest.size and orient != "none":
-        _turn(normals, scalars, dir1, rest, point_rule_signs(orient, normals[rest], tree.local[rest], vp, centre))
+    _kernels.neighbour_signs(nrm, nb, orienting.votes, orienting.voters, sign)
+    orienting.finish(normals, scalars, dir1, query, nrm, sign, k)
 
 
 def _agreeing_signs(total: np.ndarray, nrm: np.ndarray, min_cos: float = 0.0) -> np.ndarray:
