@@ -112,6 +112,10 @@ def test_codes_are_defined_once_and_written_as_documented(tmp_path):
     counts = np.bincount(las.NormalMethod, minlength=4)
     assert counts[0] == 0
     assert s.normals_by_method == {m.name.lower(): int(counts[m]) for m in Method}
+    printed = {"quadric": Method.QUADRIC, "blended": Method.BLENDED, "cell moments": Method.MOMENTS, "k-NN fallback": Method.KNN}
+    shares = {name: counts[code] / counts.sum() for name, code in printed.items()}  # every computed point, once
+    line = next(x for x in s.format().splitlines() if "normals by" in x)
+    assert line.split(None, 2)[2] == ", ".join(f"{name} {share:.1%}" for name, share in shares.items())
     assert "1 quadric patch, 2 blended across patches, 3 k-nearest-neighbour fallback" in " ".join(
         main.commands["normals"].help.split())
 

@@ -93,7 +93,8 @@ class NormalsSummary:
             f"  tiles           {self.tiles:,} of {self.tile_size:g} {u}",
             units_line(self.units),
             f"  patches         {sum(k.values()):,} (surface {k['surface']:,}, edge {k['edge']:,}, sparse {k['sparse']:,})",
-            f"  normals by      quadric {m['quadric'] / n:.1%}, blended {m['blended'] / n:.1%}, k-NN fallback {m['knn'] / n:.1%}",
+            f"  normals by      quadric {m['quadric'] / n:.1%}, blended {m['blended'] / n:.1%}, cell moments {m['moments'] / n:.1%}, "
+            f"k-NN fallback {m['knn'] / n:.1%}",
             f"  parameters      {self.parameters['criterion']} threshold {self.parameters['threshold']:.4g}, "
             f"d_min {self.parameters['d_min']:.3g} {u}, spacing {self.parameters['spacing']:.3g} {u}, orient {self.parameters['orient']}"
             + (", always up" if self.parameters.get("always_up") else "") + (f", fallback k-NN {self.parameters['k_fallback']}" if "k_fallback" in self.parameters else ""),
