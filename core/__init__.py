@@ -33,7 +33,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.forest': ('Expansion', 'ForestLinks', 'ForestNodes', 'concat_links', 'expand_signs', 'forest_links', 'forest_nodes', 'lookup', 'merge_nodes', 'reduce_forest'),
     '.orient': ('MIN_RELIABILITY', 'LeafSet', 'cross_face_pairs', 'link_agreements'),
     '.patches': ('PatchTable',),
-    '.patchmodel': ('MASK_SIDE', 'ModelFit', 'PatchModels', 'QuantisedModels', 'dequantise_models', 'fit_models', 'quantise_models', 'sample_models'),
+    '.patchmodel': ('MASK_SIDE', 'ModelFit', 'PatchModels', 'QuantisedModels', 'dequantise_models', 'fit_models', 'patch_distances', 'quantise_models', 'sample_models'),
     '.quadric': ('fit_nodes', 'surface_normals'),
     '.checks': ('MODES',),
     '.radius': ('check_points', 'default_viewpoint', 'halo_width', 'radius_normals'),
@@ -123,6 +123,7 @@ __all__ = [
     "QuantisedModels",
     "quantise_models",
     "dequantise_models",
+    "patch_distances",
     # .threads
     "single_threaded",
     # .lazy

@@ -29,6 +29,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import numpy as np
+
 from .checks import (
     CRITERIA, ORIENT_RULES, check_budget, check_cluster_sizes, check_mode, check_positive, check_radius, check_viewpoint,
 )
@@ -235,15 +237,32 @@ class CompressOptions:
     Parameters
     ----------
     max_error : float
-        The error budget (metres): patches are split until their quadric
-        fits their points with an RMS error below it; the points no patch
-        models within it are kept as residual points.
+        The error budget (metres).  Model mode: patches are split until
+        their quadric fits their points with an RMS error below it; the
+        points no patch models within it are kept as residual points, each
+        within it of where it was.  Points mode: every point within it
+        of where it was (Euclidean, at most).
+    keep_points : bool
+        Points mode: every point back, in input order, its attributes
+        exact (default False: model mode, the patch models).
+    drop : tuple of str
+        Dimensions not kept (written as zeros): PDAL's or laspy's names,
+        checked against the file's point format by the stream.
     """
 
     max_error: float = 0.02
+    keep_points: bool = False
+    drop: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         _set(self, "max_error", check_budget(self.max_error))
+        if not isinstance(self.keep_points, (bool, np.bool_)):
+            raise PatchcloudValueError(f"keep_points must be True or False, got {self.keep_points!r}")
+        drop = (self.drop,) if isinstance(self.drop, str) else self.drop
+        if not all(isinstance(d, str) and d for d in drop):
+            raise PatchcloudValueError(f"drop must be dimension names, got {self.drop!r}")
+        _set(self, "keep_points", bool(self.keep_points))
+        _set(self, "drop", tuple(drop))
 
 
 def options_with(kind: type, options=None, overrides: dict | None = None):

@@ -35,7 +35,8 @@ from .points import root_cube, validate_points
 from .quadric import fit_nodes, implicit_value
 from .tiles import fit_tile
 
-__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "close_masks", "MASK_SIDE"]
+__all__ = ["PatchModels", "ModelFit", "QuantisedModels", "fit_models", "sample_models", "quantise_models", "dequantise_models", "close_masks", "MASK_SIDE",
+           "patch_distances"]
 
 #: The occupancy mask of a cell is MASK_SIDE x MASK_SIDE cells over its (u, v) box (one uint64).
 MASK_SIDE = 8
@@ -636,6 +637,23 @@ def quantise_models(models: PatchModels, max_error: float) -> QuantisedModels:
     q.extent[:] = np.column_stack([np.floor(ext[:, 0:1] / step), np.ceil(ext[:, 1:2] / step),
                                    np.floor(ext[:, 2:3] / step), np.ceil(ext[:, 3:4] / step)]).astype(np.int64)
     return q
+
+
+def patch_distances(models: PatchModels, points: np.ndarray, patch: np.ndarray) -> np.ndarray:
+    """(N,) float64: the distance (metres) from each point to the quadric of its patch, along the patch's third axis.
+
+    ``|w - S(u, v)|`` in the patch's frame: at least the distance to the
+    surface.  ``points`` (N, 3) in the models' frame, ``patch`` (N,) rows of
+    ``models``.
+
+    >>> import numpy as np
+    >>> xy = np.random.default_rng(0).uniform(0, 8, (5000, 2))
+    >>> fit = fit_models(np.column_stack([xy, np.zeros(5000)]), 0.01)
+    >>> float(patch_distances(fit.models, np.array([[4.0, 4.0, 0.003]]), fit.patch[:1]).round(6)[0])
+    0.003
+    """
+    p = np.asarray(patch, dtype=np.int64)
+    return np.abs(implicit_value(np.asarray(points, dtype=np.float64), models.centroid[p], models.frame[p], models.coeffs[p]))
 
 
 def dequantise_models(q: QuantisedModels) -> PatchModels:

@@ -101,15 +101,20 @@ def test_never_overwrites_unasked(tmp_path, rng):
     write(tmp_path, rng, overwrite=True)
 
 
-def test_a_committed_file_of_this_version_reads_back_field_by_field():
-    """tests/data/pcz-v{VERSION}.pcz was written by tools/make_pcz_fixture.py; the .npz holds what it was given."""
+@pytest.mark.parametrize("version", [2, 3])
+def test_a_committed_file_of_each_readable_version_reads_back_field_by_field(version):
+    """tests/data/pcz-v{N}.pcz was written by tools/make_pcz_fixture.py at version N; the .npz holds what it was given.
+    Version 3 stores the residual points' X, Y, Z divided by its steps; version 2 has none (exact)."""
     from pathlib import Path
 
+    assert pcz.VERSION == 3 and pcz.READABLE == (2, 3)
     data = Path(__file__).parent / "data"
-    expected = np.load(data / f"pcz-v{pcz.VERSION}.npz", allow_pickle=False)
+    expected = np.load(data / f"pcz-v{version}.npz", allow_pickle=False)
+    steps = expected["steps"] if version >= 3 else np.ones(3, int)
     fields = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask")
-    with pcz.open_pcz(data / f"pcz-v{pcz.VERSION}.pcz") as f:
-        assert f.attrs["version"] == pcz.VERSION and f.max_error == 0.01 and f.tile_size == 4.0
+    with pcz.open_pcz(data / f"pcz-v{version}.pcz") as f:
+        assert f.attrs["version"] == version and f.max_error == 0.01 and f.tile_size == 4.0
+        assert f.steps == tuple(steps) and f.dropped == (["gps_time"] if version >= 3 else [])
         assert [tuple(t) for t in f.tiles] == [(0, 0, 0), (1, 0, 0)]
         for t in range(2):
             m, cls, inten = f.patches(t)
@@ -118,7 +123,8 @@ def test_a_committed_file_of_this_version_reads_back_field_by_field():
             assert np.array_equal(cls, expected[f"{t}/classification"]) and np.array_equal(inten, expected[f"{t}/intensity"])
             xyz, rec = f.residual(t)
             records = expected[f"{t}/records"]
-            assert np.array_equal(xyz.view(np.uint8).reshape(-1, 12), records[:, :12]) and np.array_equal(rec, records[:, 12:])
+            stored = records[:, :12].copy().view("<i4").reshape(-1, 3)
+            assert np.array_equal(xyz, stored * steps) and np.array_equal(rec, records[:, 12:])
         # the plane tile samples back on its plane
         q, _ = sample_models(dequantise_models(f.patches(0)[0]))
         assert len(q) > 1000 and np.abs(q[:, 2] - (0.1 * q[:, 0] + 1.0)).max() <= 0.005
@@ -127,7 +133,7 @@ def test_a_committed_file_of_this_version_reads_back_field_by_field():
 def test_a_tile_whose_residual_disagrees_with_the_index_is_named_as_the_store_names_it():
     from pathlib import Path
 
-    with pcz.open_pcz(Path(__file__).parent / "data" / f"pcz-v{pcz.VERSION}.pcz") as f:
+    with pcz.open_pcz(Path(__file__).parent / "data" / "pcz-v2.pcz") as f:
         t = next(k for k in range(len(f.tiles)) if f.residual(k)[0].shape[0])
         f.attrs["record_bytes"] += 1  # as a crafted header would say
         with pytest.raises(PatchcloudIOError, match=r"tile t\+[01]\+0\+0: their LAZ header says \d+ points of \d+ bytes, the index says"):

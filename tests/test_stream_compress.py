@@ -9,6 +9,7 @@ from laspy.vlrs.vlrlist import VLRList
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import compress, decompress
 from patchcloud.stream.cli import main
+from patchcloud.stream.io.point_coding import coarse_steps, coarsen, refine
 
 OFFSET = np.array([650000.0, 6860000.0, 0.0])
 BUDGET = 0.02
@@ -70,10 +71,18 @@ def test_round_trip(las_file, tmp_path):
     assert len(out.points) == len(src.points)  # every point: a sample of its patch or itself
     rec = np.asarray(out["Reconstructed"])
     assert int((rec == 0).sum()) == s.residual == d.residual
-    # residual points come back byte for byte (all of their record but the new dimension)
+    # residual points come back as records of input points with X, Y, Z rounded to multiples k of the file's grid
+    # (within the budget) and every dimension but class, intensity and returns zero
     L = src.points.array.dtype.itemsize
     back = np.ascontiguousarray(out.points.array.view(np.uint8).reshape(len(out.points), -1)[rec == 0, :L])
-    orig = np.ascontiguousarray(src.points.array.view(np.uint8).reshape(len(src.points), L))
+    k = coarse_steps(BUDGET, src.header.scales)
+    assert k == (23, 23, 23)  # the file's grid is 1 mm: 2.3 cm steps, 2 cm at most from each point
+    want = laspy.PackedPointRecord.zeros(len(src.points), src.point_format)
+    for name in ("intensity", "return_number", "number_of_returns", "classification"):
+        want[name] = src.points[name]
+    for a, name in enumerate("XYZ"):
+        want[name] = refine(coarsen(src.points[name], k[a]), k[a])
+    orig = np.ascontiguousarray(want.array.view(np.uint8).reshape(len(src.points), L))
     v = np.dtype((np.void, L))
     assert np.isin(back.view(v).ravel(), orig.view(v).ravel()).all()
     # the bush is residual; the sampled points lie on the ground, the walls and the roof
@@ -131,7 +140,7 @@ def test_cli_and_bad_input(las_file, tmp_path):
 def test_info_describes_a_pcz(las_file, tmp_path):
     compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True)
     r = CliRunner().invoke(main, ["info", str(tmp_path / "s.pcz")])
-    assert r.exit_code == 0 and "patchcloud .pcz version 2" in r.output and "residual" in r.output
+    assert r.exit_code == 0 and "patchcloud .pcz version 3 (model mode)" in r.output and "residual" in r.output
 
 
 def test_header_vlrs_and_extended_vlrs_survive(tmp_path):

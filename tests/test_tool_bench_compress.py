@@ -53,8 +53,11 @@ def test_main_writes_a_sane_table(tmp_path, capsys):
     assert 0 <= row["normal_deg"] < 10
     assert row["residual_exact"] == 1.0 or np.isnan(row["residual_exact"])
     assert row["compress_s"] > 0 and row["decompress_s"] > 0
+    p = row["points_mode"]  # --keep-points: every point within the budget, attributes exact, smaller than LAS
+    assert p["attributes_exact"] and 0 < p["max_move"] <= 0.05 and p["bytes"] < sz["las"] and p["steps"] == [57, 57, 57]
+    assert sz["laz_xyz"] < sz["laz4"] <= sz["laz"]
     text = out.read_text()
-    assert "### plane_box" in text and "| 0.05 |" in text and "### Goals per input" in text
+    assert "### plane_box" in text and "| 0.05 |" in text and "### Goals per input" in text and "### Goals of the two modes" in text
     assert "| max-error m | .pcz bits/pt | x LAS | x LAZ |" in capsys.readouterr().out
 
 

@@ -143,15 +143,34 @@ def _keys(*ints: np.ndarray) -> list[np.ndarray]:
             (x.astype(np.int64) for x in ints)]
 
 
-def residual_check(orig, recon) -> tuple[np.ndarray, float]:
-    """Mask of the original points that came back as residual points; share of residual points found byte for byte.
+def coded_records(las, budget: float) -> tuple[np.ndarray, np.ndarray]:
+    """What a model-mode .pcz keeps of each original point were it residual: its coded X, Y, Z (N, 3) and record (N, L) bytes.
 
-    An original point is residual when a residual point has its LAS integer
-    coordinates; "byte for byte": the residual point's whole record (but the
-    ``Reconstructed`` byte) is the record of some original point.
+    X, Y, Z rounded to multiples of the steps the budget allows
+    (``patchcloud.stream.io.point_coding``), every dimension zero but those
+    ``RESIDUAL_KEPT`` names.
+    """
+    import laspy
+
+    from patchcloud.stream.io.point_coding import coarse_steps, coarsen, refine
+    from patchcloud.stream.jobs.compress import RESIDUAL_KEPT
+
+    k = coarse_steps(budget, las.header.scales)
+    rec = laspy.PackedPointRecord.zeros(len(las.points), las.point_format)
+    for name in RESIDUAL_KEPT:
+        rec[name] = las.points[name]
+    for a, name in enumerate("XYZ"):
+        rec[name] = refine(coarsen(las.points[name], k[a]), k[a])
+    xyz = np.column_stack([rec["X"], rec["Y"], rec["Z"]]).astype(np.int64)
+    return xyz, np.ascontiguousarray(rec.array.view(np.uint8).reshape(len(rec), las.point_format.size))
+
+
+def residual_check(orig, recon, budget: float) -> tuple[np.ndarray, float]:
+    """Mask of the original points that came back as residual points; share of residual points whose record is that of
+    an original point as a model-mode .pcz codes it (:func:`coded_records`: within the budget, class, intensity, returns).
     """
     res = np.asarray(recon["Reconstructed"]) == 0
-    oi = np.column_stack([orig.X, orig.Y, orig.Z])
+    oi, orec = coded_records(orig, budget)
     ri = np.column_stack([recon.X, recon.Y, recon.Z])[res]
     if not len(ri):
         return np.zeros(len(oi), bool), float("nan")
@@ -159,9 +178,33 @@ def residual_check(orig, recon) -> tuple[np.ndarray, float]:
     is_res = np.isin(ko, kr)
     L = orig.point_format.size
     rec = np.dtype((np.void, L))
-    a = np.ascontiguousarray(orig.points.array.view(np.uint8).reshape(-1, L)).view(rec).ravel()
+    a = orec.view(rec).ravel()
     b = np.ascontiguousarray(recon.points.array[res].view(np.uint8).reshape(-1, recon.point_format.size)[:, :L]).view(rec).ravel()
     return is_res, float(np.isin(b, a).mean())
+
+
+def points_mode(path: Path, las, budget: float, tmp: Path, units) -> dict:
+    """``compress --keep-points`` at ``budget`` and back: bytes, times, the largest move of a point, attributes exact."""
+    import laspy
+
+    from patchcloud.stream import compress, decompress
+
+    pcz, out = tmp / "points.pcz", tmp / "points.las"
+    t = time.perf_counter()
+    s = compress(path, pcz, max_error=budget, keep_points=True, quiet=True, overwrite=True, units=units)
+    tc = time.perf_counter() - t
+    t = time.perf_counter()
+    decompress(pcz, out, overwrite=True)
+    td = time.perf_counter() - t
+    b = laspy.read(out)
+    d = np.sqrt((np.asarray(las.x) - b.x) ** 2 + (np.asarray(las.y) - b.y) ** 2 + (np.asarray(las.z) - b.z) ** 2)
+    same = all(np.asarray(las[n]).tobytes() == np.asarray(b[n]).tobytes()
+               for n in las.point_format.dimension_names if n not in ("X", "Y", "Z"))
+    pcz.unlink()
+    out.unlink()
+    return {"bytes": s.output_bytes, "bpp": 8.0 * s.output_bytes / len(las.points), "max_move": float(d.max()),
+            "attributes_exact": same and len(b.points) == len(las.points), "compress_s": tc, "decompress_s": td,
+            "steps": s.steps}
 
 
 def _zip_parts(path: Path) -> dict:
@@ -199,6 +242,15 @@ def baseline_sizes(las) -> dict:
         las.write(buf, do_compress=compress, laz_backend=laspy.LazBackend.Lazrs if compress else None)
         out[key] = buf.getbuffer().nbytes
     out["laz_xyz"] = laz_xyz_bytes(las.X, las.Y, las.Z, las.header)
+    # LAZ-4: the same points with x, y, z, intensity, returns and classification, every other field zero
+    from patchcloud.stream.io.point_coding import keep_only, zero_fields
+
+    four = laspy.LasData(las.header)
+    four.points = las.points.copy()
+    zero_fields(four.points, keep_only(las.point_format, ("intensity", "return_number", "number_of_returns", "classification")))
+    buf = io.BytesIO()
+    four.write(buf, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
+    out["laz4"] = buf.getbuffer().nbytes
     return out
 
 
@@ -308,7 +360,7 @@ def bench_file(name: str, path: Path, budgets, draco: bool, tmp: Path, log) -> d
         rec = laspy.read(out)
         B = np.column_stack([np.asarray(rec.x), np.asarray(rec.y), np.asarray(rec.z)]) - lo
         err = compare(A, nA, treeA, B)
-        is_res, exact = residual_check(las, rec)
+        is_res, exact = residual_check(las, rec, budget)
         modelled = ~is_res
         parts = _zip_parts(pcz)
         res = np.asarray(rec["Reconstructed"]) == 0
@@ -324,6 +376,8 @@ def bench_file(name: str, path: Path, budgets, draco: bool, tmp: Path, log) -> d
             "normal_deg": normal_angle(nA, B, err["nearest"]),
             **{k: v for k, v in err.items() if k not in ("nearest", "o2r_d")},
         }
+        log(f"# {name}: compress --keep-points --max-error {budget:g} ...")
+        row["points_mode"] = points_mode(path, las, budget, tmp, "m" if "lone-star" in str(path) else None)
         if info["draco_curve"]:
             row["draco_d1_bpp"] = interp_bpp(info["draco_curve"], row["d1"], "d1")
             row["draco_d2_bpp"] = interp_bpp(info["draco_curve"], row["d2"], "d2")
@@ -364,17 +418,19 @@ def file_table(info: dict) -> list[str]:
            f"extent {ext[0]:.0f} x {ext[1]:.0f} x {ext[2]:.0f} m; class 6 (building) {info['building_share']:.0%}, "
            f"class 2 (ground) {info['ground_share']:.0%}; file {info['file_bytes']:,} bytes",
            f"- baselines: LAS {sz['las']:,} B ({8 * sz['las'] / n:.1f} bits/pt), LAZ {sz['laz']:,} B ({8 * sz['laz'] / n:.2f} bits/pt), "
-           f"LAZ-xyz {sz['laz_xyz']:,} B ({8 * sz['laz_xyz'] / n:.2f} bits/pt)", ""]
-    out += ["| max-error m | .pcz bits/pt | x LAS | x LAZ | x LAZ-xyz | x Draco @ budget bits | x Draco @ D1 | x Draco @ D2 "
+           f"LAZ-xyz {sz['laz_xyz']:,} B ({8 * sz['laz_xyz'] / n:.2f} bits/pt), LAZ-4 (xyz, intensity, returns, class) "
+           f"{sz['laz4']:,} B ({8 * sz['laz4'] / n:.2f} bits/pt)", ""]
+    out += ["| max-error m | .pcz bits/pt | x LAS | x LAZ | x LAZ-4 | x LAZ-xyz | x Draco @ budget bits | x Draco @ D1 | x Draco @ D2 "
             "| geometry-only .pcz bits/pt | its x LAZ-xyz | its x Draco @ D2 "
             "| D1 o->r cm mean/p95/max | D1 r->o cm mean/p95/max | D2 o->r / r->o cm | D1 modelled o->r cm mean/p95 "
             "| normal median deg | compress pts/s | decompress pts/s | patches | residual pts | residual bytes |",
-            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---|---|---:|---:|---:|---:|---:|---:|"]
+            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in info["rows"]:
         dr = info["draco"].get(r["budget"])
         parts = r["parts"]
         out.append(
             f"| {r['budget']:g} | {r['bpp']:.2f} | {_x(sz['las'], r['bytes'])} | {_x(sz['laz'], r['bytes'])} | "
+            f"{_x(sz['laz4'], r['bytes'])} | "
             f"{_x(sz['laz_xyz'], r['bytes'])} | {_x(dr['bytes'], r['bytes']) if dr else '-'} | "
             f"{_x(r['draco_d1_bpp'], r['bpp'])} | {_x(r['draco_d2_bpp'], r['bpp'])} | "
             f"{r['bpp_xyz']:.2f} | {_x(sz['laz_xyz'], r['bytes_xyz'])} | {_x(r['draco_d2_bpp'], r['bpp_xyz'])} | "
@@ -394,10 +450,19 @@ def file_table(info: dict) -> list[str]:
                        f"{_rate(n, d['encode_s'])} | {_rate(n, d['decode_s'])} |")
         out += ["", "Draco curve (bits: bits/pt @ symmetric D1 mean cm, D2 mean cm): " + "; ".join(
             f"{d['bits']}: {d['bpp']:.2f} @ {_cm(d['d1'])}, {_cm(d['d2'])}" for d in info["draco_curve"])]
+    out += ["", "Points mode (`--keep-points`: every point in input order, attributes exact):", "",
+            "| max-error m | steps | bits/pt | x input file | x LAZ | largest move cm | attributes exact | compress pts/s "
+            "| decompress pts/s |", "|---:|---|---:|---:|---:|---:|---|---:|---:|"]
+    for r in info["rows"]:
+        p = r["points_mode"]
+        out.append(f"| {r['budget']:g} | {'x'.join(map(str, p['steps']))} | {p['bpp']:.2f} | {_x(info['file_bytes'], p['bytes'])} | "
+                   f"{_x(sz['laz'], p['bytes'])} | {_cm(p['max_move'])} | {'yes' if p['attributes_exact'] else 'NO'} | "
+                   f"{_rate(n, p['compress_s'])} | {_rate(n, p['decompress_s'])} |")
     checks = [f"{r['budget']:g}: {r['residual_exact']:.2%}" for r in info["rows"]]
     fits = [f"{r['budget']:g}: {_cm(r['fit_error'])}" for r in info["rows"]]
     outs = [f"{r['budget']:g}: {r['points_out']:,}" for r in info["rows"]]
-    out += ["", f"- residual points whose record is, byte for byte, an original record: {', '.join(checks)}",
+    out += ["", f"- residual points whose record is an original record as model mode codes it (position within the budget; "
+            f"class, intensity, returns kept; the rest zero): {', '.join(checks)}",
             f"- compress's own mean distance of the modelled points to their surface (before quantisation), cm: {', '.join(fits)}",
             f"- points decompressed: {', '.join(outs)} (original {n:,})", ""]
     return out
@@ -437,6 +502,34 @@ def goals_table(infos: list[dict]) -> list[str]:
                     ", geometry-only yes" if r["draco_d2_bpp"] > r["bpp_xyz"] else ", geometry-only no")
             out.append(f"| {info['name']} | {r['budget']:g} | {_cm(r['d1'])} | {_cm(r['d2'])} | {ratio:.2f}x | {a1} | {a2} | "
                        f"{d1x} | {d2x} | {g2x} | {b} |")
+    return out + [""]
+
+
+def modes_goals_table(infos: list[dict]) -> list[str]:
+    """Markdown lines: the goals of the two modes per input and budget.
+
+    Model mode at 5 cm: >= 4x smaller than LAZ-4 of the same points, the
+    symmetric mean point-to-point error <= 5 cm, every point back (count).
+    Points mode: never larger than the input file at any budget >= 1 cm; >= 1.5x smaller than LAZ of the same
+    points (all dimensions) at 5 cm; every point within the budget (largest move) and every attribute exact.
+    """
+    out = ["### Goals of the two modes", "",
+           "- model mode at 5 cm: x LAZ-4 >= 4, D1 symmetric mean <= 5 cm, the same point count;",
+           "- points mode: x input file >= 1 at every budget >= 1 cm, x LAZ >= 1.5 at 5 cm; largest move <= budget, attributes exact.", "",
+           "| input | max-error m | model x LAZ-4 | model D1 mean cm | model points out / in | model goal | points x file | "
+           "points x LAZ | largest move cm | points goal |",
+           "|---|---:|---:|---:|---:|---|---:|---:|---:|---|"]
+    for info in infos:
+        sz, n = info["sizes"], info["points"]
+        for r in info["rows"]:
+            p = r["points_mode"]
+            five = abs(r["budget"] - 0.05) < 1e-9
+            x4 = sz["laz4"] / r["bytes"]
+            mg = ("yes" if x4 >= 4 and r["d1"] <= 0.05 and r["points_out"] == n else "no") if five else "-"
+            xf, xl = info["file_bytes"] / p["bytes"], sz["laz"] / p["bytes"]
+            ok = xf >= 1 and p["max_move"] <= r["budget"] + 1e-9 and p["attributes_exact"] and (xl >= 1.5 or not five)
+            out.append(f"| {info['name']} | {r['budget']:g} | {x4:.2f}x | {_cm(r['d1'])} | {r['points_out']:,} / {n:,} | {mg} | "
+                       f"{xf:.2f}x | {xl:.2f}x | {_cm(p['max_move'])} | {'yes' if ok else 'no'} |")
     return out + [""]
 
 
@@ -618,6 +711,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         shutil.rmtree(tmp, ignore_errors=True)
     if infos:
         emit(goals_table(infos))
+        emit(modes_goals_table(infos))
     emit([f"- total wall time {time.perf_counter() - started:.0f} s; load average at end "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}.", ""])
     if a.out:

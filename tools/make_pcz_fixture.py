@@ -22,6 +22,9 @@ from patchcloud.stream.io import pcz
 
 BUDGET = 0.01
 T = 4.0
+#: The residual points' X, Y, Z as stored are the input's divided by these (version 3; the reader multiplies them back).
+STEPS = (2, 2, 3)
+DROPPED = ["gps_time"]
 FIELDS = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask")
 
 
@@ -55,8 +58,8 @@ def main(folder: Path) -> None:
     grid = dict(origin=[0.0, 0.0, 0.0], tile_size=T, scale=[0.001] * 3, offset=[0.0] * 3)
     name = folder / f"pcz-v{pcz.VERSION}"
     pcz.write_pcz(name.with_suffix(".pcz"), ps, max_error=BUDGET, grid=grid, header=b"LASF" + bytes(371),
-                  source={"path": "fixture.las"}, record_bytes=18, overwrite=True)
-    arrays = {}
+                  source={"path": "fixture.las"}, record_bytes=18, overwrite=True, steps=STEPS, dropped=DROPPED)
+    arrays = {"steps": np.asarray(STEPS)}
     for t, part in enumerate(ps):
         for f in FIELDS:
             arrays[f"{t}/{f}"] = np.asarray(getattr(part.models, f))

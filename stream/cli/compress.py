@@ -13,6 +13,12 @@ from . import options
 @options.paths_argument
 @click.option("--max-error", type=float, default=CompressOptions.max_error, show_default=True, metavar="LENGTH",
               help="Error budget, in the file's horizontal unit (see --units): patches fit their points within it (RMS); points no patch models within it are kept exactly.")
+@click.option("--keep-points", is_flag=True, default=False,
+              help="Points mode: every point back in input order, each within --max-error of where it was, every attribute "
+              "exact (default: model mode, the patch models).")
+@click.option("--drop", default="", metavar="DIMS",
+              help="Dimensions not kept, comma-separated (PDAL's names: GpsTime,UserData,PointSourceId,...; or laspy's): "
+              "decompressed as zeros.")
 @options.job_options
 @click.option("--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
               help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), each compressed on its own "
@@ -22,21 +28,26 @@ from . import options
               "input and parameters give the same bytes).")
 @options.report_option
 @options.reports_errors
-def compress_command(paths, max_error, record_source, report, **run):
+def compress_command(paths, max_error, keep_points, drop, record_source, report, **run):
     """Compress INPUT (LAS/LAZ/COPC, any size) to OUTPUT, a .pcz of quadric patch models and residual points.
 
     With --out-dir DIR every argument is an input and each file is
     compressed on its own to DIR/NAME.pcz (patches do not cross files).
 
-    Smooth surfaces become quantised quadric patches (octree cell, point
-    count, frame, quadric, extent); the points of edges, vegetation and
-    other rough parts are kept as they were (every byte of their records).
-    Memory depends on --tile-size, not on the file.
+    Model mode (the default): smooth surfaces become quantised quadric
+    patches (octree cell, point count, frame, quadric, extent); the points
+    of edges, vegetation and other rough parts are kept one by one, each
+    within --max-error of where it was, with its class, intensity and
+    returns.  Memory depends on --tile-size, not on the file.
+
+    Points mode (--keep-points): every point, in input order, within
+    --max-error, every attribute exact but those --drop names.
 
     \b
     Example:
       patchcloud compress city.laz city.pcz --max-error 0.02
       patchcloud compress city.laz city.pcz --report city_pcz.html
+      patchcloud compress city.laz city.pcz --keep-points --max-error 0.05 --drop GpsTime
       patchcloud compress tiles/ --out-dir tiles_pcz/
       patchcloud decompress city.pcz preview.laz --lod 2
     """
@@ -44,7 +55,9 @@ def compress_command(paths, max_error, record_source, report, **run):
 
     run = options.run_options(run)
     input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
-    summary = compress(input, output, CompressOptions(max_error=max_error), run, record_source=record_source)
+    drop = tuple(d.strip() for d in drop.split(",") if d.strip())
+    summary = compress(input, output, CompressOptions(max_error=max_error, keep_points=keep_points, drop=drop), run,
+                       record_source=record_source)
     if isinstance(summary, list):  # a catalog, file by file: each file's summary, then one report of them all
         for s in summary:
             options.finish_job(s, run.quiet, None, "report_compress")

@@ -329,7 +329,7 @@ def file_lines(files: list[tuple[str, str, int]]) -> list[str]:
 
 @dataclass
 class JobContext:
-    """What a job's steps work with: the input, the tiled store, the scheduler, the run's options.
+    """What a job's steps work with: the input, the tiled store (None for a job that is not ``tiled``), the scheduler, the run's options.
 
     ``catalog`` is the input files taken as one cloud (one file: a catalog
     of one), ``source`` its first file, ``outputs`` one output per file and
@@ -342,7 +342,7 @@ class JobContext:
 
     source: LasSource
     output: Path
-    store: Store
+    store: Store | None
     runner: Runner
     run: RunOptions
     catalog: Catalog | None = None
@@ -364,6 +364,8 @@ class JobContext:
     @property
     def scheduler(self) -> str:
         """How the run ran, as summaries name it: the scheduler, or "in memory"."""
+        if self.store is None:
+            return "in memory" if self.runner.scheduler == "synchronous" else self.runner.scheduler
         return "in memory" if self.store.in_memory else self.runner.scheduler
 
     @property
@@ -397,6 +399,9 @@ class Job:
     #: Whether the store's tiles hold only the points of ``RunOptions.selection`` (else every point: the job applies
     #: the selection itself, as ``compress`` does, which keeps the others as residual points).
     tiles_selection = True
+    #: Whether the job works on the tiled store (else the context's ``store`` is None: the job reads the input itself,
+    #: as ``compress --keep-points`` does, part by part in input order).
+    tiled = True
 
     def steps(self) -> Sequence[tuple[str, Callable[[JobContext], None]]]:
         """The job's steps after ``tile``, in order: (name in the summary's times, function of the context)."""
@@ -608,11 +613,14 @@ def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep
     with CompileClock(announce=None if run.quiet else announce_on_stderr) as clock, \
             Runner(run.scheduler, run.workers, quiet=run.quiet, points=catalog.point_count) as runner:
         w0 = time.time()
-        store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk, _tiles_selection(job, run))
-        windows["tile"] = [(w0, time.time())]
+        store, tile_seconds = None, None
+        if job.tiled:
+            store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk, _tiles_selection(job, run))
+            windows["tile"] = [(w0, time.time())]
         ctx = JobContext(source=catalog.sources[0], output=out, store=store, runner=runner, run=run, catalog=catalog, outputs=outs,
                          kept_store=url if keep else "")
-        ctx.seconds["tile"] = tile_seconds
+        if tile_seconds is not None:
+            ctx.seconds["tile"] = tile_seconds
         for name, step in job.steps():
             t0, w0 = time.perf_counter(), time.time()
             step(ctx)

@@ -30,7 +30,7 @@ from .las_records import (
 __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
-    "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR",
+    "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
 ]
 
 
@@ -571,6 +571,19 @@ def undescribed_last(header: laspy.LasHeader) -> laspy.LasHeader:
     if not structs:
         header.vlrs.pop(header.vlrs.index("ExtraBytesVlr"))
     return header
+
+
+def raw_header(path: str | os.PathLike) -> tuple[bytes, bytes]:
+    """A LAS/LAZ file's header and VLRs, and its extended VLRs (LAS 1.4; after the points), as raw bytes."""
+    with open(path, "rb") as f:
+        h = laspy.LasHeader.read_from(f)
+        f.seek(0)
+        head = f.read(h.offset_to_point_data)
+        evlrs = b""
+        if h.version.minor >= 4 and h.number_of_evlrs > 0:
+            f.seek(h.start_of_first_evlr)
+            evlrs = f.read()
+        return head, evlrs
 
 
 def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:

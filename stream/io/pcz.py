@@ -1,13 +1,16 @@
 """The patch-model file (``.pcz``): a cloud as quantised quadric patches plus residual points, in one zip.
 
-A ``.pcz`` is a zarr (format 3) store in a single zip file (entries
-stored, not deflated: every chunk is already Zstd-compressed).  No pickle
-anywhere: integers, floats, JSON attributes.  Layout, version 2::
+A ``.pcz`` is a zarr (format 3) store in a single zip file (chunks
+stored, not deflated: every chunk is already compressed; the JSON
+metadata deflated).  No pickle
+anywhere: integers, floats, JSON attributes.  Version 3 has two modes.
 
-    zarr.json                     attrs: format "patchcloud-pcz", version, max_error (metres),
-                                  grid (origin, tile_size, scale, offset), counts, source
+**Model mode** (the default: patch models, residual points within the budget)::
+
+    zarr.json                     attrs: format "patchcloud-pcz", version, mode "model", max_error
+                                  (metres), grid (origin, tile_size, scale, offset), counts, source
                                   (the input's name, point format, LAS version, bounds, CRS WKT),
-                                  record_bytes
+                                  record_bytes, steps (3 ints), dropped (dimension names)
     header                        (H,) uint8    the input's LAS header and VLRs, as they were
     evlrs                         (E,) uint8    its extended VLRs (LAS 1.4), as they were; empty if none
     tiles/ijk                     (T, 3) int64  tile indices (tile = cube of edge tile_size from origin)
@@ -28,9 +31,23 @@ anywhere: integers, floats, JSON attributes.  Layout, version 2::
     cells/mask                    (C,) uint64   8 x 8 occupancy of the (u, v) extent
     cells/classification          (C,) uint8    majority class of the cell's points
     cells/intensity               (C,) uint16   mean intensity of the cell's points
-    residual/laz                  (S,) uint8    per tile, the residual points' records, byte for
-                                  byte, as a LAZ file (lazrs: LAS records compress best
-                                  with LAZ's field-wise predictive coding)
+    residual/laz                  (S,) uint8    per tile, the residual points' records in input
+                                  order as a LAZ file (lazrs: LAS records compress best with
+                                  LAZ's field-wise predictive coding), X, Y, Z the input's
+                                  integers divided by steps (stream.io.point_coding), the
+                                  dropped dimensions zero, every other byte as it was
+
+**Points mode** (``compress --keep-points``: every point, in input order)::
+
+    zarr.json                     attrs: as above, mode "points", counts (blocks, points)
+    header, evlrs                 as above
+    blocks/point_start            (B + 1,) int64 the first input point of each block
+    blocks/byte_start             (B + 1,) int64 bytes of each block's LAZ
+    blocks/bounds                 (B, 6) int64  smallest and largest X, Y, Z of its points (input grid)
+    points/laz                    (S,) uint8    per block, its records as a LAZ file (as residual/laz)
+
+Version 2 is model mode with exact residual points (no steps, nothing
+dropped); it is read as such.
 
 The file is reproducible: the same input and parameters give the same
 bytes (entries in name order, each dated :data:`ZIP_TIME`; the input
@@ -55,6 +72,7 @@ import os
 import shutil
 import zipfile
 from collections import Counter
+from contextlib import contextmanager
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,12 +87,16 @@ from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueE
 
 from .budget import check_memory
 from .las import check_header_sizes, check_header_values, undescribed_last, writable_version
+from .point_coding import refine
 from .store import tile_name
 
-__all__ = ["FORMAT", "VERSION", "ZIP_TIME", "TilePart", "write_pcz", "PczFile", "open_pcz", "residual_laz"]
+__all__ = ["FORMAT", "VERSION", "READABLE", "ZIP_TIME", "TilePart", "PointsBlock", "write_pcz", "write_points_pcz", "PczFile",
+           "PointsPczFile", "open_pcz", "residual_laz", "wave_packets_break_laz"]
 
 FORMAT = "patchcloud-pcz"
-VERSION = 2
+VERSION = 3
+#: The versions this reader reads: 2 (model mode only, residual points exact) and 3.
+READABLE = (2, 3)
 #: The date of every zip entry (the zip format's earliest), so that a ``.pcz`` does not depend on when it was written.
 ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 #: Rows per chunk of every per-patch, per-cell and per-residual-point array.
@@ -158,17 +180,13 @@ class _Column:
         self._flush(final=True)
 
 
-def write_pcz(
-    path: str | os.PathLike, parts: Iterable[TilePart], *, max_error: float, grid: dict, header: bytes, source: dict,
-    record_bytes: int, evlrs: bytes = b"", overwrite: bool = False,
-) -> dict:
-    """Write a ``.pcz`` from tile parts, in the order given; memory: a chunk per array, not the file.
+@contextmanager
+def _building(path: str | os.PathLike, overwrite: bool):
+    """A zarr group to fill, zipped to ``path`` when the ``with`` block ends without error.
 
     The store is built in the directory ``path + ".build"`` (one a killed
     run left is removed first: callers hold the output's lock) and zipped
     to ``path + ".partial"``, which is renamed to ``path`` when complete.
-
-    Returns the file's counts (tiles, patches, residual points, points).
     """
     out = Path(path)
     if out.exists() and not overwrite:
@@ -180,7 +198,37 @@ def write_pcz(
     work.mkdir()
     tmp = out.with_name(out.name + ".partial")
     try:
-        root = zarr.open_group(str(work / "store"), mode="w")
+        yield zarr.open_group(str(work / "store"), mode="w")
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as z:
+            base = work / "store"
+            for f in sorted(base.rglob("*")):  # in name order, with a fixed time: the same models give the same bytes
+                if f.is_file():
+                    entry = zipfile.ZipInfo(f.relative_to(base).as_posix(), date_time=ZIP_TIME)
+                    entry.external_attr = 0o644 << 16
+                    if f.name == "zarr.json":  # metadata deflates about fivefold; chunks are compressed already
+                        entry.compress_type = zipfile.ZIP_DEFLATED
+                    with open(f, "rb") as src, z.open(entry, "w", force_zip64=True) as dst:
+                        shutil.copyfileobj(src, dst, 1 << 22)
+        os.replace(tmp, out)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_pcz(
+    path: str | os.PathLike, parts: Iterable[TilePart], *, max_error: float, grid: dict, header: bytes, source: dict,
+    record_bytes: int, evlrs: bytes = b"", overwrite: bool = False, steps=(1, 1, 1), dropped=(),
+) -> dict:
+    """Write a model-mode ``.pcz`` from tile parts, in the order given; memory: a chunk per array, not the file.
+
+    ``steps``: the multiples of the input's integer coordinates the residual
+    points' are rounded to (:mod:`.point_coding`; 1 exact); ``dropped``:
+    their dimensions written as zeros.  Written under a temporary name,
+    renamed when complete.  Returns the file's counts (tiles, patches,
+    residual points, points).
+    """
+    with _building(path, overwrite) as root:
         residual = root.require_group("residual")
         cols = {name: _Column(root.require_group(group), name, dt, tail)
                 for group, arrays in (("patches", _PATCH_ARRAYS), ("cells", _CELL_ARRAYS)) for name, dt, tail in arrays}
@@ -221,23 +269,57 @@ def write_pcz(
         root.create_array("evlrs", data=np.frombuffer(evlrs, dtype=np.uint8))
         counts = dict(tiles=len(tiles), patches=pstart[-1], cells=cstart[-1], residual=rstart[-1], points=points)
         root.attrs.update(
-            format=FORMAT, version=VERSION, max_error=float(max_error), grid=grid, source=source, counts=counts,
-            record_bytes=int(record_bytes),
+            format=FORMAT, version=VERSION, mode="model", max_error=float(max_error), grid=grid, source=source, counts=counts,
+            record_bytes=int(record_bytes), steps=[int(k) for k in steps], dropped=list(dropped),
         )
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as z:
-            base = work / "store"
-            for f in sorted(base.rglob("*")):  # in name order, with a fixed time: the same models give the same bytes
-                if f.is_file():
-                    entry = zipfile.ZipInfo(f.relative_to(base).as_posix(), date_time=ZIP_TIME)
-                    entry.external_attr = 0o644 << 16
-                    with open(f, "rb") as src, z.open(entry, "w", force_zip64=True) as dst:
-                        shutil.copyfileobj(src, dst, 1 << 22)
-        os.replace(tmp, out)
-        return counts
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-        if tmp.exists():
-            tmp.unlink()
+    return counts
+
+
+@dataclass(frozen=True)
+class PointsBlock:
+    """A run of consecutive input points of a points-mode ``.pcz``: a LAZ file of their records (see :func:`write_points_pcz`).
+
+    ``bounds``: the smallest and largest decoded integer X, Y, Z (the input's
+    grid), 6 integers.
+    """
+
+    count: int
+    laz: bytes
+    bounds: tuple[int, int, int, int, int, int]
+
+
+def write_points_pcz(
+    path: str | os.PathLike, blocks: Iterable[PointsBlock], *, max_error: float, steps, dropped, grid: dict, header: bytes,
+    source: dict, record_bytes: int, evlrs: bytes = b"", overwrite: bool = False,
+) -> dict:
+    """Write a points-mode ``.pcz`` (``compress --keep-points``) from its blocks, in input order.
+
+    Each block is a LAZ file of consecutive input records whose X, Y, Z are
+    the input's integers divided by ``steps`` (:mod:`.point_coding`) and
+    whose ``dropped`` dimensions are zero; everything else is the input's
+    bytes.  Returns the file's counts (blocks, points).
+    """
+    with _building(path, overwrite) as root:
+        laz = _Column(root.require_group("points"), "laz", np.uint8, ())
+        pstart, bstart, bounds = [0], [0], []
+        for b in blocks:
+            laz.add(np.frombuffer(b.laz, dtype=np.uint8))
+            pstart.append(pstart[-1] + int(b.count))
+            bstart.append(bstart[-1] + len(b.laz))
+            bounds.append([int(v) for v in b.bounds])
+        laz.close()
+        g = root.require_group("blocks")
+        g.create_array("point_start", data=np.asarray(pstart, dtype=np.int64))
+        g.create_array("byte_start", data=np.asarray(bstart, dtype=np.int64))
+        g.create_array("bounds", data=np.asarray(bounds, dtype=np.int64).reshape(-1, 6))
+        root.create_array("header", data=np.frombuffer(header, dtype=np.uint8))
+        root.create_array("evlrs", data=np.frombuffer(evlrs, dtype=np.uint8))
+        counts = dict(blocks=len(bounds), points=pstart[-1])
+        root.attrs.update(
+            format=FORMAT, version=VERSION, mode="points", max_error=float(max_error), grid=grid, source=source, counts=counts,
+            record_bytes=int(record_bytes), steps=[int(k) for k in steps], dropped=list(dropped),
+        )
+    return counts
 
 
 class PczFile:
@@ -361,7 +443,18 @@ class PczFile:
         if raw.shape != (n, B + 12):
             raise PatchcloudIOError(f"{self.path}: tile {tile_name(self.tiles[t])} holds {raw.shape[0]} residual points of "
                                     f"{raw.shape[1]} bytes, the index says {n} of {B + 12}")
-        return raw[:, :12].copy().view("<i4").reshape(n, 3), raw[:, 12:].copy()
+        xyz = raw[:, :12].copy().view("<i4").reshape(n, 3)
+        return _refined(self.path, xyz, self.steps, f"tile {tile_name(self.tiles[t])}"), raw[:, 12:].copy()
+
+    @property
+    def steps(self) -> tuple[int, int, int]:
+        """The multiples of the input's integers the residual points' X, Y, Z were rounded to (version 2: exact, 1)."""
+        return tuple(self.attrs.get("steps", (1, 1, 1)))
+
+    @property
+    def dropped(self) -> list[str]:
+        """The residual points' dimensions written as zeros (version 2: none)."""
+        return list(self.attrs.get("dropped", ()))
 
     def close(self) -> None:
         self._store.close()
@@ -373,7 +466,75 @@ class PczFile:
         self.close()
 
 
-def open_pcz(path: str | os.PathLike) -> PczFile:
+def _refined(path, xyz: np.ndarray, steps, where: str) -> np.ndarray:
+    """(n, 3) int32: stored X, Y, Z (multiples ``steps`` of the input's integers) back on the input's grid; beyond int32: damaged."""
+    if tuple(steps) == (1, 1, 1):
+        return xyz
+    out = np.column_stack([refine(xyz[:, a], int(steps[a])) for a in range(3)])
+    if out.size and (out.min() < -(2**31) or out.max() >= 2**31):
+        raise PatchcloudIOError(f"{path}: damaged .pcz file ({where}'s coordinates lie beyond what LAS coordinates can hold)")
+    return out.astype(np.int32)
+
+
+class PointsPczFile:
+    """An open points-mode ``.pcz`` (``compress --keep-points``; see :func:`open_pcz`): every input point, block by block."""
+
+    def __init__(self, path: str, root: zarr.Group, store) -> None:
+        self.path = path
+        self.root = root
+        self._store = store
+        self.attrs = dict(root.attrs)
+        self.point_start = root["blocks/point_start"][...]
+        self.byte_start = root["blocks/byte_start"][...]
+        self.bounds = root["blocks/bounds"][...]
+
+    max_error = PczFile.max_error
+    header_bytes = PczFile.header_bytes
+    las_header = PczFile.las_header
+    evlr_bytes = PczFile.evlr_bytes
+    _read = PczFile._read
+    steps = PczFile.steps
+    dropped = PczFile.dropped
+
+    def blocks_in(self, lo, hi) -> np.ndarray:
+        """Positions of the blocks whose points' bounds meet the box ``lo``..``hi`` (integers of the input's grid)."""
+        lo, hi = np.asarray(lo), np.asarray(hi)
+        b = self.bounds
+        return np.flatnonzero(np.all((b[:, :3] <= hi) & (b[:, 3:] >= lo), axis=1))
+
+    def block(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """Block ``b``'s points in input order: X, Y, Z on the input's grid (n, 3) int32, the rest of their records (n, B) uint8."""
+        s = slice(int(self.byte_start[b]), int(self.byte_start[b + 1]))
+        n = int(self.point_start[b + 1] - self.point_start[b])
+        B = int(self.attrs["record_bytes"])
+        name = f"{self.path}: block {b}"
+        check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
+        raw = self._read("points/laz", s).tobytes()
+        check_header_sizes(name, raw[:375], len(raw))
+        said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
+        if said != n or record != B + 12:
+            raise PatchcloudIOError(f"{name}: its LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {B + 12}")
+        try:
+            las = laspy.read(io.BytesIO(raw))
+        except Exception as exc:
+            raise PatchcloudIOError(f"{name} cannot be read ({exc})") from exc
+        rows = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
+        if rows.shape != (n, B + 12):
+            raise PatchcloudIOError(f"{name} holds {rows.shape[0]} points of {rows.shape[1]} bytes, the index says {n} of {B + 12}")
+        xyz = _refined(self.path, rows[:, :12].copy().view("<i4").reshape(n, 3), self.steps, f"block {b}")
+        return xyz, rows[:, 12:].copy()
+
+    def close(self) -> None:
+        self._store.close()
+
+    def __enter__(self) -> "PointsPczFile":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_pcz(path: str | os.PathLike) -> PczFile | PointsPczFile:
     """Open a ``.pcz`` for reading; a PatchcloudIOError naming the file when it is not one this version reads.
 
     Everything the file states is checked before it is used (see the module's
@@ -405,9 +566,16 @@ def open_pcz(path: str | os.PathLike) -> PczFile:
     try:
         if a.get("format") != FORMAT:
             raise PatchcloudIOError(f"{p}: not a patchcloud .pcz file (no '{FORMAT}' format mark)")
-        if a.get("version") != VERSION:
-            raise PatchcloudIOError(f"{p}: .pcz version {a.get('version')!r} is not supported (this is version {VERSION})")
-        counts = _check_attrs(p, a)
+        if a.get("version") not in READABLE:
+            raise PatchcloudIOError(f"{p}: .pcz version {a.get('version')!r} is not supported (this patchcloud reads versions "
+                                    f"{', '.join(map(str, READABLE))}; install the patchcloud that wrote it to decompress it)")
+        mode = a.get("mode", "model") if a["version"] >= 3 else "model"
+        if mode not in ("model", "points"):
+            raise PatchcloudIOError(f"{p}: damaged .pcz file (mode {mode!r}, not model or points)")
+        counts = _check_attrs(p, a, mode)
+        if mode == "points":
+            _check_points_arrays(p, root, chunks, counts)
+            return PointsPczFile(str(p), root, store)
         largest = _check_arrays(p, root, chunks, counts)
         return PczFile(str(p), root, store, largest)
     except PatchcloudError:
@@ -461,28 +629,49 @@ def _decoded_size(head: bytes) -> int | None:
     return None
 
 
-def _check_attrs(p: Path, a: dict) -> dict:
+def _check_attrs(p: Path, a: dict, mode: str = "model") -> dict:
     """The file's attributes, checked (finite, positive where they must be); returns its counts."""
     try:
         g = a["grid"]
-        numbers = [a["max_error"], g["tile_size"], *(v for k in ("origin", "scale", "offset") for v in g[k])]
+        keys = ("scale", "offset") if mode == "points" else ("origin", "scale", "offset")  # points mode has no tiles
+        size = [] if mode == "points" else [g["tile_size"]]
+        numbers = [a["max_error"], *size, *(v for k in keys for v in g[k])]
         if not all(type(v) in (int, float) for v in numbers):
             raise TypeError(f"max_error and grid: {numbers!r} are not all numbers")
-        max_error, tile_size = float(a["max_error"]), float(g["tile_size"])
-        vectors = [np.asarray(g[k], dtype=np.float64).reshape(3) for k in ("origin", "scale", "offset")]
-        counts = {k: a["counts"][k] for k in ("tiles", "patches", "cells", "residual", "points")}
+        max_error, tile_size = float(a["max_error"]), float(size[0]) if size else TILE_SIZES[1]
+        vectors = [np.asarray(g[k], dtype=np.float64).reshape(3) for k in keys]
+        names = ("blocks", "points") if mode == "points" else ("tiles", "patches", "cells", "residual", "points")
+        counts = {k: a["counts"][k] for k in names}
         record = a["record_bytes"]
         source = a["source"]
+        steps = a.get("steps", [1, 1, 1])
+        dropped = a.get("dropped", [])
     except (KeyError, TypeError, ValueError) as exc:
         raise PatchcloudIOError(f"{p}: incomplete .pcz file (attribute {exc} missing or malformed)") from exc
     if not (np.isfinite(max_error) and 0 < max_error <= tile_size and TILE_SIZES[0] <= tile_size <= TILE_SIZES[1]
-            and all(np.isfinite(v).all() for v in vectors) and (vectors[1] > 0).all()):
+            and all(np.isfinite(v).all() for v in vectors) and (vectors[-2] > 0).all()):
         raise PatchcloudIOError(f"{p}: damaged .pcz file (max error {max_error!r}, tile size {tile_size!r}, grid {g!r})")
     if not all(type(v) is int and v >= 0 for v in counts.values()) or type(record) is not int or not 0 <= record <= 65535 - 12:
         raise PatchcloudIOError(f"{p}: damaged .pcz file (counts {counts!r}, record bytes {record!r})")
     if not isinstance(source, dict):
         raise PatchcloudIOError(f"{p}: damaged .pcz file (source {source!r})")
+    if (not isinstance(steps, list) or len(steps) != 3 or not all(type(k) is int and 1 <= k <= 1 << 30 for k in steps)
+            or not isinstance(dropped, list) or not all(isinstance(d, str) for d in dropped)):
+        raise PatchcloudIOError(f"{p}: damaged .pcz file (steps {steps!r}, dropped {dropped!r})")
     return counts
+
+
+def _check_points_arrays(p: Path, root: zarr.Group, chunks: dict[str, int | None], counts: dict) -> None:
+    """A points-mode file's arrays against its layout and counts."""
+    B = counts["blocks"]
+    laz = _array(p, root, "points/laz", np.uint8, (), None, chunks)
+    for name, total, what in (("point_start", counts["points"], "points"), ("byte_start", laz.shape[0], "bytes")):
+        s = _array(p, root, f"blocks/{name}", np.int64, (), B + 1, chunks)[...]
+        if s[0] != 0 or np.any(np.diff(s) < 0) or int(s[-1]) != total:
+            raise PatchcloudIOError(f"{p}: damaged .pcz file (blocks/{name} does not rise from 0 to the file's {total:,} {what})")
+    _array(p, root, "blocks/bounds", np.int64, (6,), B, chunks)
+    for name in ("header", "evlrs"):
+        _array(p, root, name, np.uint8, (), None, chunks)
 
 
 def _check_arrays(p: Path, root: zarr.Group, chunks: dict[str, int | None], counts: dict) -> int:
@@ -538,7 +727,7 @@ def _array(p: Path, root: zarr.Group, name: str, dtype, tail: tuple, rows: int |
         raise PatchcloudIOError(f"{p}: damaged .pcz file (array {name}: codecs {codecs}, chunks {a.chunks}: not this layout)")
     whole = int(np.prod(a.chunks)) * a.dtype.itemsize
     check_memory(whole, f"{p}: a chunk of {name}")
-    if name.startswith("tiles/"):  # read whole as the file opens
+    if name.startswith(("tiles/", "blocks/")):  # read whole as the file opens
         check_memory(int(np.prod(a.shape)) * a.dtype.itemsize, f"{p}: {name}")
     prefix = f"{name}/c/"
     for key, size in chunks.items():
@@ -557,7 +746,8 @@ def _las_point_count(raw: bytes) -> int:
 
 
 def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets) -> bytes:
-    """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout)."""
+    """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout); LAS where LAZ would
+    not give them back (:func:`wave_packets_break_laz`)."""
     h = laspy.LasHeader(point_format=point_format, version=writable_version(version))
     h.scales, h.offsets = np.asarray(scales, dtype=np.float64), np.asarray(offsets, dtype=np.float64)
     las = laspy.LasData(h)
@@ -565,5 +755,14 @@ def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: 
     las.points = laspy.PackedPointRecord(rows, point_format)
     undescribed_last(las.header)  # undescribed bytes stay so: laspy cannot read back its own description of them
     buf = io.BytesIO()
-    las.write(buf, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
+    las.write(buf, do_compress=not wave_packets_break_laz(las.points), laz_backend=laspy.LazBackend.Lazrs)
     return buf.getvalue()
+
+
+def wave_packets_break_laz(points: laspy.PackedPointRecord) -> bool:
+    """Whether LAZ (lazrs 0.8) would not give these records back: point formats 9 and 10 whose points change scanner
+    channel (their wave packet offsets and sizes come back shifted; measured).  Such records are kept as LAS instead."""
+    if points.point_format.id not in (9, 10) or len(points) == 0:
+        return False
+    ch = np.asarray(points["scanner_channel"])
+    return bool((ch != ch[0]).any())

@@ -26,16 +26,19 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import CompressOptions, PatchcloudValueError, PatchModels, QuantisedModels, fit_models, quantise_models
+from patchcloud.core import (
+    CompressOptions, PatchcloudValueError, PatchModels, QuantisedModels, dequantise_models, fit_models, patch_distances, quantise_models,
+)
 from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
 from patchcloud.stream.engine.job import Job, JobContext, RunOptions, left_out_lines, params_key, run_job, split_options, time_and_memory_lines
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
-from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source
+from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source, raw_header
+from patchcloud.stream.io.point_coding import coarse_steps, coarsen, dropped_fields, keep_only, zero_fields
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format"]
+__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format", "coarse_records", "RESIDUAL_KEPT"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -43,6 +46,9 @@ N_MIN = 12
 #: 4 spacings, so decompression does not fill gaps in the data wider than that (with the normals'
 #: 256 spacings, samples landed up to 5.7 m from any original point on a flat IGN tile).
 MAX_EDGE_SPACINGS = 32.0
+#: What a model-mode ``.pcz`` keeps of each residual point besides its position: the cells keep a class and an intensity,
+#: the residual points these and their returns (vegetation's structure); the other dimensions are zero.
+RESIDUAL_KEPT = ("intensity", "return_number", "number_of_returns", "classification")
 _PART = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask",
          "classification", "intensity")
 
@@ -68,19 +74,42 @@ class CompressSummary:
     units: dict = field(default_factory=lambda: {"symbol": "m"})  # the file's length unit (patchcloud.stream.io.crs.Units)
     left_out: dict = field(default_factory=dict)  # points left out of the models, by reason (stream.io.classes.REASONS)
     selection: dict | None = None  # the classes asked for and keep_noise (Selection.to_json)
+    mode: str = "model"  # or "points" (--keep-points)
+    steps: list = field(default_factory=lambda: [1, 1, 1])  # the multiples of the input's integers kept (stream.io.point_coding)
+    dropped: list = field(default_factory=list)  # dimensions written as zeros (of the residual points, in model mode)
+    scales: list = field(default_factory=lambda: [1.0, 1.0, 1.0])  # the input's scales (a step's length is steps x scales)
+
+    def _position_line(self, who: str) -> str:
+        u = self.units["symbol"]
+        if list(self.steps) == [1, 1, 1]:
+            return f"  positions       {who} exact (the budget is below the file's resolution)"
+        grid = " x ".join(f"{k * s:g}" for k, s in zip(self.steps, self.scales))
+        return (f"  positions       {who} within {self.max_error:g} {u} (on a grid of {grid} {u}: "
+                f"{', '.join(map(str, self.steps))} x the file's)")
 
     def format(self) -> str:
         n = max(self.points, 1)
         u = self.units["symbol"]
+        dropped = ", ".join(self.dropped) or "none"
+        size = (f"  size            {self.output_bytes:,} bytes, {8 * self.output_bytes / n:.2f} bits/point; input "
+                f"{self.input_bytes:,} bytes ({self.input_bytes / max(self.output_bytes, 1):.2f}x larger)")
+        if self.mode == "points":
+            return "\n".join([
+                f"{self.input} -> {self.output}",
+                f"  points          {self.points:,}, every one kept in input order; attributes exact, dropped: {dropped}",
+                self._position_line("every point"), size,
+                *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
+            ])
         return "\n".join([
             f"{self.input} -> {self.output}",
             f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches ({self.cells:,} octree cells) "
             f"({(self.points - self.residual) / n:.1%}), {self.residual:,} residual ({self.residual / n:.1%})",
             f"  error           budget {self.max_error:g} {u}; mean distance of the modelled points to their surface "
             f"{self.mean_error:.4f} {u} (before quantisation, which adds at most half the budget)",
-            f"  size            {self.output_bytes:,} bytes, {8 * self.output_bytes / n:.2f} bits/point; input "
-            f"{self.input_bytes:,} bytes ({self.input_bytes / max(self.output_bytes, 1):.1f}x larger)",
-            *left_out_lines(self.left_out, self.selection, self.points, "in no model, kept exactly as residual points"),
+            self._position_line("residual points"),
+            f"  residual dims   zero: {dropped}",
+            size,
+            *left_out_lines(self.left_out, self.selection, self.points, "in no model, kept as residual points"),
             *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
         ])
 
@@ -130,6 +159,14 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     else:  # too few points for a surface: all residual
         models, cell, residual, err = PatchModels.empty(corner, T), np.full(n, -1), np.arange(n), np.zeros(n)
     q = quantise_models(models, budget)
+    # the bound, point by point: a modelled point farther than the budget from its decoded patch is a residual point
+    on = np.flatnonzero(cell >= 0)
+    if on.size:
+        patch = models.cell_patch[cell[on]]
+        far = on[patch_distances(dequantise_models(q), local[on], patch) > budget]
+        cell[far] = -1
+        residual = np.union1d(residual, far)
+        q = dataclasses.replace(q, count=np.bincount(cell[cell >= 0], minlength=q.count.shape[0]).astype(q.count.dtype))
     on = cell >= 0
     C = q.count.shape[0]
     cls = np.asarray(rec["classification"]).astype(np.int64)[rank]
@@ -143,12 +180,24 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     for name in _PART:
         store.write(ijk, "pcz_" + name, values[name])
     # in input order: LAZ predicts each record from the previous one (scan order: GPS time, returns, intensity)
-    laz = pcz.residual_laz(in_order[np.sort(rank[residual])], pf, params["version"], grid.scale, grid.offset)
+    laz = pcz.residual_laz(coarse_records(in_order[np.sort(rank[residual])], pf, params["steps"], params["dropped"]), pf,
+                           params["version"], np.asarray(grid.scale) * params["steps"], grid.offset)
     store.write(ijk, "pcz_residual_laz", np.frombuffer(laz, dtype=np.uint8))
     info = dict(patches=len(models), cells=C, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()),
                 left_out=np.bincount(why, minlength=len(REASONS) + 1)[1:].tolist())
     store.mark_tile(ijk, "compress", key, compress=info)
     return info
+
+
+def coarse_records(records: np.ndarray, pf: laspy.PointFormat, steps, dropped) -> np.ndarray:
+    """(R, L) uint8 records of ``pf`` with X, Y, Z divided by ``steps`` (:mod:`patchcloud.stream.io.point_coding`) and the
+    ``dropped`` dimensions zero: what a ``.pcz`` keeps of residual points."""
+    rec = laspy.PackedPointRecord(np.ascontiguousarray(records).view(pf.dtype()).reshape(-1).copy(), pf)
+    zero_fields(rec, dropped)
+    for name, k in zip("XYZ", steps):
+        if k != 1:
+            rec[name] = coarsen(rec[name], k).astype(np.int32)
+    return rec.array.view(np.uint8).reshape(len(rec), pf.size)
 
 
 def _parts(st: Store, max_error: float):
@@ -161,19 +210,6 @@ def _parts(st: Store, max_error: float):
         )
         yield pcz.TilePart(ijk, q, v["classification"], v["intensity"], int(st.tile_attrs(ijk)["compress"]["residual"]),
                            st.read(ijk, "pcz_residual_laz").tobytes())
-
-
-def _header_bytes(src: LasSource) -> tuple[bytes, bytes]:
-    """The input's header and VLRs, and its extended VLRs (LAS 1.4; after the points), as raw bytes."""
-    with open(src.path, "rb") as f:
-        h = laspy.LasHeader.read_from(f)
-        f.seek(0)
-        head = f.read(h.offset_to_point_data)
-        evlrs = b""
-        if h.version.minor >= 4 and h.number_of_evlrs > 0:
-            f.seek(h.start_of_first_evlr)
-            evlrs = f.read()
-        return head, evlrs
 
 
 class CompressJob(Job):
@@ -210,6 +246,8 @@ class CompressJob(Job):
             max_error=self.options.max_error, d_min=3.0 * spacing if spacing > 0 else st.grid.tile_size / 2.0**21,
             max_edge=MAX_EDGE_SPACINGS * spacing if spacing > 0 else float("inf"), point_format=pf.id, version=src.version,
             extra_dims=[extra_dim(d) for d in pf.extra_dimensions], selection=ctx.run.selection.to_json(),
+            steps=list(coarse_steps(self.options.max_error, st.grid.scale)),
+            dropped=list(dict.fromkeys(keep_only(pf, RESIDUAL_KEPT) + dropped_fields(pf, self.options.drop, where=src.path))),
         )
         self.params["key"] = params_key(self.params)
         self.infos = ctx.map_tiles(compress_tile, label="compress", params=self.params)
@@ -217,10 +255,11 @@ class CompressJob(Job):
 
     def write(self, ctx: JobContext) -> None:
         st, src, pf, budget = ctx.store, ctx.source, self.point_format, self.options.max_error
-        head, evlrs = _header_bytes(src)
+        head, evlrs = raw_header(src.path)
         self.counts = pcz.write_pcz(
             ctx.output, _parts(st, budget), max_error=budget, grid=st.grid.to_json(), header=head, evlrs=evlrs,
             source=pcz_source(src, pf.id, self.record_source), record_bytes=pf.size - 12, overwrite=ctx.run.overwrite,
+            steps=self.params["steps"], dropped=self.params["dropped"],
         )
 
     def summarise(self, ctx: JobContext) -> CompressSummary:
@@ -233,7 +272,8 @@ class CompressJob(Job):
             mean_error=sum(i["abs_error"] for i in v) / max(modelled, 1), seconds=ctx.seconds,
             peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler, units=ctx.units.to_json(),
             left_out=dict(zip(REASONS, np.sum([i.get("left_out", [0] * len(REASONS)) for i in v], axis=0).astype(int).tolist()))
-            if v else {}, selection=ctx.run.selection.to_json(),
+            if v else {}, selection=ctx.run.selection.to_json(), steps=list(self.params["steps"]),
+            dropped=list(self.params["dropped"]), scales=list(ctx.store.grid.scale),
         )
 
 
@@ -293,7 +333,16 @@ def compress(
         if output is not None:
             raise PatchcloudValueError(f"{output}: with out_dir (--out-dir) every argument is an input; the outputs go to {run.out_dir}")
         return compress_catalog(input, options, run, record_source)
-    return run_job(CompressJob(options, record_source), input, output, run)
+    return run_job(_job(options, record_source), input, output, run)
+
+
+def _job(options: CompressOptions, record_source: bool) -> Job:
+    """The job ``options`` ask for: model mode (:class:`CompressJob`) or points mode (:class:`~.compress_points.PointsJob`)."""
+    if options.keep_points:
+        from patchcloud.stream.jobs.compress_points import PointsJob  # it builds on this module
+
+        return PointsJob(options, record_source)
+    return CompressJob(options, record_source)
 
 
 def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_source: bool = False) -> list[CompressSummary]:
@@ -314,4 +363,4 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
         outs = [check_writable(o, run.overwrite) for o in outs]
     out_dir.mkdir(exist_ok=True)
     one = dataclasses.replace(run, out_dir=None)
-    return [run_job(CompressJob(options, record_source), p, o, one) for p, o in zip(paths, outs)]
+    return [run_job(_job(options, record_source), p, o, one) for p, o in zip(paths, outs)]

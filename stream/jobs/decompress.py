@@ -39,8 +39,12 @@ class DecompressSummary:
     reconstructed: int
     residual: int
     seconds: float
+    mode: str = "model"  # or "points": every point of the input, in its order
 
     def format(self) -> str:
+        if self.mode == "points":
+            return (f"{self.input} -> {self.output}\n  points          {self.residual:,}, in input order\n"
+                    f"  time            {self.seconds:.1f} s")
         return (f"{self.input} -> {self.output}\n  points          {self.reconstructed + self.residual:,}: "
                 f"{self.reconstructed:,} sampled from patches, {self.residual:,} residual\n  time            {self.seconds:.1f} s")
 
@@ -92,6 +96,58 @@ def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
     if lod is not None:
         return np.maximum(models.count // 4**lod, 1).astype(np.int64)
     return models.count.astype(np.int64)
+
+
+def _check_laz_keeps(points: laspy.PackedPointRecord, output) -> None:
+    """Refuse to write to LAZ records that LAZ would not give back (:func:`~patchcloud.stream.io.pcz.wave_packets_break_laz`)."""
+    if is_laz_name(output) and pcz.wave_packets_break_laz(points):
+        raise PatchcloudValueError(f"{output}: LAZ (lazrs) does not keep the wave packet fields of point format "
+                                   f"{points.point_format.id} when the scanner channel changes; write LAS (.las) instead")
+
+
+def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | None, overwrite: bool) -> int:
+    """Write a points-mode ``.pcz``'s points (those in ``box``, if given) to ``output`` in input order; return how many."""
+    header = f.las_header()
+    raw = f.header_bytes
+    size, _, count = struct.unpack_from("<HII", raw, 94)
+    vlrs = parse_records(raw, size, count, False, f"{input}: the input's header")
+    n_evlrs = header.number_of_evlrs if header.version.minor >= 4 else 0
+    evlrs = parse_records(f.evlr_bytes(n_evlrs), 0, n_evlrs, True, f"{input}: the input's EVLRs")
+    kept = header.point_format.dtype()  # the input's records, as the blocks hold them
+    parameters = dict(bbox=None if box is None else box.tolist())
+    assemble_header(header, vlrs, evlrs, (), provenance_vlr("decompress", parameters), where=str(input))
+    evlrs = header.evlrs
+    scale, offset = np.asarray(header.scales), np.asarray(header.offsets)
+    blocks = range(len(f.bounds))
+    if box is not None:  # the box in the input's integers, widened to whole steps
+        blocks = f.blocks_in(np.floor((box[:3] - offset) / scale), np.ceil((box[3:] - offset) / scale))
+    stats, written = [], 0
+    with atomic_output(output, overwrite) as out:
+        with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
+                        laz_backend=laz_backend()) as writer:
+            for b in blocks:
+                xyz, rest = f.block(int(b))
+                records = np.zeros(len(xyz), kept)
+                rows = records.view(np.uint8).reshape(len(xyz), kept.itemsize)
+                rows[:, :12] = xyz.astype("<i4").view(np.uint8).reshape(len(xyz), 12)
+                rows[:, 12 : 12 + rest.shape[1]] = rest
+                if box is not None:
+                    p = xyz * scale + offset
+                    records = records[np.all((p >= box[:3]) & (p <= box[3:]), axis=1)]
+                rec = laspy.PackedPointRecord.zeros(len(records), header.point_format)
+                copy_records(records, rec.array)
+                _check_laz_keeps(rec, output)
+                if len(rec):
+                    writer.write_points(rec)
+                    stats.append(point_stats(header, rec))
+                written += len(rec)
+            if evlrs:
+                writer.write_evlrs(evlrs)
+        h = restate(writer.header, stats)
+        out.seek(0)
+        h.write_to(out, ensure_same_size=True)
+        legacy_counts(out, h)
+    return written
 
 
 @stops_what_it_starts()  # no thread of the run's left running (stream.engine.background)
@@ -151,6 +207,13 @@ def decompress(
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
+        if isinstance(f, pcz.PointsPczFile):
+            if density is not None or lod is not None:
+                raise PatchcloudValueError(f"{input}: holds every point (compress --keep-points): density and lod (--density, --lod) "
+                                           "apply to patch models only")
+            n = _decompress_points(f, input, output, box, overwrite)
+            return DecompressSummary(input=str(input), output=str(output), reconstructed=0, residual=n,
+                                     seconds=time.perf_counter() - t0, mode="points")
         header = f.las_header()
         raw = f.header_bytes
         size, _, count = struct.unpack_from("<HII", raw, 94)
@@ -187,6 +250,7 @@ def decompress(
                 p = np.column_stack([rec["X"], rec["Y"], rec["Z"]]) * scale + offset
                 inside = np.all((p >= box[:3]) & (p <= box[3:]), axis=1)
                 rec = laspy.PackedPointRecord(rec.array[inside], header.point_format)
+            _check_laz_keeps(rec, output)
             if len(rec):
                 writer.write_points(rec)
                 stats.append(point_stats(header, rec))

@@ -90,7 +90,8 @@ def info(path: str | os.PathLike) -> dict:
         with open_pcz(p) as f:
             a = f.attrs
             return {"kind": "pcz", "path": p, "bytes": os.path.getsize(p), "version": a["version"],
-                    "max_error": a["max_error"], "counts": a["counts"], "source": a["source"], "grid": a["grid"]}
+                    "mode": a.get("mode", "model"), "max_error": a["max_error"], "counts": a["counts"], "source": a["source"],
+                    "grid": a["grid"], "steps": list(f.steps), "dropped": f.dropped}
     if os.path.isfile(p):
         src = open_source(p)
         with laspy.open(p) as r:
@@ -175,12 +176,22 @@ def format_info(d: dict) -> str:
     if d["kind"] == "pcz":
         c = d["counts"]
         n = max(c["points"], 1)
-        return "\n".join([
-            f"{d['path']}: patchcloud .pcz version {d['version']}, {d['bytes']:,} bytes ({8 * d['bytes'] / n:.2f} bits/point)",
+        head = [
+            f"{d['path']}: patchcloud .pcz version {d['version']} ({d.get('mode', 'model')} mode), {d['bytes']:,} bytes "
+            f"({8 * d['bytes'] / n:.2f} bits/point)",
             f"  source       {d['source'].get('path')} ({d['source'].get('point_count', 0):,} points)",
+        ]
+        kept = [f"  positions    multiples {', '.join(map(str, d.get('steps', [1, 1, 1])))} of the source's integers",
+                f"  dropped      {', '.join(d.get('dropped') or []) or 'none'}"]
+        if d.get("mode") == "points":
+            return "\n".join([*head, f"  points       {c['points']:,}, every one in input order, in {c['blocks']:,} blocks",
+                              f"  max error    {d['max_error']:g} m", *kept])
+        return "\n".join([
+            *head,
             f"  points       {c['points']:,}: {c['points'] - c['residual']:,} on {c['patches']:,} patches ({c.get('cells', 0):,} octree cells), {c['residual']:,} residual",
             f"  max error    {d['max_error']:g} m",
             f"  tiles        {c['tiles']:,} of {d['grid']['tile_size']:g} m",
+            *kept,
         ])
     if d["kind"] == "las":
         lines = [

@@ -400,7 +400,7 @@ def compress_rows(summary: "CompressSummary") -> list[tuple[str, str]]:
     rows = [
         ("input", s.input), ("output", s.output), ("points", _n(s.points)),
         ("points on patches", _share(s.points - s.residual, s.points)), ("patches", _n(s.patches)),
-        ("residual points (kept exactly)", _share(s.residual, s.points)),
+        ("residual points", _share(s.residual, s.points)),
         ("error budget", f"{s.max_error:g} m"),
         ("mean error of the modelled points", f"{s.mean_error:.4f} m (before quantisation, which adds at most half the budget)"),
         ("input size", f"{s.input_bytes:,} bytes ({8 * s.input_bytes / n:.2f} bits/point)"),
@@ -605,7 +605,7 @@ def pcz_parts(path: str | os.PathLike) -> dict[str, int]:
     -------
     dict
         ``{"patch models": ..., "residual points": ..., "index and header": ..., "zip directory": ...}`` (bytes),
-        adding up to the file's size.
+        adding up to the file's size; a points-mode file's (``--keep-points``) points are ``"points"``.
     """
     p = Path(path)
     try:
@@ -613,13 +613,14 @@ def pcz_parts(path: str | os.PathLike) -> dict[str, int]:
             infos = z.infolist()
     except (OSError, zipfile.BadZipFile) as exc:
         raise PatchcloudIOError(f"{p}: not a readable .pcz file ({exc})") from exc
-    parts = {"patch models": 0, "residual points": 0, "index and header": 0}
+    parts = {"patch models": 0, "residual points": 0, "points": 0, "index and header": 0}
     for i in infos:
         top = i.filename.split("/", 1)[0]
-        key = "patch models" if top in ("patches", "cells") else "residual points" if top == "residual" else "index and header"
+        key = "patch models" if top in ("patches", "cells") else "residual points" if top == "residual" else \
+            "points" if top == "points" else "index and header"
         parts[key] += i.compress_size + 30 + len(i.filename.encode()) + len(i.extra)  # data + its local header
     parts["zip directory"] = max(p.stat().st_size - sum(parts.values()), 0)
-    return parts
+    return {k: v for k, v in parts.items() if v or k != "points"}  # "points": a points-mode file's (--keep-points)
 
 
 def _sum_by_slices(values, start: np.ndarray, step: int = 1 << 20) -> np.ndarray:
@@ -890,6 +891,10 @@ def report_compress(
         [s.max_error, s.mean_error, s.max_error / 2], title="Errors (metres)", xlabel="metres", fmt="{:.4f} m")),
         "The budget the patches fit within (RMS), the mean distance of the modelled points to their patch's surface "
         "before quantisation, and the most quantising the models adds.", "Figures"))
+    if s.mode == "points":  # no tiles, no patches
+        figures.pop()
+        return write_report(path, title=f"patchcloud compress --keep-points: {Path(s.input).name}", summary_rows=rows,
+                            figures=figures, notes=notes)
     t = pcz_tiles(s.output)
     total = t["patch_points"] + t["residual"]
     order = np.argsort(-total, kind="stable")[:max_tile_rows]

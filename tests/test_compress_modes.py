@@ -1,0 +1,179 @@
+"""The two modes of ``compress``: model mode within the budget point by point, points mode every point back exactly."""
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError, dequantise_models, patch_distances
+from patchcloud.stream import compress, decompress
+from patchcloud.stream.cli import main
+from patchcloud.stream.io import pcz
+from patchcloud.stream.io.point_coding import coarse_steps, coarsen, refine
+
+OFFSET = np.array([651000.0, 6862000.0, 0.0])
+BUDGET = 0.02
+
+
+def write_las(path, pts, point_format=6, seed=0, extra=True, scale=0.001):
+    """``pts`` (local metres) as LAS of ``point_format`` with every dimension filled at random (and an extra dimension)."""
+    rng = np.random.default_rng(seed)
+    h = laspy.LasHeader(point_format=point_format, version="1.4" if point_format >= 6 else "1.3" if point_format >= 4 else "1.2")
+    h.scales, h.offsets = [scale] * 3, OFFSET
+    if extra:
+        h.add_extra_dims([laspy.ExtraBytesParams(name="Deviation", type=np.float32),
+                          laspy.ExtraBytesParams(name="Echo", type="3u2")])
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = pts[:, 0] + OFFSET[0], pts[:, 1] + OFFSET[1], pts[:, 2]
+    n = len(pts)
+    for d in las.point_format.dimensions:
+        if d.name in ("X", "Y", "Z"):
+            continue
+        t = np.dtype(d.dtype)
+        shape = (n,) if d.num_elements == 1 else (n, d.num_elements)
+        if d.kind == laspy.DimensionKind.BitField:
+            v = rng.integers(0, 2 ** d.num_bits, n)
+        elif t.kind == "f":
+            v = rng.normal(size=shape).astype(t.base)
+        else:
+            info = np.iinfo(t.base)
+            v = rng.integers(max(info.min, -1000), min(info.max, 60000), shape).astype(t.base)
+        las[d.name] = v
+    if point_format < 6:
+        las.classification = rng.integers(0, 31, n)
+    if "gps_time" in las.point_format.dimension_names:
+        las.gps_time = np.sort(rng.uniform(0, 1000, n))
+    las.write(path)
+    return path
+
+
+def noisy_scene(rng, n=30000):
+    """A plane with noise of 0.6 budgets (a tenth of its points beyond the budget, but fitted within it) and a bush."""
+    xy = rng.uniform(0, 20, (n, 2))
+    ground = np.column_stack([xy, 0.05 * xy[:, 0] + rng.normal(0, 0.6 * BUDGET, n)])
+    bush = rng.normal([14.0, 6.0, 1.0], 0.5, (3000, 3))
+    return np.vstack([ground, bush])
+
+
+def test_model_mode_keeps_every_point_within_the_budget_of_its_patch_or_of_its_residual_point(tmp_path):
+    rng = np.random.default_rng(3)
+    src = write_las(tmp_path / "n.las", noisy_scene(rng), extra=False)
+    s = compress(src, tmp_path / "n.pcz", max_error=BUDGET, tile_size=8.0, quiet=True)
+    las = laspy.read(src)
+    X = np.column_stack([las.X, las.Y, las.Z]).astype(np.int64)
+    k = coarse_steps(BUDGET, las.header.scales)
+    coded = np.column_stack([refine(coarsen(X[:, a], k[a]), k[a]) for a in range(3)])
+    assert np.linalg.norm((coded - X) * 0.001, axis=1).max() <= BUDGET
+    with pcz.open_pcz(tmp_path / "n.pcz") as f:
+        origin = np.asarray(f.attrs["grid"]["origin"])
+        local = X * 0.001 + OFFSET - origin
+        near = np.zeros(len(X), bool)  # within the budget of the decoded patch of the octree cell the point is in
+        for t in range(len(f.tiles)):
+            m = dequantise_models(f.patches(t)[0])
+            lo, e = m.cell_corner(), m.edge
+            inside = np.flatnonzero(np.all((local >= m.root_corner) & (local < m.root_corner + m.root_edge), axis=1))
+            for c in range(len(e)):
+                rows = inside[np.all((local[inside] >= lo[c]) & (local[inside] < lo[c] + e[c]), axis=1)]
+                p = np.full(len(rows), m.cell_patch[c])
+                near[rows[patch_distances(m, local[rows], p) <= BUDGET]] = True
+        residual = np.concatenate([f.residual(t)[0] for t in range(len(f.tiles))]).astype(np.int64)
+    # every point not near its patch comes back as a residual point at its coded position
+    key = lambda a: a[:, 0] * 10**12 + a[:, 1] * 10**6 + a[:, 2]  # noqa: E731 (coordinates below 10**6 here)
+    res_keys, res_n = np.unique(key(residual), return_counts=True)
+    far = ~near
+    far_keys, far_n = np.unique(key(coded[far]), return_counts=True)
+    pos = np.searchsorted(res_keys, far_keys)
+    assert np.all(res_keys[np.minimum(pos, len(res_keys) - 1)] == far_keys) and np.all(res_n[pos] >= far_n)
+    assert far.sum() > 1500 and s.residual >= far.sum()  # the noise puts many points beyond the budget: residual
+    assert s.points - s.residual > 0.3 * s.points  # the plane is modelled still
+
+
+@pytest.mark.parametrize("point_format", range(11))
+def test_points_mode_gives_every_point_back_in_order_with_every_attribute(tmp_path, point_format):
+    rng = np.random.default_rng(point_format)
+    src = write_las(tmp_path / "a.las", noisy_scene(rng, 4000), point_format=point_format, seed=point_format)
+    s = compress(src, tmp_path / "a.pcz", max_error=0.05, keep_points=True, quiet=True)
+    assert s.mode == "points" and s.points == 7000 and s.steps == [57, 57, 57]  # floor(2 x 5 cm / (sqrt(3) x 1 mm))
+    out = tmp_path / "b.laz"
+    if point_format in (9, 10):  # lazrs shifts their wave packet offsets where the scanner channel changes: refused
+        with pytest.raises(PatchcloudValueError, match="write LAS"):
+            decompress(tmp_path / "a.pcz", out)
+        assert not out.exists()
+        out = tmp_path / "b.las"
+    decompress(tmp_path / "a.pcz", out)
+    a, b = laspy.read(src), laspy.read(out)
+    assert b.point_format.id == point_format and list(b.point_format.dimension_names) == list(a.point_format.dimension_names)
+    for name in a.point_format.dimension_names:
+        if name not in ("X", "Y", "Z"):
+            assert np.asarray(b[name]).tobytes() == np.asarray(a[name]).tobytes(), name
+    d = np.sqrt((a.x - b.x) ** 2 + (a.y - b.y) ** 2 + (a.z - b.z) ** 2)
+    assert 0.01 < d.max() <= 0.05
+    assert np.array_equal(b.X, refine(coarsen(a.X, 57), 57))  # the coded positions, point by point, in input order
+
+
+def test_points_mode_below_the_grid_is_exact_and_drop_zeroes_exactly_what_it_names(tmp_path):
+    rng = np.random.default_rng(1)
+    src = write_las(tmp_path / "a.las", noisy_scene(rng, 4000), scale=0.01)
+    s = compress(src, tmp_path / "a.pcz", max_error=0.01, keep_points=True, drop=("GpsTime", "Echo", "user_data"), quiet=True)
+    assert s.steps == [1, 1, 1] and s.dropped == ["gps_time", "Echo", "user_data"]
+    decompress(tmp_path / "a.pcz", tmp_path / "b.las")
+    a, b = laspy.read(src), laspy.read(tmp_path / "b.las")
+    for name in a.point_format.dimension_names:
+        same = np.asarray(b[name]).tobytes() == np.asarray(a[name]).tobytes()
+        if name in ("gps_time", "Echo", "user_data"):
+            assert not np.asarray(b[name]).any() and np.asarray(a[name]).any(), name
+        else:
+            assert same, name  # X, Y, Z too: the budget is below the file's 1 cm grid
+    small = tmp_path / "d.pcz"
+    compress(src, small, max_error=0.01, keep_points=True, quiet=True)
+    assert (tmp_path / "a.pcz").stat().st_size < small.stat().st_size
+
+
+def test_points_mode_does_not_depend_on_the_part_size_or_the_scheduler_and_reads_a_box(tmp_path):
+    rng = np.random.default_rng(2)
+    src = write_las(tmp_path / "a.las", noisy_scene(rng, 120000))
+    compress(src, tmp_path / "one.pcz", max_error=0.05, keep_points=True, quiet=True, scheduler="synchronous")
+    compress(src, tmp_path / "two.pcz", max_error=0.05, keep_points=True, quiet=True, scheduler="threads", workers=2, chunk=50000)
+    again = compress(src, tmp_path / "one2.pcz", max_error=0.05, keep_points=True, quiet=True, scheduler="synchronous")
+    assert (tmp_path / "one.pcz").read_bytes() == (tmp_path / "one2.pcz").read_bytes() and again.points == 123000
+    with pcz.open_pcz(tmp_path / "two.pcz") as f:
+        assert len(f.bounds) == 3
+    decompress(tmp_path / "one.pcz", tmp_path / "one.las")
+    decompress(tmp_path / "two.pcz", tmp_path / "two.las")
+    a, b = laspy.read(tmp_path / "one.las"), laspy.read(tmp_path / "two.las")
+    assert np.asarray(a.points.array).tobytes() == np.asarray(b.points.array).tobytes()
+    box = (OFFSET[0] + 2, OFFSET[1] + 3, -5.0, OFFSET[0] + 6, OFFSET[1] + 9, 5.0)
+    decompress(tmp_path / "two.pcz", tmp_path / "box.las", bbox=box)
+    part = laspy.read(tmp_path / "box.las")
+    inside = (a.x >= box[0]) & (a.x <= box[3]) & (a.y >= box[1]) & (a.y <= box[4]) & (a.z >= box[2]) & (a.z <= box[5])
+    assert 0 < len(part.points) == int(inside.sum())
+    assert np.asarray(part.points.array).tobytes() == np.asarray(a.points.array[inside]).tobytes()
+
+
+def test_points_mode_bad_requests_and_damaged_files_are_one_line(tmp_path):
+    rng = np.random.default_rng(4)
+    src = write_las(tmp_path / "a.las", noisy_scene(rng, 2000))
+    r = CliRunner().invoke(main, ["compress", str(src), str(tmp_path / "x.pcz"), "--keep-points", "--drop", "Colour"])
+    assert r.exit_code != 0 and "cannot drop 'Colour'" in r.output and "GpsTime" in r.output
+    assert not (tmp_path / "x.pcz").exists()
+    with pytest.raises(PatchcloudValueError, match="drop must be dimension names"):
+        compress(src, tmp_path / "x.pcz", keep_points=True, drop=(3,))
+    compress(src, tmp_path / "a.pcz", keep_points=True, quiet=True)
+    r = CliRunner().invoke(main, ["decompress", str(tmp_path / "a.pcz"), str(tmp_path / "b.las"), "--lod", "1"])
+    assert r.exit_code != 0 and "holds every point (compress --keep-points)" in r.output and not (tmp_path / "b.las").exists()
+    raw = (tmp_path / "a.pcz").read_bytes()
+    (tmp_path / "cut.pcz").write_bytes(raw[: len(raw) // 2])
+    r = CliRunner().invoke(main, ["decompress", str(tmp_path / "cut.pcz"), str(tmp_path / "c.las")])
+    assert r.exit_code != 0 and "cut.pcz" in r.output and "Traceback" not in r.output and not (tmp_path / "c.las").exists()
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "a.pcz")])
+    assert r.exit_code == 0 and "points mode" in r.output and "every one in input order" in r.output
+
+
+def test_a_block_whose_laz_disagrees_with_the_index_is_refused(tmp_path):
+    rng = np.random.default_rng(5)
+    src = write_las(tmp_path / "a.las", noisy_scene(rng, 2000))
+    compress(src, tmp_path / "a.pcz", keep_points=True, quiet=True)
+    with pcz.open_pcz(tmp_path / "a.pcz") as f:
+        f.attrs["record_bytes"] += 1
+        with pytest.raises(PatchcloudIOError, match="block 0: its LAZ header says 5,000 points of"):
+            f.block(0)
