@@ -425,26 +425,10 @@ class PczFile:
         """Tile ``t``'s residual points: LAS integer xyz (R, 3) int32 and the rest of their records (R, B) uint8."""
         s = slice(int(self.residual_byte_start[t]), int(self.residual_byte_start[t + 1]))
         n = int(self.residual_start[t + 1] - self.residual_start[t])
-        B = int(self.attrs["record_bytes"])
         if n == 0:
+            B = int(self.attrs["record_bytes"])
             return np.zeros((0, 3), np.int32), np.zeros((0, B), np.uint8)
-        name = f"{self.path}: the residual points of tile {tile_name(self.tiles[t])}"
-        check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
-        raw = self._read("residual/laz", s).tobytes()
-        check_header_sizes(name, raw[:375], len(raw))
-        said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
-        if said != n or record != B + 12:
-            raise PatchcloudIOError(f"{name}: their LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {B + 12}")
-        try:
-            las = laspy.read(io.BytesIO(raw))
-        except Exception as exc:
-            raise PatchcloudIOError(f"{self.path}: the residual points of tile {tile_name(self.tiles[t])} cannot be read ({exc})") from exc
-        raw = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
-        if raw.shape != (n, B + 12):
-            raise PatchcloudIOError(f"{self.path}: tile {tile_name(self.tiles[t])} holds {raw.shape[0]} residual points of "
-                                    f"{raw.shape[1]} bytes, the index says {n} of {B + 12}")
-        xyz = raw[:, :12].copy().view("<i4").reshape(n, 3)
-        return _refined(self.path, xyz, self.steps, f"tile {tile_name(self.tiles[t])}"), raw[:, 12:].copy()
+        return _stored_records(self, "residual/laz", s, n, f"the residual points of tile {tile_name(self.tiles[t])}", "their")
 
     @property
     def steps(self) -> tuple[int, int, int]:
@@ -464,6 +448,28 @@ class PczFile:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _stored_records(f, array: str, s: slice, n: int, what: str, pronoun: str) -> tuple[np.ndarray, np.ndarray]:
+    """Bytes ``s`` of ``array`` of the open file ``f``, a LAS/LAZ file of ``n`` records (checked against the index and the
+    memory budget): X, Y, Z on the input's grid (n, 3) int32 (:func:`_refined`) and the rest of the records (n, B) uint8."""
+    B = int(f.attrs["record_bytes"])
+    name = f"{f.path}: {what}"
+    check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
+    raw = f._read(array, s).tobytes()
+    check_header_sizes(name, raw[:375], len(raw))
+    said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
+    if said != n or record != B + 12:
+        raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {B + 12}")
+    try:
+        las = laspy.read(io.BytesIO(raw))
+    except Exception as exc:
+        raise PatchcloudIOError(f"{name} cannot be read ({exc})") from exc
+    rows = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
+    if rows.shape != (n, B + 12):
+        raise PatchcloudIOError(f"{name}: {rows.shape[0]} points of {rows.shape[1]} bytes, the index says {n} of {B + 12}")
+    xyz = _refined(f.path, rows[:, :12].copy().view("<i4").reshape(n, 3), f.steps, what)
+    return xyz, rows[:, 12:].copy()
 
 
 def _refined(path, xyz: np.ndarray, steps, where: str) -> np.ndarray:
@@ -505,24 +511,7 @@ class PointsPczFile:
     def block(self, b: int) -> tuple[np.ndarray, np.ndarray]:
         """Block ``b``'s points in input order: X, Y, Z on the input's grid (n, 3) int32, the rest of their records (n, B) uint8."""
         s = slice(int(self.byte_start[b]), int(self.byte_start[b + 1]))
-        n = int(self.point_start[b + 1] - self.point_start[b])
-        B = int(self.attrs["record_bytes"])
-        name = f"{self.path}: block {b}"
-        check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
-        raw = self._read("points/laz", s).tobytes()
-        check_header_sizes(name, raw[:375], len(raw))
-        said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
-        if said != n or record != B + 12:
-            raise PatchcloudIOError(f"{name}: its LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {B + 12}")
-        try:
-            las = laspy.read(io.BytesIO(raw))
-        except Exception as exc:
-            raise PatchcloudIOError(f"{name} cannot be read ({exc})") from exc
-        rows = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
-        if rows.shape != (n, B + 12):
-            raise PatchcloudIOError(f"{name} holds {rows.shape[0]} points of {rows.shape[1]} bytes, the index says {n} of {B + 12}")
-        xyz = _refined(self.path, rows[:, :12].copy().view("<i4").reshape(n, 3), self.steps, f"block {b}")
-        return xyz, rows[:, 12:].copy()
+        return _stored_records(self, "points/laz", s, int(self.point_start[b + 1] - self.point_start[b]), f"block {b}", "its")
 
     def close(self) -> None:
         self._store.close()

@@ -105,17 +105,23 @@ def _check_laz_keeps(points: laspy.PackedPointRecord, output) -> None:
                                    f"{points.point_format.id} when the scanner channel changes; write LAS (.las) instead")
 
 
-def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | None, overwrite: bool) -> int:
-    """Write a points-mode ``.pcz``'s points (those in ``box``, if given) to ``output`` in input order; return how many."""
+def _output_header(f, input, dims, parameters: dict) -> tuple[laspy.LasHeader, np.dtype]:
+    """The output's header (the input's, its VLRs and EVLRs, ``dims`` added, a provenance VLR of ``parameters``) and the
+    input's record type (as the ``.pcz`` holds its records)."""
     header = f.las_header()
     raw = f.header_bytes
     size, _, count = struct.unpack_from("<HII", raw, 94)
     vlrs = parse_records(raw, size, count, False, f"{input}: the input's header")
     n_evlrs = header.number_of_evlrs if header.version.minor >= 4 else 0
     evlrs = parse_records(f.evlr_bytes(n_evlrs), 0, n_evlrs, True, f"{input}: the input's EVLRs")
-    kept = header.point_format.dtype()  # the input's records, as the blocks hold them
-    parameters = dict(bbox=None if box is None else box.tolist())
-    assemble_header(header, vlrs, evlrs, (), provenance_vlr("decompress", parameters), where=str(input))
+    kept = header.point_format.dtype()
+    assemble_header(header, vlrs, evlrs, dims, provenance_vlr("decompress", parameters), where=str(input))
+    return header, kept
+
+
+def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | None, overwrite: bool) -> int:
+    """Write a points-mode ``.pcz``'s points (those in ``box``, if given) to ``output`` in input order; return how many."""
+    header, kept = _output_header(f, input, (), dict(bbox=None if box is None else box.tolist()))
     evlrs = header.evlrs
     scale, offset = np.asarray(header.scales), np.asarray(header.offsets)
     blocks = range(len(f.bounds))
@@ -214,15 +220,8 @@ def decompress(
             n = _decompress_points(f, input, output, box, overwrite)
             return DecompressSummary(input=str(input), output=str(output), reconstructed=0, residual=n,
                                      seconds=time.perf_counter() - t0, mode="points")
-        header = f.las_header()
-        raw = f.header_bytes
-        size, _, count = struct.unpack_from("<HII", raw, 94)
-        vlrs = parse_records(raw, size, count, False, f"{input}: the input's header")
-        n_evlrs = header.number_of_evlrs if header.version.minor >= 4 else 0
-        evlrs = parse_records(f.evlr_bytes(n_evlrs), 0, n_evlrs, True, f"{input}: the input's EVLRs")
-        kept = header.point_format.dtype()  # the input's records, as the residual blocks hold them
         parameters = dict(density=density, lod=lod, bbox=None if box is None else box.tolist(), seed=seed)
-        assemble_header(header, vlrs, evlrs, DECOMPRESS_DIMS, provenance_vlr("decompress", parameters), where=str(input))
+        header, kept = _output_header(f, input, DECOMPRESS_DIMS, parameters)
         evlrs = header.evlrs
         g = f.attrs["grid"]
         origin, scale, offset = (np.asarray(g[k], dtype=np.float64) for k in ("origin", "scale", "offset"))
