@@ -119,6 +119,14 @@ def _output_header(f, input, dims, parameters: dict) -> tuple[laspy.LasHeader, n
     return header, kept
 
 
+def _finish(out, writer, stats: list) -> None:
+    """Rewrite the written file's header with the statistics of what was written (bounds, counts by return)."""
+    h = restate(writer.header, stats)
+    out.seek(0)
+    h.write_to(out, ensure_same_size=True)
+    legacy_counts(out, h)
+
+
 def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | None, overwrite: bool) -> int:
     """Write a points-mode ``.pcz``'s points (those in ``box``, if given) to ``output`` in input order; return how many."""
     header, kept = _output_header(f, input, (), dict(bbox=None if box is None else box.tolist()))
@@ -149,10 +157,7 @@ def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | No
                 written += len(rec)
             if evlrs:
                 writer.write_evlrs(evlrs)
-        h = restate(writer.header, stats)
-        out.seek(0)
-        h.write_to(out, ensure_same_size=True)
-        legacy_counts(out, h)
+        _finish(out, writer, stats)
     return written
 
 
@@ -293,9 +298,6 @@ def decompress(
                     write(writer, resid, True)
                 if evlrs:
                     writer.write_evlrs(evlrs)
-            h = restate(writer.header, stats)
-            out.seek(0)
-            h.write_to(out, ensure_same_size=True)
-            legacy_counts(out, h)
+            _finish(out, writer, stats)
     return DecompressSummary(input=str(input), output=str(output), reconstructed=written[0], residual=written[1],
                              seconds=time.perf_counter() - t0)
