@@ -322,30 +322,29 @@ def write_points_pcz(
     return counts
 
 
-class PczFile:
-    """An open ``.pcz`` (see :func:`open_pcz`): its attributes, and its patches and residual points by tile or region."""
+def _refined(path, xyz: np.ndarray, steps, where: str) -> np.ndarray:
+    """(n, 3) int32: stored X, Y, Z (multiples ``steps`` of the input's integers) back on the input's grid; beyond int32: damaged."""
+    if tuple(steps) == (1, 1, 1):
+        return xyz
+    out = np.column_stack([refine(xyz[:, a], int(steps[a])) for a in range(3)])
+    if out.size and (out.min() < -(2**31) or out.max() >= 2**31):
+        raise PatchcloudIOError(f"{path}: damaged .pcz file ({where}'s coordinates lie beyond what LAS coordinates can hold)")
+    return out.astype(np.int32)
 
-    def __init__(self, path: str, root: zarr.Group, store, largest_cell: int = 0) -> None:
+
+class _OpenPcz:
+    """What both modes of an open ``.pcz`` share: its attributes, the input's header and EVLRs, and its stored records."""
+
+    def __init__(self, path: str, root: zarr.Group, store) -> None:
         self.path = path
-        #: The most points one cell stands for.
-        self.largest_cell = largest_cell
         self.root = root
         self._store = store
         self.attrs = dict(root.attrs)
-        self.tiles = root["tiles/ijk"][...]
-        self.patch_start = root["tiles/patch_start"][...]
-        self.cell_start = root["tiles/cell_start"][...]
-        self.residual_start = root["tiles/residual_start"][...]
-        self.residual_byte_start = root["tiles/residual_byte_start"][...]
 
     # -- what the file says -------------------------------------------------
     @property
     def max_error(self) -> float:
         return float(self.attrs["max_error"])
-
-    @property
-    def tile_size(self) -> float:
-        return float(self.attrs["grid"]["tile_size"])
 
     @property
     def header_bytes(self) -> bytes:
@@ -373,13 +372,6 @@ class PczFile:
                                     f"the file says {int(self.attrs['record_bytes']) + 12}")
         return header
 
-    def tiles_in(self, lo, hi) -> np.ndarray:
-        """Positions of the tiles whose cube meets the box ``lo``..``hi`` (the grid's local frame, metres)."""
-        T = self.tile_size
-        a = self.tiles * T
-        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-        return np.flatnonzero(np.all((a <= hi) & (a + T >= lo), axis=1))
-
     def evlr_bytes(self, count: int) -> bytes:
         """The bytes of the input's ``count`` extended VLRs (LAS 1.4), as they were; empty when it had none."""
         raw = bytes(self._read("evlrs")) if count else b""
@@ -398,6 +390,71 @@ class PczFile:
             return VLRList(VLRList.read_from(io.BytesIO(raw), count, extended=True))
         except Exception as exc:
             raise PatchcloudIOError(f"{self.path}: the extended VLRs cannot be read ({exc})") from exc
+
+    @property
+    def steps(self) -> tuple[int, int, int]:
+        """The multiples of the input's integers the residual points' X, Y, Z were rounded to (version 2: exact, 1)."""
+        return tuple(self.attrs.get("steps", (1, 1, 1)))
+
+    @property
+    def dropped(self) -> list[str]:
+        """The residual points' dimensions written as zeros (version 2: none)."""
+        return list(self.attrs.get("dropped", ()))
+
+    def _records(self, array: str, s: slice, n: int, what: str, pronoun: str) -> tuple[np.ndarray, np.ndarray]:
+        """Bytes ``s`` of ``array``, a LAS/LAZ file of ``n`` records (checked against the index and the
+        memory budget): X, Y, Z on the input's grid (n, 3) int32 (:func:`_refined`) and the rest of the records (n, B) uint8."""
+        B = int(self.attrs["record_bytes"])
+        name = f"{self.path}: {what}"
+        check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
+        raw = self._read(array, s).tobytes()
+        check_header_sizes(name, raw[:375], len(raw))
+        said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
+        if said != n or record != B + 12:
+            raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {B + 12}")
+        try:
+            las = laspy.read(io.BytesIO(raw))
+        except Exception as exc:
+            raise PatchcloudIOError(f"{name} cannot be read ({exc})") from exc
+        rows = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
+        if rows.shape != (n, B + 12):
+            raise PatchcloudIOError(f"{name}: {rows.shape[0]} points of {rows.shape[1]} bytes, the index says {n} of {B + 12}")
+        xyz = _refined(self.path, rows[:, :12].copy().view("<i4").reshape(n, 3), self.steps, what)
+        return xyz, rows[:, 12:].copy()
+
+    def close(self) -> None:
+        self._store.close()
+
+    def __enter__(self) -> "_OpenPcz":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class PczFile(_OpenPcz):
+    """An open model-mode ``.pcz`` (see :func:`open_pcz`): its attributes, and its patches and residual points by tile or region."""
+
+    def __init__(self, path: str, root: zarr.Group, store, largest_cell: int = 0) -> None:
+        super().__init__(path, root, store)
+        #: The most points one cell stands for.
+        self.largest_cell = largest_cell
+        self.tiles = root["tiles/ijk"][...]
+        self.patch_start = root["tiles/patch_start"][...]
+        self.cell_start = root["tiles/cell_start"][...]
+        self.residual_start = root["tiles/residual_start"][...]
+        self.residual_byte_start = root["tiles/residual_byte_start"][...]
+
+    @property
+    def tile_size(self) -> float:
+        return float(self.attrs["grid"]["tile_size"])
+
+    def tiles_in(self, lo, hi) -> np.ndarray:
+        """Positions of the tiles whose cube meets the box ``lo``..``hi`` (the grid's local frame, metres)."""
+        T = self.tile_size
+        a = self.tiles * T
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        return np.flatnonzero(np.all((a <= hi) & (a + T >= lo), axis=1))
 
     # -- contents -------------------------------------------------------------
     def patches(self, t: int) -> tuple[QuantisedModels, np.ndarray, np.ndarray]:
@@ -428,79 +485,17 @@ class PczFile:
         if n == 0:
             B = int(self.attrs["record_bytes"])
             return np.zeros((0, 3), np.int32), np.zeros((0, B), np.uint8)
-        return _stored_records(self, "residual/laz", s, n, f"the residual points of tile {tile_name(self.tiles[t])}", "their")
-
-    @property
-    def steps(self) -> tuple[int, int, int]:
-        """The multiples of the input's integers the residual points' X, Y, Z were rounded to (version 2: exact, 1)."""
-        return tuple(self.attrs.get("steps", (1, 1, 1)))
-
-    @property
-    def dropped(self) -> list[str]:
-        """The residual points' dimensions written as zeros (version 2: none)."""
-        return list(self.attrs.get("dropped", ()))
-
-    def close(self) -> None:
-        self._store.close()
-
-    def __enter__(self) -> "PczFile":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        return self._records("residual/laz", s, n, f"the residual points of tile {tile_name(self.tiles[t])}", "their")
 
 
-def _stored_records(f, array: str, s: slice, n: int, what: str, pronoun: str) -> tuple[np.ndarray, np.ndarray]:
-    """Bytes ``s`` of ``array`` of the open file ``f``, a LAS/LAZ file of ``n`` records (checked against the index and the
-    memory budget): X, Y, Z on the input's grid (n, 3) int32 (:func:`_refined`) and the rest of the records (n, B) uint8."""
-    B = int(f.attrs["record_bytes"])
-    name = f"{f.path}: {what}"
-    check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
-    raw = f._read(array, s).tobytes()
-    check_header_sizes(name, raw[:375], len(raw))
-    said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
-    if said != n or record != B + 12:
-        raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {B + 12}")
-    try:
-        las = laspy.read(io.BytesIO(raw))
-    except Exception as exc:
-        raise PatchcloudIOError(f"{name} cannot be read ({exc})") from exc
-    rows = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
-    if rows.shape != (n, B + 12):
-        raise PatchcloudIOError(f"{name}: {rows.shape[0]} points of {rows.shape[1]} bytes, the index says {n} of {B + 12}")
-    xyz = _refined(f.path, rows[:, :12].copy().view("<i4").reshape(n, 3), f.steps, what)
-    return xyz, rows[:, 12:].copy()
-
-
-def _refined(path, xyz: np.ndarray, steps, where: str) -> np.ndarray:
-    """(n, 3) int32: stored X, Y, Z (multiples ``steps`` of the input's integers) back on the input's grid; beyond int32: damaged."""
-    if tuple(steps) == (1, 1, 1):
-        return xyz
-    out = np.column_stack([refine(xyz[:, a], int(steps[a])) for a in range(3)])
-    if out.size and (out.min() < -(2**31) or out.max() >= 2**31):
-        raise PatchcloudIOError(f"{path}: damaged .pcz file ({where}'s coordinates lie beyond what LAS coordinates can hold)")
-    return out.astype(np.int32)
-
-
-class PointsPczFile:
+class PointsPczFile(_OpenPcz):
     """An open points-mode ``.pcz`` (``compress --keep-points``; see :func:`open_pcz`): every input point, block by block."""
 
     def __init__(self, path: str, root: zarr.Group, store) -> None:
-        self.path = path
-        self.root = root
-        self._store = store
-        self.attrs = dict(root.attrs)
+        super().__init__(path, root, store)
         self.point_start = root["blocks/point_start"][...]
         self.byte_start = root["blocks/byte_start"][...]
         self.bounds = root["blocks/bounds"][...]
-
-    max_error = PczFile.max_error
-    header_bytes = PczFile.header_bytes
-    las_header = PczFile.las_header
-    evlr_bytes = PczFile.evlr_bytes
-    _read = PczFile._read
-    steps = PczFile.steps
-    dropped = PczFile.dropped
 
     def blocks_in(self, lo, hi) -> np.ndarray:
         """Positions of the blocks whose points' bounds meet the box ``lo``..``hi`` (integers of the input's grid)."""
@@ -511,16 +506,7 @@ class PointsPczFile:
     def block(self, b: int) -> tuple[np.ndarray, np.ndarray]:
         """Block ``b``'s points in input order: X, Y, Z on the input's grid (n, 3) int32, the rest of their records (n, B) uint8."""
         s = slice(int(self.byte_start[b]), int(self.byte_start[b + 1]))
-        return _stored_records(self, "points/laz", s, int(self.point_start[b + 1] - self.point_start[b]), f"block {b}", "its")
-
-    def close(self) -> None:
-        self._store.close()
-
-    def __enter__(self) -> "PointsPczFile":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        return self._records("points/laz", s, int(self.point_start[b + 1] - self.point_start[b]), f"block {b}", "its")
 
 
 def open_pcz(path: str | os.PathLike) -> PczFile | PointsPczFile:
