@@ -28,7 +28,7 @@ import numpy as np
 
 from patchcloud.core import PatchcloudValueError
 
-__all__ = ["PDAL_NAMES", "coarse_steps", "coarsen", "refine", "dropped_fields", "zero_fields", "keep_only"]
+__all__ = ["PDAL_NAMES", "coarse_steps", "coarsen", "refine", "coarse_records", "dropped_fields", "zero_fields", "keep_only"]
 
 #: laspy's field names and the PDAL dimension names users know them by (``--drop`` takes either, any case).
 PDAL_NAMES = {
@@ -104,3 +104,15 @@ def keep_only(point_format: laspy.PointFormat, kept) -> tuple[str, ...]:
     ('return_number', 'number_of_returns', 'scan_direction_flag')
     """
     return tuple(d for d in point_format.dimension_names if d not in _XYZ and d not in kept)
+
+
+def coarse_records(records: np.ndarray, pf: laspy.PointFormat, steps, dropped) -> np.ndarray:
+    """(R, L) uint8 records of ``pf`` (``records``: rows of bytes, or laspy's structured array) with X, Y, Z divided by
+    ``steps`` (:func:`coarsen`) and the ``dropped`` dimensions zero: what a ``.pcz`` keeps of a point (points mode, and
+    model mode's residual points)."""
+    rec = laspy.PackedPointRecord(np.ascontiguousarray(records).view(pf.dtype()).reshape(-1).copy(), pf)
+    zero_fields(rec, dropped)
+    for name, k in zip("XYZ", steps):
+        if k != 1:
+            rec[name] = coarsen(rec[name], k).astype(np.int32)
+    return rec.array.view(np.uint8).reshape(len(rec), pf.size)

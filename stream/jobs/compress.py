@@ -35,10 +35,10 @@ from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
 from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source, raw_header
-from patchcloud.stream.io.point_coding import coarse_steps, coarsen, dropped_fields, keep_only, zero_fields
+from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, dropped_fields, keep_only
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format", "coarse_records", "RESIDUAL_KEPT"]
+__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format", "RESIDUAL_KEPT"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -187,17 +187,6 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
                 left_out=np.bincount(why, minlength=len(REASONS) + 1)[1:].tolist())
     store.mark_tile(ijk, "compress", key, compress=info)
     return info
-
-
-def coarse_records(records: np.ndarray, pf: laspy.PointFormat, steps, dropped) -> np.ndarray:
-    """(R, L) uint8 records of ``pf`` with X, Y, Z divided by ``steps`` (:mod:`patchcloud.stream.io.point_coding`) and the
-    ``dropped`` dimensions zero: what a ``.pcz`` keeps of residual points."""
-    rec = laspy.PackedPointRecord(np.ascontiguousarray(records).view(pf.dtype()).reshape(-1).copy(), pf)
-    zero_fields(rec, dropped)
-    for name, k in zip("XYZ", steps):
-        if k != 1:
-            rec[name] = coarsen(rec[name], k).astype(np.int32)
-    return rec.array.view(np.uint8).reshape(len(rec), pf.size)
 
 
 def _parts(st: Store, max_error: float):

@@ -34,7 +34,7 @@ from patchcloud.stream.engine.job import Job, JobContext
 from patchcloud.stream.io import pcz
 from patchcloud.stream.jobs.compress import CompressSummary, pcz_source
 from patchcloud.stream.io.las import LasSource, raw_header, read_range
-from patchcloud.stream.io.point_coding import coarse_steps, coarsen, dropped_fields, refine, zero_fields
+from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, dropped_fields, refine
 
 __all__ = ["PointsJob", "encode_block", "blocks_folder"]
 
@@ -52,21 +52,17 @@ def encode_block(src: LasSource, first: int, count: int, steps, dropped, folder:
     decoded integer coordinates (the input's grid).
     """
     pts = read_range(src, first, count, parallel=laz_parallel)
-    rec = laspy.PackedPointRecord(np.ascontiguousarray(pts.array), pts.point_format)
-    zero_fields(rec, dropped)
-    bounds = []
-    for name, k in zip("XYZ", steps):
-        q = coarsen(rec[name], k)
-        back = refine(q, k)
-        bounds.append((int(back.min()), int(back.max())) if len(back) else (0, 0))
-        rec[name] = q.astype(np.int32)
+    pf = pts.point_format
+    rows = coarse_records(pts.array, pf, steps, dropped)
+    back = np.column_stack([refine(rows[:, 4 * a : 4 * a + 4].copy().view("<i4").ravel(), k) for a, k in enumerate(steps)])
+    bounds = np.r_[back.min(axis=0), back.max(axis=0)].tolist() if len(back) else [0] * 6
     s = np.asarray(src.scale, dtype=np.float64) * np.asarray(steps)
-    raw = pcz.residual_laz(rec.array.view(np.uint8).reshape(len(rec), rec.point_format.size), rec.point_format, src.version, s, src.offset)
+    raw = pcz.residual_laz(rows, pf, src.version, s, src.offset)
     path = Path(folder) / f"{b:06d}.laz"
     tmp = path.with_name(path.name + ".partial")
     tmp.write_bytes(raw)
     tmp.replace(path)
-    return dict(count=int(count), bytes=len(raw), bounds=[lo for lo, _ in bounds] + [hi for _, hi in bounds])
+    return dict(count=int(count), bytes=len(raw), bounds=[int(v) for v in bounds])
 
 
 class PointsJob(Job):
