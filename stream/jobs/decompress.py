@@ -127,6 +127,32 @@ def _finish(out, writer, stats: list) -> None:
     legacy_counts(out, h)
 
 
+def _stored_points(header: laspy.LasHeader, kept: np.dtype, xyz: np.ndarray, rest: np.ndarray) -> laspy.PackedPointRecord:
+    """Records of the output's point format from stored points: X, Y, Z (n, 3) and the rest of the input's records (n, B)
+    bytes, ``kept`` the input's record type; the dimensions the output adds are zero."""
+    records = np.zeros(len(xyz), kept)
+    rows = records.view(np.uint8).reshape(len(xyz), kept.itemsize)
+    rows[:, :12] = xyz.astype("<i4").view(np.uint8).reshape(len(xyz), 12)
+    rows[:, 12 : 12 + rest.shape[1]] = rest
+    rec = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
+    copy_records(records, rec.array)
+    return rec
+
+
+def _write_points(writer, header: laspy.LasHeader, rec: laspy.PackedPointRecord, box: np.ndarray | None, output, stats: list) -> int:
+    """Write those of ``rec`` inside ``box`` (the file's coordinates; all without one), keeping their header statistics in
+    ``stats``; a LAZ output of records LAZ would not give back is refused.  Returns how many were written."""
+    if box is not None and len(rec):
+        p = np.column_stack([rec["X"], rec["Y"], rec["Z"]]) * np.asarray(header.scales) + np.asarray(header.offsets)
+        inside = np.all((p >= box[:3]) & (p <= box[3:]), axis=1)
+        rec = laspy.PackedPointRecord(rec.array[inside], header.point_format)
+    _check_laz_keeps(rec, output)
+    if len(rec):
+        writer.write_points(rec)
+        stats.append(point_stats(header, rec))
+    return len(rec)
+
+
 def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | None, overwrite: bool) -> int:
     """Write a points-mode ``.pcz``'s points (those in ``box``, if given) to ``output`` in input order; return how many."""
     header, kept = _output_header(f, input, (), dict(bbox=None if box is None else box.tolist()))
@@ -140,21 +166,7 @@ def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | No
         with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
                         laz_backend=laz_backend()) as writer:
             for b in blocks:
-                xyz, rest = f.block(int(b))
-                records = np.zeros(len(xyz), kept)
-                rows = records.view(np.uint8).reshape(len(xyz), kept.itemsize)
-                rows[:, :12] = xyz.astype("<i4").view(np.uint8).reshape(len(xyz), 12)
-                rows[:, 12 : 12 + rest.shape[1]] = rest
-                if box is not None:
-                    p = xyz * scale + offset
-                    records = records[np.all((p >= box[:3]) & (p <= box[3:]), axis=1)]
-                rec = laspy.PackedPointRecord.zeros(len(records), header.point_format)
-                copy_records(records, rec.array)
-                _check_laz_keeps(rec, output)
-                if len(rec):
-                    writer.write_points(rec)
-                    stats.append(point_stats(header, rec))
-                written += len(rec)
+                written += _write_points(writer, header, _stored_points(header, kept, *f.block(int(b))), box, output, stats)
             if evlrs:
                 writer.write_evlrs(evlrs)
         _finish(out, writer, stats)
@@ -250,15 +262,7 @@ def decompress(
         stats = []  # each written batch's header statistics (laspy's writer records the extra bytes' first values only)
 
         def write(writer, rec, is_res: bool) -> None:
-            if box is not None and len(rec):
-                p = np.column_stack([rec["X"], rec["Y"], rec["Z"]]) * scale + offset
-                inside = np.all((p >= box[:3]) & (p <= box[3:]), axis=1)
-                rec = laspy.PackedPointRecord(rec.array[inside], header.point_format)
-            _check_laz_keeps(rec, output)
-            if len(rec):
-                writer.write_points(rec)
-                stats.append(point_stats(header, rec))
-            written[int(is_res)] += len(rec)
+            written[int(is_res)] += _write_points(writer, header, rec, box, output, stats)
 
         with atomic_output(output, overwrite) as out:
             with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
@@ -289,13 +293,7 @@ def decompress(
                         write(writer, sampled, False)
                     rxyz, rrec = f.residual(int(t))
                     check_in_tile(input, rxyz * scale + offset - origin, f.tiles[int(t)], f.tile_size)
-                    records = np.zeros(len(rxyz), kept)
-                    raw = records.view(np.uint8).reshape(len(rxyz), kept.itemsize)
-                    raw[:, :12] = rxyz.astype("<i4").view(np.uint8).reshape(len(rxyz), 12)
-                    raw[:, 12 : 12 + rrec.shape[1]] = rrec
-                    resid = laspy.PackedPointRecord.zeros(len(rxyz), header.point_format)
-                    copy_records(records, resid.array)
-                    write(writer, resid, True)
+                    write(writer, _stored_points(header, kept, rxyz, rrec), True)
                 if evlrs:
                     writer.write_evlrs(evlrs)
             _finish(out, writer, stats)
