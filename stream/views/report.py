@@ -886,15 +886,14 @@ def report_compress(
         list(parts), [8 * b / n for b in parts.values()], title=f"Bits per point by part ({8 * s.output_bytes / n:.2f} in all)",
         xlabel="bits per input point", fmt="{:.3f}")),
         "Bytes of each part of the .pcz (its zip entries with their headers) times 8, over the points of the input.", "Figures"))
+    if s.mode == "points":  # no patches, no tiles
+        return write_report(path, title=f"patchcloud compress --keep-points: {Path(s.input).name}", summary_rows=rows,
+                            figures=figures, notes=notes)
     figures.append(ReportFigure(figure_png(_bars_figure(
         ["error budget", "mean error, modelled points", "quantisation, at most"],
         [s.max_error, s.mean_error, s.max_error / 2], title="Errors (metres)", xlabel="metres", fmt="{:.4f} m")),
         "The budget the patches fit within (RMS), the mean distance of the modelled points to their patch's surface "
         "before quantisation, and the most quantising the models adds.", "Figures"))
-    if s.mode == "points":  # no tiles, no patches
-        figures.pop()
-        return write_report(path, title=f"patchcloud compress --keep-points: {Path(s.input).name}", summary_rows=rows,
-                            figures=figures, notes=notes)
     t = pcz_tiles(s.output)
     total = t["patch_points"] + t["residual"]
     order = np.argsort(-total, kind="stable")[:max_tile_rows]
