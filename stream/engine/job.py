@@ -64,7 +64,7 @@ from patchcloud.stream.io.crs import UNITS, Units, units_of
 from patchcloud.stream.io.las_records import provenance_vlr
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
-from patchcloud.stream.io.las import LasSource, check_las_output, check_not_input, check_writable, open_source, same_file
+from patchcloud.stream.io.las import LasSource, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
 from patchcloud.stream.io.budget import check_memory, max_memory
@@ -491,6 +491,7 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
         catalog = Catalog.of(open_source(input))
         catalog_units(catalog, run)
         _check_inputs_kept(catalog, [output], run.store)
+        check_laz_keeps(catalog.sources[0], output)
         url, in_memory = _store_url(run, catalog, default_store_path(output))
         return catalog, [Path(output)], Path(output), url, in_memory
     if output is not None:
@@ -504,6 +505,8 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
     catalog = open_catalog(paths, run.assume_crs)
     catalog_units(catalog, run)
     _check_inputs_kept(catalog, outs, run.store)
+    for src, o in zip(catalog.sources, outs):
+        check_laz_keeps(src, o)
     url, in_memory = _store_url(run, catalog, str(out_dir / "patchcloud.store"))
     out_dir.mkdir(exist_ok=True)
     return catalog, outs, out_dir, url, in_memory

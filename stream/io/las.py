@@ -28,7 +28,7 @@ from .las_records import (
 )
 
 __all__ = [
-    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend",
+    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
 ]
@@ -94,6 +94,55 @@ def check_las_output(path: str | os.PathLike) -> None:
         raise PatchcloudValueError(
             f"{path}: patchcloud writes LAS/LAZ, not COPC; name the output {plain} (a .copc.laz name is taken for COPC by PDAL and QGIS)"
         )
+
+
+#: The fields of point formats 9 and 10 that LAZ (lazrs 0.8) gives back shifted when the scanner channel changes.
+WAVE_PACKET_FIELDS = ("wavepacket_index", "wavepacket_offset", "wavepacket_size", "return_point_wave_location", "x_t", "y_t", "z_t")
+
+
+def wave_packets_break_laz(points: laspy.PackedPointRecord) -> bool:
+    """Whether LAZ (lazrs 0.8) would not give these records back.
+
+    Point formats 9 and 10 whose points change scanner channel come back
+    with their wave packet offsets, sizes, return locations and
+    x(t), y(t), z(t) shifted (measured with laspy and lazrs alone); when
+    all those fields are zero nothing is lost.
+
+    >>> pts = laspy.PackedPointRecord.zeros(3, laspy.PointFormat(9))
+    >>> pts["scanner_channel"] = [0, 1, 0]
+    >>> wave_packets_break_laz(pts)
+    False
+    >>> pts["wavepacket_size"] = [10, 20, 30]
+    >>> wave_packets_break_laz(pts)
+    True
+    """
+    if points.point_format.id not in (9, 10) or len(points) == 0:
+        return False
+    ch = np.asarray(points["scanner_channel"])
+    return bool((ch != ch[0]).any()) and any(np.asarray(points[d]).any() for d in WAVE_PACKET_FIELDS)
+
+
+def check_laz_keeps(src: LasSource, output: str | os.PathLike, chunk: int = 1_000_000) -> None:
+    """A PatchcloudValueError when ``output`` is LAZ and LAZ would not give back the records of ``src``
+    (:func:`wave_packets_break_laz`, over the whole file: read only for point formats 9 and 10).
+
+    Raises
+    ------
+    PatchcloudValueError
+        Naming the output, the input and the way out (a .las output).
+    """
+    if not is_laz_name(output) or src.point_format not in (9, 10):
+        return
+    channels, waves = set(), False
+    for _, pts in read_chunks(src, chunk):
+        if len(pts) == 0:
+            continue
+        channels.update(np.unique(np.asarray(pts["scanner_channel"])).tolist())
+        waves = waves or any(np.asarray(pts[d]).any() for d in WAVE_PACKET_FIELDS)
+        if waves and len(channels) > 1:
+            raise PatchcloudValueError(
+                f"{output}: LAZ (lazrs 0.8) would not keep the wave packet fields of {src.path} (point format "
+                f"{src.point_format}, whose scanner channel changes); give an output ending in .las (in --out-dir an output takes its input's suffix)")
 
 
 def without_copc(header: laspy.LasHeader) -> laspy.LasHeader:

@@ -86,12 +86,12 @@ from zarr.codecs import BloscCodec
 from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
 from .budget import check_memory
-from .las import check_header_sizes, check_header_values, undescribed_last, writable_version
+from .las import check_header_sizes, check_header_values, undescribed_last, wave_packets_break_laz, writable_version
 from .point_coding import refine
 from .store import tile_name
 
 __all__ = ["FORMAT", "VERSION", "READABLE", "ZIP_TIME", "TilePart", "PointsBlock", "write_pcz", "write_points_pcz", "PczFile",
-           "PointsPczFile", "open_pcz", "residual_laz", "wave_packets_break_laz"]
+           "PointsPczFile", "open_pcz", "residual_laz"]
 
 FORMAT = "patchcloud-pcz"
 VERSION = 3
@@ -722,7 +722,7 @@ def _las_point_count(raw: bytes) -> int:
 
 def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets) -> bytes:
     """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout); LAS where LAZ would
-    not give them back (:func:`wave_packets_break_laz`)."""
+    not give them back (:func:`~patchcloud.stream.io.las.wave_packets_break_laz`)."""
     h = laspy.LasHeader(point_format=point_format, version=writable_version(version))
     h.scales, h.offsets = np.asarray(scales, dtype=np.float64), np.asarray(offsets, dtype=np.float64)
     las = laspy.LasData(h)
@@ -732,12 +732,3 @@ def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: 
     buf = io.BytesIO()
     las.write(buf, do_compress=not wave_packets_break_laz(las.points), laz_backend=laspy.LazBackend.Lazrs)
     return buf.getvalue()
-
-
-def wave_packets_break_laz(points: laspy.PackedPointRecord) -> bool:
-    """Whether LAZ (lazrs 0.8) would not give these records back: point formats 9 and 10 whose points change scanner
-    channel (their wave packet offsets and sizes come back shifted; measured).  Such records are kept as LAS instead."""
-    if points.point_format.id not in (9, 10) or len(points) == 0:
-        return False
-    ch = np.asarray(points["scanner_channel"])
-    return bool((ch != ch[0]).any())

@@ -22,7 +22,7 @@ from patchcloud.core import MASK_SIDE, PatchcloudIOError, PatchcloudValueError, 
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.store import tile_name
-from patchcloud.stream.io.las import assemble_header, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend
+from patchcloud.stream.io.las import assemble_header, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, wave_packets_break_laz
 from patchcloud.stream.io.las_output import copy_records, legacy_counts, point_stats, restate
 from patchcloud.stream.io.las_records import parse_records, provenance_vlr
 from patchcloud.stream.engine.background import stops_what_it_starts
@@ -99,8 +99,8 @@ def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
 
 
 def _check_laz_keeps(points: laspy.PackedPointRecord, output) -> None:
-    """Refuse to write to LAZ records that LAZ would not give back (:func:`~patchcloud.stream.io.pcz.wave_packets_break_laz`)."""
-    if is_laz_name(output) and pcz.wave_packets_break_laz(points):
+    """Refuse to write to LAZ records that LAZ would not give back (:func:`~patchcloud.stream.io.las.wave_packets_break_laz`)."""
+    if is_laz_name(output) and wave_packets_break_laz(points):
         raise PatchcloudValueError(f"{output}: LAZ (lazrs) does not keep the wave packet fields of point format "
                                    f"{points.point_format.id} when the scanner channel changes; write LAS (.las) instead")
 
