@@ -1,4 +1,4 @@
-"""Difference-of-Normals benchmark: patchcloud's exact and fast modes against a scipy cKDTree baseline.
+"""Difference-of-Normals benchmark: patchcloud's exact and fast modes against PCL and a scipy cKDTree baseline.
 
     python tools/bench_don.py [--sizes 1000000 4000000] [--real [NAME ...]] [--rs 0.2] [--rl 2.0] [--aerial-radii 1 5]
                               [--baseline-queries 20000] [--exact-queries 0] [--out FILE]
@@ -17,6 +17,15 @@ Methods, each in a fresh subprocess that loads the cloud from a temporary
 - ``exact``: ``patchcloud.core.difference_of_normals(mode="exact")``, all
   points (or a random sample of ``--exact-queries`` points via ``at=``);
 - ``fast``: the same with ``mode="fast"``, all points;
+- ``fast-shifted``: fast mode on the cloud moved by (0.377, 0.613, 0.131)
+  times r_l: its voxels fall elsewhere on the points, so its agreement
+  with ``fast`` shows how much fast mode depends on the frame's origin;
+- ``pcl``: PCL's ``NormalEstimationOMP`` (radius search) at both radii and
+  ``DifferenceOfNormalsEstimation``, k-d tree build included, on as many
+  threads as patchcloud uses (tools/pcl_peer.py builds the C++ peer
+  against the Debian package libpcl-dev; skipped with the reason when
+  missing); PCL writes a zero DoN where a normal is undefined, so its
+  undefined share reads 0 %;
 - ``baseline``: scipy ``cKDTree.query_ball_point`` (both cores) + PCA of
   each ball (moments by ``np.bincount``, batched ``np.linalg.eigh``) at
   both radii, on a random sample of ``--baseline-queries`` points with the
@@ -53,7 +62,11 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "data"
-METHODS = ("exact", "fast", "baseline")
+METHODS = ("exact", "fast", "fast-shifted", "pcl", "baseline")
+#: fast-shifted moves the cloud by this many r_l (not a multiple of any voxel edge)
+SHIFT = np.array([0.377, 0.613, 0.131])
+#: the DoN threshold at which the agreement table compares the points kept
+IOU_AT = 0.25
 #: Real inputs: name -> path under ../shared/data.
 REAL = {
     "ign-extrabytes": "lidar-ign-extrabytes/las_with_several_extra_byte_bloc.laz",
@@ -118,7 +131,7 @@ def _worker(method: str, cloud: str, at: str, out: str, params: str) -> None:
     pts = np.load(cloud)
     idx = np.load(at) if at != "-" else None
     split: list[float] = []  # seconds of the normals at r_s, then at r_l
-    if method in ("exact", "fast"):
+    if method in ("exact", "fast", "fast-shifted"):
         import patchcloud.core.don as don_module
         from patchcloud.core import difference_of_normals, don_magnitude
 
@@ -131,13 +144,25 @@ def _worker(method: str, cloud: str, at: str, out: str, params: str) -> None:
             return res
 
         don_module.radius_normals = timed_normals  # difference_of_normals calls it at r_s, then at r_l
+        mode = "fast" if method == "fast-shifted" else method
+        if method == "fast-shifted":
+            pts, vp = pts + SHIFT * rl, vp + SHIFT * rl
         t = time.perf_counter()
-        difference_of_normals(pts[:WARMUP_POINTS], rs, rl, viewpoint=vp, mode=method)
+        difference_of_normals(pts[:WARMUP_POINTS], rs, rl, viewpoint=vp, mode=mode)
         setup = time.perf_counter() - t
         split.clear()
         t = time.perf_counter()
-        mag = don_magnitude(difference_of_normals(pts, rs, rl, viewpoint=vp, mode=method, at=idx))
+        mag = don_magnitude(difference_of_normals(pts, rs, rl, viewpoint=vp, mode=mode, at=idx))
         dt = time.perf_counter() - t
+    elif method == "pcl":
+        from numba import get_num_threads
+        from pcl_peer import run_pcl
+
+        setup = 0.0
+        dt, don = run_pcl(pts, "don", (rs, rl), vp, get_num_threads())
+        mag = np.sqrt(np.einsum("ij,ij->i", don, don))
+        if idx is not None:
+            mag = mag[idx]
     elif method == "baseline":
         from scipy.spatial import cKDTree
 
@@ -156,7 +181,12 @@ def _worker(method: str, cloud: str, at: str, out: str, params: str) -> None:
     else:
         raise SystemExit(f"unknown method {method}")
     np.save(out, mag)
-    print(json.dumps({"seconds": dt, "split": split, "setup": setup, "queries": len(mag), "peak_mib": _peak_rss_mib()}))
+    peak = _peak_rss_mib()
+    if method == "pcl":  # the peer's own peak (a child's high-water mark starts at its parent's at the fork)
+        import resource
+
+        peak = max(peak, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0)
+    print(json.dumps({"seconds": dt, "split": split, "setup": setup, "queries": len(mag), "peak_mib": peak}))
 
 
 def run_method(method: str, cloud: Path, at: np.ndarray | None, tmp: Path, params: dict):
@@ -215,16 +245,21 @@ def real_clouds(names):
 
 # ----------------------------------------------------------------------------- statistics and tables
 def agreement(a: np.ndarray, b: np.ndarray) -> dict:
-    """Median and 95th percentile of |a - b|, Spearman's rho where both are defined, shares undefined."""
+    """Median, 95th and 99th percentiles of |a - b|, Spearman's rho where both are defined, shares undefined, and the
+    intersection over union of the points each keeps at the threshold IOU_AT (a >= IOU_AT, b >= IOU_AT)."""
     from scipy.stats import spearmanr
 
     ok = np.isfinite(a) & np.isfinite(b)
     diff = np.abs(a[ok] - b[ok])
+    with np.errstate(invalid="ignore"):
+        ka, kb = a >= IOU_AT, b >= IOU_AT
     rho = spearmanr(a[ok], b[ok]).statistic if ok.sum() > 2 else float("nan")
     return {
         "points": len(a), "undef_a": float(np.mean(~np.isfinite(a))), "undef_b": float(np.mean(~np.isfinite(b))),
         "median": float(np.median(diff)) if diff.size else float("nan"),
-        "p95": float(np.percentile(diff, 95)) if diff.size else float("nan"), "rho": float(rho),
+        "p95": float(np.percentile(diff, 95)) if diff.size else float("nan"),
+        "p99": float(np.percentile(diff, 99)) if diff.size else float("nan"), "rho": float(rho),
+        "iou": float(np.sum(ka & kb) / max(np.sum(ka | kb), 1)),
     }
 
 
@@ -238,30 +273,31 @@ def _density(pts: np.ndarray, tree_sample: int = 2000, radius: float = 2.0) -> f
 
 def speed_table(name: str, n: int, rows: dict, skipped: dict, notes: list[str]) -> list[str]:
     """Markdown lines of one input's timing table."""
-    base = rows.get("baseline")
+    base, pcl = rows.get("baseline"), rows.get("pcl")
     base_rate = base["queries"] / base["seconds"] if base else float("nan")
+    pcl_rate = pcl["queries"] / pcl["seconds"] if pcl else float("nan")
     out = [f"### {name}", "",
-           "| input | points | method | queries | seconds | r_s + r_l s | points/s | peak RSS MiB | setup s | speed / baseline |",
-           "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+           "| input | points | method | queries | seconds | r_s + r_l s | points/s | peak RSS MiB | setup s | speed / baseline | speed / PCL |",
+           "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for m in METHODS:
         if m in rows:
             r = rows[m]
             rate = r["queries"] / r["seconds"]
             out.append(f"| {name} | {n:,} | {m} | {r['queries']:,} | {r['seconds']:.2f} | {' + '.join(f'{x:.2f}' for x in r['split'])} | {rate:,.0f} | "
-                       f"{r['peak_mib']:,.0f} | {r['setup']:.2f} | {rate / base_rate:.1f}x |")
+                       f"{r['peak_mib']:,.0f} | {r['setup']:.2f} | {rate / base_rate:.1f}x | {rate / pcl_rate:.2f}x |")
         else:
-            out.append(f"| {name} | {n:,} | {m} | - | - | - | - | - | - | skipped: {skipped.get(m, 'not run')} |")
+            out.append(f"| {name} | {n:,} | {m} | - | - | - | - | - | - | - | skipped: {skipped.get(m, 'not run')} |")
     return out + [""] + [f"- {s}" for s in notes] + [""]
 
 
 def agreement_table(rows: list[tuple[str, str, str, dict]]) -> list[str]:
     """Markdown lines of the agreement table: (input, subset, compared, agreement dict) per row."""
     out = ["### Agreement of DoN magnitudes", "",
-           "| input | subset | compared | points | undefined (1st) | undefined (2nd) | median abs diff | p95 abs diff | Spearman rho |",
-           "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+           f"| input | subset | compared | points | undefined (1st) | undefined (2nd) | median abs diff | p95 abs diff | p99 abs diff | Spearman rho | IoU at {IOU_AT:g} |",
+           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, subset, what, a in rows:
         out.append(f"| {name} | {subset} | {what} | {a['points']:,} | {a['undef_a']:.1%} | {a['undef_b']:.1%} | "
-                   f"{a['median']:.2e} | {a['p95']:.2e} | {a['rho']:.4f} |")
+                   f"{a['median']:.2e} | {a['p95']:.2e} | {a['p99']:.3f} | {a['rho']:.4f} | {a['iou']:.3f} |")
     return out + [""]
 
 
@@ -296,6 +332,8 @@ def bench_input(name: str, pts: np.ndarray, mobile: np.ndarray | None, a, tmp: P
     emit(speed_table(name, n, rows, skipped, notes))
 
     agree = []
+    if "fast" in mags and "fast-shifted" in mags:
+        agree.append((name, f"all, moved {np.round(SHIFT * rl, 3).tolist()} m", "fast-shifted vs fast", agreement(mags["fast-shifted"], mags["fast"])))
     if "exact" in mags:
         ex_idx = np.arange(n) if exact_at is None else exact_at
         ex = mags["exact"]
@@ -305,6 +343,8 @@ def bench_input(name: str, pts: np.ndarray, mobile: np.ndarray | None, a, tmp: P
             if mobile is not None:
                 keep = mobile[ex_idx]
                 agree.append((name, "mobile" + sub, "fast vs exact", agreement(mags["fast"][ex_idx][keep], ex[keep])))
+        if "pcl" in mags:
+            agree.append((name, "all" if exact_at is None else f"exact sample ({len(ex_idx):,})", "pcl vs exact", agreement(mags["pcl"][ex_idx], ex)))
         if "baseline" in mags:
             pos = np.searchsorted(ex_idx, base_at)
             inside = (pos < len(ex_idx)) & (ex_idx[np.minimum(pos, len(ex_idx) - 1)] == base_at)
