@@ -16,7 +16,7 @@ from ._kernels import eigh3
 from .forest import find_root
 from .threads import parallel_kernel
 
-__all__ = ["ball_moments", "build_row_table", "voxel_moments", "pca_normals", "union_cells"]
+__all__ = ["ball_moments", "build_row_table", "voxel_moments", "voxel_stats", "pca_normals", "union_cells"]
 
 
 @njit(cache=True, nogil=True)
@@ -93,10 +93,91 @@ def _row_of(table_keys, table_vals, bits, key):
     return -1
 
 
+@njit(cache=True, nogil=True)
+def _add_voxel(acc, cell_moments, h, dx, dy, dz):
+    """Add all of voxel ``h`` to ``acc``: its moments about its centre shifted to the query, the centre at (dx, dy, dz)."""
+    n = cell_moments[h, 0]
+    s1x, s1y, s1z = cell_moments[h, 1], cell_moments[h, 2], cell_moments[h, 3]
+    acc[0] += n
+    acc[1] += s1x + n * dx
+    acc[2] += s1y + n * dy
+    acc[3] += s1z + n * dz
+    acc[4] += cell_moments[h, 4] + 2.0 * s1x * dx + n * dx * dx
+    acc[5] += cell_moments[h, 5] + s1x * dy + s1y * dx + n * dx * dy
+    acc[6] += cell_moments[h, 6] + s1x * dz + s1z * dx + n * dx * dz
+    acc[7] += cell_moments[h, 7] + 2.0 * s1y * dy + n * dy * dy
+    acc[8] += cell_moments[h, 8] + s1y * dz + s1z * dy + n * dy * dz
+    acc[9] += cell_moments[h, 9] + 2.0 * s1z * dz + n * dz * dz
+
+
+@njit(cache=True, nogil=True)
+def _add_straddling(acc, cell_moments, cell_stats, h, dx, dy, dz, r, half_diag):
+    """Add the part within ``r`` of the query of voxel ``h``, which the sphere cuts (centre at (dx, dy, dz) from the query).
+
+    The voxel's points are taken as spread uniformly along u, the direction
+    from the query to their centroid, over the half-width a = sqrt(3 var_u)
+    (at most the half diagonal), and the sphere as the plane across u at
+    distance r: the fraction (t + a) / 2a of the points lies within, t = r
+    minus the centroid's distance, with its mean moved by (t - a) / 2 along
+    u and its variance along u (t + a)^2 / 12 (the other directions as the
+    voxel's).  Continuous in the query's position (no voxel jumps in or out
+    of a ball), exact for a voxel wholly inside or outside, and equal to
+    the points' own sums for a uniform spread.  ``cell_stats[h]``: the
+    centroid's offset from the centre (3) and the covariance (xx, xy, xz,
+    yy, yz, zz) of the voxel's points (:func:`voxel_stats`).
+    """
+    mx, my, mz = cell_stats[h, 0], cell_stats[h, 1], cell_stats[h, 2]
+    vx, vy, vz = dx + mx, dy + my, dz + mz  # centroid, from the query
+    d = np.sqrt(vx * vx + vy * vy + vz * vz)
+    if d <= 0.0:
+        _add_voxel(acc, cell_moments, h, dx, dy, dz)
+        return
+    ux, uy, uz = vx / d, vy / d, vz / d
+    cxx, cxy, cxz = cell_stats[h, 3], cell_stats[h, 4], cell_stats[h, 5]
+    cyy, cyz, czz = cell_stats[h, 6], cell_stats[h, 7], cell_stats[h, 8]
+    var = ux * ux * cxx + uy * uy * cyy + uz * uz * czz + 2.0 * (ux * uy * cxy + ux * uz * cxz + uy * uz * cyz)
+    a = min(np.sqrt(3.0 * max(var, 0.0)), half_diag)
+    t = r - d
+    if t >= a:
+        _add_voxel(acc, cell_moments, h, dx, dy, dz)
+        return
+    if t <= -a:
+        return
+    m = cell_moments[h, 0] * (t + a) / (2.0 * a)  # the points within
+    s = (t - a) / 2.0  # their mean moves by s u
+    f = (t + a) * (t + a) / 12.0 - var  # their variance along u changes by f
+    ex, ey, ez = vx + s * ux, vy + s * uy, vz + s * uz  # their mean, from the query
+    acc[0] += m
+    acc[1] += m * ex
+    acc[2] += m * ey
+    acc[3] += m * ez
+    acc[4] += m * (cxx + f * ux * ux + ex * ex)
+    acc[5] += m * (cxy + f * ux * uy + ex * ey)
+    acc[6] += m * (cxz + f * ux * uz + ex * ez)
+    acc[7] += m * (cyy + f * uy * uy + ey * ey)
+    acc[8] += m * (cyz + f * uy * uz + ey * ez)
+    acc[9] += m * (czz + f * uz * uz + ez * ez)
+
+
+@parallel_kernel
+def voxel_stats(moments, out):
+    """Centroid offset from the centre (3) and covariance (xx, xy, xz, yy, yz, zz) of every voxel, from its moments."""
+    for h in prange(moments.shape[0]):
+        n = moments[h, 0]
+        mx, my, mz = moments[h, 1] / n, moments[h, 2] / n, moments[h, 3] / n
+        out[h, 0], out[h, 1], out[h, 2] = mx, my, mz
+        out[h, 3] = moments[h, 4] / n - mx * mx
+        out[h, 4] = moments[h, 5] / n - mx * my
+        out[h, 5] = moments[h, 6] / n - mx * mz
+        out[h, 6] = moments[h, 7] / n - my * my
+        out[h, 7] = moments[h, 8] / n - my * mz
+        out[h, 8] = moments[h, 9] / n - mz * mz
+
+
 @parallel_kernel
 def ball_moments(
     voxels, points, cell_start, cell_k, row_start, table_keys, table_vals, bits, dims, rows,
-    query, qorder, qgroup_start, qblock, r2, cell_moments, cell_centres, out,
+    query, qorder, qgroup_start, qblock, r2, cell_moments, cell_stats, cell_centres, half_diag, out,
 ):
     """Count and moments about each query point of the points within sqrt(r2) of it.
 
@@ -123,6 +204,9 @@ def ball_moments(
     """
     G = qgroup_start.size - 1
     R = rows.shape[0]
+    rad = np.sqrt(r2)
+    near = max(rad - half_diag, 0.0)
+    near2, far2 = near * near, (rad + half_diag) * (rad + half_diag)
     for g in prange(G):
         lo_cell = np.empty(R, dtype=np.int64)
         hi_cell = np.empty(R, dtype=np.int64)
@@ -156,21 +240,14 @@ def ball_moments(
                         dx = cell_centres[h, 0] - qx
                         dy = cell_centres[h, 1] - qy
                         dz = cell_centres[h, 2] - qz
-                        if dx * dx + dy * dy + dz * dz > r2:
+                        dc2 = dx * dx + dy * dy + dz * dz
+                        if dc2 > far2:  # every point of the voxel beyond the radius
                             continue
                         used += 1
-                        n = cell_moments[h, 0]
-                        s1x, s1y, s1z = cell_moments[h, 1], cell_moments[h, 2], cell_moments[h, 3]
-                        acc[0] += n
-                        acc[1] += s1x + n * dx
-                        acc[2] += s1y + n * dy
-                        acc[3] += s1z + n * dz
-                        acc[4] += cell_moments[h, 4] + 2.0 * s1x * dx + n * dx * dx
-                        acc[5] += cell_moments[h, 5] + s1x * dy + s1y * dx + n * dx * dy
-                        acc[6] += cell_moments[h, 6] + s1x * dz + s1z * dx + n * dx * dz
-                        acc[7] += cell_moments[h, 7] + 2.0 * s1y * dy + n * dy * dy
-                        acc[8] += cell_moments[h, 8] + s1y * dz + s1z * dy + n * dy * dz
-                        acc[9] += cell_moments[h, 9] + 2.0 * s1z * dz + n * dz * dz
+                        if dc2 <= near2:  # every point within: the voxel's moments, shifted to the query
+                            _add_voxel(acc, cell_moments, h, dx, dy, dz)
+                        else:
+                            _add_straddling(acc, cell_moments, cell_stats, h, dx, dy, dz, rad, half_diag)
                 if acc[0] <= 2.0 * used:
                     exact = True
                     acc[:] = 0.0

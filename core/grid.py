@@ -11,10 +11,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .errors import PatchcloudValueError
 
-__all__ = ["CellGrid"]
+__all__ = ["CellGrid", "sort_within_cells"]
 
 
 @dataclass(frozen=True)
@@ -62,10 +63,12 @@ class CellGrid:
             )
         idx = absolute - base
         key = (idx[:, 0] * dims[1] + idx[:, 1]) * dims[2] + idx[:, 2]
-        order = np.lexsort((points[:, 2], points[:, 1], points[:, 0], key))
+        order = np.argsort(key, kind="stable")
         sk = key[order]
         first = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]]) if sk.size else np.zeros(0, dtype=np.int64)
         start = np.r_[first, sk.size].astype(np.int64)
+        order = order.astype(np.int64)
+        sort_within_cells(order, start, np.ascontiguousarray(points, dtype=np.float64))  # = lexsort((z, y, x, key))
         return cls(
             edge=float(edge), base=base, dims=dims.astype(np.int64), order=order.astype(np.int64),
             keys=sk[first].astype(np.int64), start=start, cells=idx[order[first]],
@@ -78,3 +81,62 @@ class CellGrid:
     def centres(self) -> np.ndarray:
         """(C, 3) float64 centres of the occupied cells."""
         return (self.cells + self.base + 0.5) * self.edge
+
+
+@njit(cache=True, nogil=True)
+def _before(points, a, b):
+    """Whether point ``a`` comes before point ``b``: by x, then y, then z; ties keep the order given."""
+    for c in range(3):
+        if points[a, c] != points[b, c]:
+            return points[a, c] < points[b, c]
+    return False
+
+
+@njit(cache=True, nogil=True)
+def sort_within_cells(order, start, points):
+    """Sort ``order[start[c]:start[c + 1]]`` of every cell by the points' x, y, z, in place and stably.
+
+    Insertion sort for a cell of up to 16 points (the usual case), a
+    merge sort above: together with a stable sort by cell key, the order
+    ``np.lexsort((z, y, x, key))`` gives, at a fraction of its time.
+    """
+    buf = np.empty(0, dtype=np.int64)
+    for c in range(start.size - 1):
+        lo, hi = start[c], start[c + 1]
+        n = hi - lo
+        if n <= 16:
+            for i in range(lo + 1, hi):
+                v = order[i]
+                j = i - 1
+                while j >= lo and _before(points, v, order[j]):
+                    order[j + 1] = order[j]
+                    j -= 1
+                order[j + 1] = v
+            continue
+        if buf.size < n:
+            buf = np.empty(n, dtype=np.int64)
+        width = 1
+        src = order[lo:hi]
+        while width < n:
+            for left in range(0, n, 2 * width):
+                mid, right = min(left + width, n), min(left + 2 * width, n)
+                i, j, k = left, mid, left
+                while i < mid and j < right:
+                    if _before(points, src[j], src[i]):
+                        buf[k] = src[j]
+                        j += 1
+                    else:
+                        buf[k] = src[i]
+                        i += 1
+                    k += 1
+                while i < mid:
+                    buf[k] = src[i]
+                    i += 1
+                    k += 1
+                while j < right:
+                    buf[k] = src[j]
+                    j += 1
+                    k += 1
+            for t in range(n):
+                src[t] = buf[t]
+            width *= 2
