@@ -70,7 +70,7 @@ class CellGrid:
         order = order.astype(np.int64)
         sort_within_cells(order, start, np.ascontiguousarray(points, dtype=np.float64))  # = lexsort((z, y, x, key))
         return cls(
-            edge=float(edge), base=base, dims=dims.astype(np.int64), order=order.astype(np.int64),
+            edge=float(edge), base=base, dims=dims.astype(np.int64), order=order,
             keys=sk[first].astype(np.int64), start=start, cells=idx[order[first]],
         )
 

@@ -36,14 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-DATA = HERE.parent.parent / "shared" / "data"
-REAL = {
-    "ign-lidarhd-77055": "lidar-ign-lidarhd-tiles/test_data_77055_627760_LA93_IGN69.laz",
-    "ign-stbarth": "lidar-ign-stbarth/St_Barth_RGAF09_UTM20N_IGN_1988_SB_subset_100m.laz",
-    "lastools-fusa": "lidar-lastools/fusa.laz",
-    "lastools-house": "lidar-lastools/house.laz",
-}
+from bench_compress import REAL as COMPRESS_INPUTS  # tools/ is this script's directory
+from bench_compress import SHARED as DATA
+
+#: The airborne inputs of tools/bench_compress.py: name -> path under ../shared/data.
+REAL = {k: COMPRESS_INPUTS[k] for k in ("ign-lidarhd-77055", "ign-stbarth", "lastools-fusa", "lastools-house")}
 
 
 def laz_bytes(header, points, X, Y, Z, scale: float) -> int:

@@ -28,7 +28,7 @@ from .las_records import (
 )
 
 __all__ = [
-    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "wave_packets_break_laz", "check_laz_keeps",
+    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
 ]
@@ -100,6 +100,11 @@ def check_las_output(path: str | os.PathLike) -> None:
 WAVE_PACKET_FIELDS = ("wavepacket_index", "wavepacket_offset", "wavepacket_size", "return_point_wave_location", "x_t", "y_t", "z_t")
 
 
+def has_wave_packets(points: laspy.PackedPointRecord) -> bool:
+    """Whether any of these records (point format 9 or 10) has a non-zero field of :data:`WAVE_PACKET_FIELDS`."""
+    return any(np.asarray(points[d]).any() for d in WAVE_PACKET_FIELDS)
+
+
 def wave_packets_break_laz(points: laspy.PackedPointRecord) -> bool:
     """Whether LAZ (lazrs 0.8) would not give these records back.
 
@@ -119,7 +124,7 @@ def wave_packets_break_laz(points: laspy.PackedPointRecord) -> bool:
     if points.point_format.id not in (9, 10) or len(points) == 0:
         return False
     ch = np.asarray(points["scanner_channel"])
-    return bool((ch != ch[0]).any()) and any(np.asarray(points[d]).any() for d in WAVE_PACKET_FIELDS)
+    return bool((ch != ch[0]).any()) and has_wave_packets(points)
 
 
 def check_laz_keeps(src: LasSource, output: str | os.PathLike, chunk: int = 1_000_000) -> None:
@@ -138,7 +143,7 @@ def check_laz_keeps(src: LasSource, output: str | os.PathLike, chunk: int = 1_00
         if len(pts) == 0:
             continue
         channels.update(np.unique(np.asarray(pts["scanner_channel"])).tolist())
-        waves = waves or any(np.asarray(pts[d]).any() for d in WAVE_PACKET_FIELDS)
+        waves = waves or has_wave_packets(pts)
         if waves and len(channels) > 1:
             raise PatchcloudValueError(
                 f"{output}: LAZ (lazrs 0.8) would not keep the wave packet fields of {src.path} (point format "
