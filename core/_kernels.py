@@ -21,12 +21,14 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "interpolated_pca", "eigh3", "morton_key"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "CHUNK"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
 #: Column of the second moment of axes (a, b) in a moments row (``moments.EXPONENTS`` 4..9: xx xy xz yy yz zz).
 _SECOND = np.array([[4, 5, 6], [5, 7, 8], [6, 8, 9]])
+#: Rows per chunk of a parallel loop that allocates its scratch once per chunk.
+CHUNK = 1024
 
 
 @njit(cache=True, nogil=True)
@@ -414,10 +416,32 @@ def _plane_normal(vec):
 
 
 @njit(cache=True, nogil=True)
+def _less(x, y):
+    """numba's sort order of floats: NaN after every number."""
+    return x < y or (y != y and x == x)
+
+
+@njit(cache=True, nogil=True)
 def eigh3(A):
     """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric 3x3 matrix, cyclic Jacobi."""
     a = A.copy()
-    v = np.eye(3)
+    work = np.empty((3, 3))
+    w = np.empty(3)
+    v = np.empty((3, 3))
+    eigh3_into(a, work, w, v)
+    return w, v
+
+
+@njit(cache=True, nogil=True)
+def eigh3_into(a, work, w, v):
+    """:func:`eigh3` without allocating: ``a`` (3, 3) is overwritten, ``work`` (3, 3) is scratch; writes ``w`` (3,) and ``v`` (3, 3).
+
+    For loops over many small matrices, which allocate their scratch once.
+    The same operations in the same order as :func:`eigh3`, so the same bits.
+    """
+    for r in range(3):
+        for c in range(3):
+            work[r, c] = 1.0 if r == c else 0.0
     for _ in range(12):
         off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
         scale = a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]
@@ -441,12 +465,21 @@ def eigh3(A):
                     a[p, k] = c * apk - sn * aqk
                     a[q, k] = sn * apk + c * aqk
                 for k in range(3):
-                    vkp, vkq = v[k, p], v[k, q]
-                    v[k, p] = c * vkp - sn * vkq
-                    v[k, q] = sn * vkp + c * vkq
-    w = np.array([a[0, 0], a[1, 1], a[2, 2]])
-    idx = np.argsort(w)
-    return w[idx], v[:, idx]
+                    vkp, vkq = work[k, p], work[k, q]
+                    work[k, p] = c * vkp - sn * vkq
+                    work[k, q] = sn * vkp + c * vkq
+    # ascending, ties in diagonal order, NaN last: numba's np.argsort of three (an insertion sort)
+    i0, i1, i2 = 0, 1, 2
+    d0, d1, d2 = a[0, 0], a[1, 1], a[2, 2]
+    if _less(d1, d0):
+        i0, i1, d0, d1 = i1, i0, d1, d0
+    if _less(d2, d1):
+        i1, i2, d1, d2 = i2, i1, d2, d1
+        if _less(d1, d0):
+            i0, i1, d0, d1 = i1, i0, d1, d0
+    w[0], w[1], w[2] = d0, d1, d2
+    for k in range(3):
+        v[k, 0], v[k, 1], v[k, 2] = work[k, i0], work[k, i1], work[k, i2]
 
 
 @parallel_kernel
@@ -649,59 +682,69 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
     """
     M = queries.shape[0]
     C = ckeys.shape[0]
-    for m in prange(M):
-        f0 = queries[m, 0] / h - 0.5
-        f1 = queries[m, 1] / h - 0.5
-        f2 = queries[m, 2] / h - 0.5
-        b0, b1, b2 = np.floor(f0), np.floor(f1), np.floor(f2)
-        t0, t1, t2 = f0 - b0, f1 - b1, f2 - b2
-        W = 0.0
-        s = np.zeros(3)
-        Q = np.zeros((3, 3))
-        v = np.zeros(3)
+    chunks = (M + CHUNK - 1) // CHUNK
+    for chunk in prange(chunks):  # scratch allocated once per chunk of queries, not once per query
+        s = np.empty(3)
+        Q = np.empty((3, 3))
+        v = np.empty(3)
         d = np.empty(3)
         cs = np.empty(3)
-        n_all = 0.0
-        for o in range(8):
-            o0, o1, o2 = o & 1, (o >> 1) & 1, (o >> 2) & 1
-            w = (t0 if o0 else 1.0 - t0) * (t1 if o1 else 1.0 - t1) * (t2 if o2 else 1.0 - t2)
-            if w <= 0.0:
-                continue
-            c0, c1, c2 = int(b0) + o0, int(b1) + o1, int(b2) + o2
-            key = ((c0 - lo[0]) * span[1] + (c1 - lo[1])) * span[2] + (c2 - lo[2])
-            pos = np.searchsorted(ckeys, key)
-            if pos >= C or ckeys[pos] != key:
-                continue
-            n = cmom[pos, 0]
-            n_all += n
-            # the cell's moments about the query point: coordinates p - q = (p - centre) + d
-            d[0] = (c0 + 0.5) * h - queries[m, 0]
-            d[1] = (c1 + 0.5) * h - queries[m, 1]
-            d[2] = (c2 + 0.5) * h - queries[m, 2]
-            cs[0], cs[1], cs[2] = cmom[pos, 1], cmom[pos, 2], cmom[pos, 3]
-            W += w * n
-            for a in range(3):
-                s[a] += w * (cs[a] + n * d[a])
-                v[a] += w * cvotes[pos, a]
-                for b in range(3):
-                    Q[a, b] += w * (cmom[pos, _SECOND[a, b]] + d[a] * cs[b] + cs[a] * d[b] + n * d[a] * d[b])
-        count[m] = n_all
-        votes[m, 0], votes[m, 1], votes[m, 2] = v[0], v[1], v[2]
-        if W <= 0.0:
-            normals[m, 0], normals[m, 1], normals[m, 2] = 0.0, 0.0, 0.0
-            sigma2[m] = 0.0
-            sigma3[m] = 0.0
-            dir1[m, 0], dir1[m, 1], dir1[m, 2] = 0.0, 0.0, 0.0
-            continue
         cov = np.empty((3, 3))
-        for a in range(3):
-            for b in range(3):
-                cov[a, b] = Q[a, b] / W - (s[a] / W) * (s[b] / W)
-        ev, vec = eigh3(cov)
-        l0, l1, l2 = max(ev[0], 0.0), max(ev[1], 0.0), max(ev[2], 0.0)
-        tot = l0 + l1 + l2
-        sigma3[m] = l0 / tot if tot > 0 else 0.0
-        sigma2[m] = l1 / tot if tot > 0 else 0.0
-        e3 = _plane_normal(vec)
-        normals[m, 0], normals[m, 1], normals[m, 2] = e3[0], e3[1], e3[2]
-        dir1[m, 0], dir1[m, 1], dir1[m, 2] = vec[0, 2], vec[1, 2], vec[2, 2]
+        work = np.empty((3, 3))
+        ev = np.empty(3)
+        vec = np.empty((3, 3))
+        for m in range(chunk * CHUNK, min(M, (chunk + 1) * CHUNK)):
+            f0 = queries[m, 0] / h - 0.5
+            f1 = queries[m, 1] / h - 0.5
+            f2 = queries[m, 2] / h - 0.5
+            b0, b1, b2 = np.floor(f0), np.floor(f1), np.floor(f2)
+            t0, t1, t2 = f0 - b0, f1 - b1, f2 - b2
+            W = 0.0
+            for a in range(3):
+                s[a] = 0.0
+                v[a] = 0.0
+                for b in range(3):
+                    Q[a, b] = 0.0
+            n_all = 0.0
+            for o in range(8):
+                o0, o1, o2 = o & 1, (o >> 1) & 1, (o >> 2) & 1
+                w = (t0 if o0 else 1.0 - t0) * (t1 if o1 else 1.0 - t1) * (t2 if o2 else 1.0 - t2)
+                if w <= 0.0:
+                    continue
+                c0, c1, c2 = int(b0) + o0, int(b1) + o1, int(b2) + o2
+                key = ((c0 - lo[0]) * span[1] + (c1 - lo[1])) * span[2] + (c2 - lo[2])
+                pos = np.searchsorted(ckeys, key)
+                if pos >= C or ckeys[pos] != key:
+                    continue
+                n = cmom[pos, 0]
+                n_all += n
+                # the cell's moments about the query point: coordinates p - q = (p - centre) + d
+                d[0] = (c0 + 0.5) * h - queries[m, 0]
+                d[1] = (c1 + 0.5) * h - queries[m, 1]
+                d[2] = (c2 + 0.5) * h - queries[m, 2]
+                cs[0], cs[1], cs[2] = cmom[pos, 1], cmom[pos, 2], cmom[pos, 3]
+                W += w * n
+                for a in range(3):
+                    s[a] += w * (cs[a] + n * d[a])
+                    v[a] += w * cvotes[pos, a]
+                    for b in range(3):
+                        Q[a, b] += w * (cmom[pos, _SECOND[a, b]] + d[a] * cs[b] + cs[a] * d[b] + n * d[a] * d[b])
+            count[m] = n_all
+            votes[m, 0], votes[m, 1], votes[m, 2] = v[0], v[1], v[2]
+            if W <= 0.0:
+                normals[m, 0], normals[m, 1], normals[m, 2] = 0.0, 0.0, 0.0
+                sigma2[m] = 0.0
+                sigma3[m] = 0.0
+                dir1[m, 0], dir1[m, 1], dir1[m, 2] = 0.0, 0.0, 0.0
+                continue
+            for a in range(3):
+                for b in range(3):
+                    cov[a, b] = Q[a, b] / W - (s[a] / W) * (s[b] / W)
+            eigh3_into(cov, work, ev, vec)
+            l0, l1, l2 = max(ev[0], 0.0), max(ev[1], 0.0), max(ev[2], 0.0)
+            tot = l0 + l1 + l2
+            sigma3[m] = l0 / tot if tot > 0 else 0.0
+            sigma2[m] = l1 / tot if tot > 0 else 0.0
+            sgn = -1.0 if vec[0, 0] * 1e-3 + vec[1, 0] * 1e-2 + vec[2, 0] < 0 else 1.0  # as _plane_normal
+            normals[m, 0], normals[m, 1], normals[m, 2] = sgn * vec[0, 0], sgn * vec[1, 0], sgn * vec[2, 0]
+            dir1[m, 0], dir1[m, 1], dir1[m, 2] = vec[0, 2], vec[1, 2], vec[2, 2]

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import eigh3
+from ._kernels import CHUNK, eigh3_into
 from .forest import find_root
 from .threads import parallel_kernel
 
@@ -273,35 +273,40 @@ def pca_normals(moments, query, viewpoint, min_points, normals, variation):
     largest), are left NaN: their normal is undefined.
     """
     M = moments.shape[0]
-    for m in prange(M):
-        n = moments[m, 0]
-        if n < min_points:
-            for a in range(3):
-                normals[m, a] = np.nan
-            variation[m] = np.nan
-            continue
-        mx, my, mz = moments[m, 1] / n, moments[m, 2] / n, moments[m, 3] / n
+    chunks = (M + CHUNK - 1) // CHUNK
+    for chunk in prange(chunks):  # scratch allocated once per chunk of rows, not once per row
         cov = np.empty((3, 3))
-        cov[0, 0] = moments[m, 4] / n - mx * mx
-        cov[0, 1] = moments[m, 5] / n - mx * my
-        cov[0, 2] = moments[m, 6] / n - mx * mz
-        cov[1, 1] = moments[m, 7] / n - my * my
-        cov[1, 2] = moments[m, 8] / n - my * mz
-        cov[2, 2] = moments[m, 9] / n - mz * mz
-        cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
-        w, v = eigh3(cov)
-        if not (w[1] > 1e-12 * w[2]) or w[2] <= 0.0:
-            for a in range(3):
-                normals[m, a] = np.nan
-            variation[m] = np.nan
-            continue
-        nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
-        s = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
-        nx, ny, nz = nx * s, ny * s, nz * s
-        if (viewpoint[0] - query[m, 0]) * nx + (viewpoint[1] - query[m, 1]) * ny + (viewpoint[2] - query[m, 2]) * nz < 0:
-            nx, ny, nz = -nx, -ny, -nz
-        normals[m, 0], normals[m, 1], normals[m, 2] = nx, ny, nz
-        variation[m] = max(w[0], 0.0) / (w[0] + w[1] + w[2])
+        work = np.empty((3, 3))
+        w = np.empty(3)
+        v = np.empty((3, 3))
+        for m in range(chunk * CHUNK, min(M, (chunk + 1) * CHUNK)):
+            n = moments[m, 0]
+            if n < min_points:
+                for a in range(3):
+                    normals[m, a] = np.nan
+                variation[m] = np.nan
+                continue
+            mx, my, mz = moments[m, 1] / n, moments[m, 2] / n, moments[m, 3] / n
+            cov[0, 0] = moments[m, 4] / n - mx * mx
+            cov[0, 1] = moments[m, 5] / n - mx * my
+            cov[0, 2] = moments[m, 6] / n - mx * mz
+            cov[1, 1] = moments[m, 7] / n - my * my
+            cov[1, 2] = moments[m, 8] / n - my * mz
+            cov[2, 2] = moments[m, 9] / n - mz * mz
+            cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
+            eigh3_into(cov, work, w, v)
+            if not (w[1] > 1e-12 * w[2]) or w[2] <= 0.0:
+                for a in range(3):
+                    normals[m, a] = np.nan
+                variation[m] = np.nan
+                continue
+            nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+            s = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
+            nx, ny, nz = nx * s, ny * s, nz * s
+            if (viewpoint[0] - query[m, 0]) * nx + (viewpoint[1] - query[m, 1]) * ny + (viewpoint[2] - query[m, 2]) * nz < 0:
+                nx, ny, nz = -nx, -ny, -nz
+            normals[m, 0], normals[m, 1], normals[m, 2] = nx, ny, nz
+            variation[m] = max(w[0], 0.0) / (w[0] + w[1] + w[2])
 
 
 @njit(cache=True, nogil=True)

@@ -150,9 +150,15 @@ def near_queries(points: np.ndarray, queries: np.ndarray, reach: float) -> np.nd
     cells = np.minimum(np.floor((q - lo) / reach).astype(np.int64), dims - 1)
     r = np.arange(-1, 2)
     steps = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
-    around = np.clip(cells[:, None, :] + steps[None, :, :], 0, dims - 1)
-    wanted = np.unique(number(around))
+    around = number(np.clip(cells[:, None, :] + steps[None, :, :], 0, dims - 1))
     found = number(np.minimum(np.floor((pts[box] - lo) / reach).astype(np.int64), dims - 1))
+    total = float(np.prod(dims.astype(np.float64)))
+    if total <= 4.0 * (around.size + found.size) + 4096:  # a mask of every cell of the box costs less than sorting
+        wanted = np.zeros(int(total), dtype=bool)
+        wanted[around.ravel()] = True
+        keep[box[wanted[found]]] = True
+        return keep
+    wanted = np.unique(around)
     at = np.minimum(np.searchsorted(wanted, found), wanted.size - 1)
     keep[box[wanted[at] == found]] = True
     return keep

@@ -466,7 +466,8 @@ def _nearby_signs(points, votes, voters, where, nrm, k: int, reach: float, min_c
     """
     rows = np.flatnonzero(voters)
     kk = int(min(k, rows.size))
-    rows = rows[near_queries(points[rows], where, reach)]  # the voters that may be within reach: the same answer, sooner
+    if 4 * where.shape[0] < rows.size:  # few queries: only the voters that may be within reach (the same answer, sooner)
+        rows = rows[near_queries(points[rows], where, reach)]  # (many: they reach most voters, the filter costs more than it saves)
     _, idx = nearest_neighbours(point_grid(points[rows], kk, ids=rows), where, kk, max_distance=reach)
     found = idx >= 0  # idx: rows of votes, -1 where none
     total = (votes[np.maximum(idx, 0)] * found[..., None]).sum(axis=1)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from patchcloud.core.knn import nearest_neighbours, point_grid
 
@@ -97,6 +98,26 @@ def test_near_queries_keeps_every_point_within_reach():
         assert keep[within].all()
         assert keep.sum() < len(points) or reach == 40.0  # and it does leave the far points out
     assert not near_queries(points, queries[:0], 1.0).any()
+
+
+@pytest.mark.parametrize("n_queries, spread", [(40, 1000.0), (5000, 30.0)])
+def test_near_queries_keeps_exactly_the_points_of_the_cells_around_the_queries(n_queries, spread):
+    """Few queries far apart (cells sorted) and many close together (a mask of the box's cells): the same rule.
+
+    Kept: every point within ``reach`` of a query; none farther than a cell
+    diagonal beyond the query's own cell, ``2 sqrt(3) reach``.
+    """
+    from patchcloud.core.knn import near_queries
+
+    rng = np.random.default_rng(5)
+    points = rng.uniform(0, spread, (20000, 3))
+    queries = rng.uniform(0, spread, (n_queries, 3))
+    reach = 0.04 * spread
+    keep = near_queries(points, queries, reach)
+    nearest = cKDTree(queries).query(points)[0]
+    assert keep[nearest <= reach].all()
+    assert not keep[nearest > 2 * np.sqrt(3) * reach].any()
+    assert 0 < keep.sum() < len(points)
 
 
 def test_fallback_points_far_from_every_patch_take_the_global_rule():

@@ -8,6 +8,10 @@ Methods (each in its own subprocess, so peak memory is per method):
   (compiled kernels warmed up on a small cloud first, so JIT time is excluded);
 - ``knn-pca``: scipy cKDTree k=30 (both cores) + batched ``numpy.linalg.eigh``;
 - ``open3d``: ``PointCloud.estimate_normals(KDTreeSearchParamKNN(30))`` (extra ``bench``);
+- ``open3d-knn16``: the same with 16 neighbours;
+- ``pcl-knn16``: PCL's ``NormalEstimationOMP`` with 16 neighbours on the same
+  threads (k-d tree build included; built against Debian's libpcl-dev by
+  tools/pcl_peer.py), on the cloud moved to its minimum corner (PCL is float32);
 - ``cc-ls`` / ``cc-quadric``: CloudCompare ``-OCTREE_NORMALS`` with ``-MODEL LS`` /
   ``QUADRIC`` (Debian package cloudcompare) and the radius that holds 30
   neighbours at the median point, timed as the CloudCompare process minus a
@@ -46,7 +50,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "data"
-METHODS = ["patchcloud-rmse", "patchcloud-sigma3", "knn-pca", "open3d", "cc-ls", "cc-quadric"]
+METHODS = ["patchcloud-rmse", "patchcloud-sigma3", "knn-pca", "open3d", "open3d-knn16", "pcl-knn16", "cc-ls", "cc-quadric"]
 
 
 # ----------------------------------------------------------------------------- workers
@@ -86,12 +90,12 @@ def _worker(method: str, inp: str, out: str, orient: str) -> None:
             _, v = np.linalg.eigh(np.einsum("mki,mkj->mij", q, q))
             n[lo : lo + 200_000] = v[:, :, 0]
         dt = time.perf_counter() - t
-    elif method == "open3d":
+    elif method in ("open3d", "open3d-knn16"):
         import open3d as o3d
 
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         t = time.perf_counter()
-        pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(30))
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(30 if method == "open3d" else 16))
         dt = time.perf_counter() - t
         n = np.asarray(pc.normals)
     else:
@@ -157,7 +161,18 @@ def _cloudcompare(model: str, pts: np.ndarray, tmp: Path):
 def _run_method(method: str, pts: np.ndarray, tmp: Path, orient: str):
     if method.startswith("cc-"):
         return _cloudcompare("LS" if method == "cc-ls" else "QUADRIC", pts, tmp)
-    if method == "open3d":
+    if method == "pcl-knn16":
+        sys.path.insert(0, str(HERE))
+        from pcl_peer import run_pcl
+
+        local = pts - pts.min(axis=0)
+        viewpoint = (*(0.5 * local.max(axis=0)[:2]), float(local[:, 2].max()) + 1000.0)
+        try:
+            seconds, normals = run_pcl(local, "knn", (16,), viewpoint, os.cpu_count() or 1)
+        except RuntimeError as e:
+            return None, str(e)
+        return {"seconds": seconds, "peak_mb": float("nan"), "normals": np.nan_to_num(normals)}, None
+    if method in ("open3d", "open3d-knn16"):
         try:
             import open3d  # noqa: F401
         except (ImportError, OSError):
@@ -307,7 +322,7 @@ def main() -> None:
                         print(f"#   {name} {order} {m} steps (s): {info['steps']}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print("# speedup = fastest peer's seconds (open3d, cc-*) / this method's seconds, same data and order")
+    print("# speedup = fastest peer's seconds (open3d, open3d-knn16, pcl-knn16, cc-*) / this method's seconds, same data and order")
     print("# angle columns for LAS files (no reference) are differences from knn-pca")
 
 
