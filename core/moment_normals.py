@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels
+from .knn import near_queries
 from .moments import cell_moments
 
 __all__ = ["MomentNormals", "moment_normals", "MIN_POINTS"]
@@ -134,6 +135,9 @@ def moment_normals(
     sigma3 = np.zeros(m)
     best = np.full(m, np.inf)
     where = points[query]
+    if m and 8 * m < n:  # few queries: only the points that may lie in their cells (each such cell whole, so the same sums)
+        near = near_queries(points, where, 2.0 * h)  # a query's cells lie within 1.5 h of it along each axis, at both scales
+        points, weighted = points[near], weighted[near]
     for edge in (0.5 * h, h):  # the flatter of the two scales, the finer on a tie
         nrm, s2, s3, d1, v, count = _at_points(points, weighted, where, float(edge))
         ok = (count >= MIN_POINTS) & (s2 >= min_sigma2) & (s3 < best)

@@ -100,9 +100,9 @@ def test_near_queries_keeps_every_point_within_reach():
     assert not near_queries(points, queries[:0], 1.0).any()
 
 
-@pytest.mark.parametrize("n_queries, spread", [(40, 1000.0), (5000, 30.0)])
-def test_near_queries_keeps_exactly_the_points_of_the_cells_around_the_queries(n_queries, spread):
-    """Few queries far apart (cells sorted) and many close together (a mask of the box's cells): the same rule.
+@pytest.mark.parametrize("n_queries, reach", [(40, 2.0), (5000, 40.0)])
+def test_near_queries_keeps_exactly_the_points_of_the_cells_around_the_queries(n_queries, reach):
+    """Few queries far apart (the box's cells too many: cells sorted) and many close together (a mask of the box's cells).
 
     Kept: every point within ``reach`` of a query; none farther than a cell
     diagonal beyond the query's own cell, ``2 sqrt(3) reach``.
@@ -110,9 +110,8 @@ def test_near_queries_keeps_exactly_the_points_of_the_cells_around_the_queries(n
     from patchcloud.core.knn import near_queries
 
     rng = np.random.default_rng(5)
-    points = rng.uniform(0, spread, (20000, 3))
-    queries = rng.uniform(0, spread, (n_queries, 3))
-    reach = 0.04 * spread
+    queries = rng.uniform(0, 1000.0, (n_queries, 3))
+    points = np.concatenate([rng.uniform(0, 1000.0, (20000, 3)), queries + rng.normal(0, reach, queries.shape)])
     keep = near_queries(points, queries, reach)
     nearest = cKDTree(queries).query(points)[0]
     assert keep[nearest <= reach].all()
