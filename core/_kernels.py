@@ -407,10 +407,16 @@ def _cholesky_solve6(G, b):
 
 
 @njit(cache=True, nogil=True)
+def _plane_sign(vec):
+    """-1.0 or 1.0: the sign that makes the first column of ``vec`` (the smallest eigenvalue's vector) point along (0.001, 0.01, 1)."""
+    return -1.0 if vec[0, 0] * 1e-3 + vec[1, 0] * 1e-2 + vec[2, 0] < 0 else 1.0
+
+
+@njit(cache=True, nogil=True)
 def _plane_normal(vec):
     """The eigenvector of the smallest eigenvalue (first column of ``vec``), made to point along (0.001, 0.01, 1)."""
     e3 = vec[:, 0].copy()
-    if e3[0] * 1e-3 + e3[1] * 1e-2 + e3[2] < 0:
+    if _plane_sign(vec) < 0:
         e3 = -e3
     return e3
 
@@ -745,6 +751,6 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
             tot = l0 + l1 + l2
             sigma3[m] = l0 / tot if tot > 0 else 0.0
             sigma2[m] = l1 / tot if tot > 0 else 0.0
-            sgn = -1.0 if vec[0, 0] * 1e-3 + vec[1, 0] * 1e-2 + vec[2, 0] < 0 else 1.0  # as _plane_normal
+            sgn = _plane_sign(vec)
             normals[m, 0], normals[m, 1], normals[m, 2] = sgn * vec[0, 0], sgn * vec[1, 0], sgn * vec[2, 0]
             dir1[m, 0], dir1[m, 1], dir1[m, 2] = vec[0, 2], vec[1, 2], vec[2, 2]

@@ -150,14 +150,16 @@ def near_queries(points: np.ndarray, queries: np.ndarray, reach: float) -> np.nd
     r = np.arange(-1, 2)
     steps = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
     around = number(np.clip(cells[:, None, :] + steps[None, :, :], 0, dims - 1))
+    found = np.empty(len(pts), dtype=np.int64)
+    _box_cells(np.ascontiguousarray(pts), lo, hi, float(reach), dims, found)
+    box = np.flatnonzero(found >= 0)
+    found = found[box]
     total = float(np.prod(dims.astype(np.float64)))
     if total <= 4.0 * (around.size + len(pts)) + 4096:  # a mask of every cell of the box costs less than sorting
         wanted = np.zeros(int(total), dtype=bool)
         wanted[around.ravel()] = True
-        _kept_by_mask(np.ascontiguousarray(pts), lo, hi, float(reach), dims, wanted, keep)
+        keep[box] = wanted[found]
         return keep
-    box = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
-    found = number(np.minimum(np.floor((pts[box] - lo) / reach).astype(np.int64), dims - 1))
     wanted = np.unique(around)
     at = np.minimum(np.searchsorted(wanted, found), wanted.size - 1)
     keep[box[wanted[at] == found]] = True
@@ -165,17 +167,17 @@ def near_queries(points: np.ndarray, queries: np.ndarray, reach: float) -> np.nd
 
 
 @njit(cache=True, nogil=True)
-def _kept_by_mask(pts, lo, hi, reach, dims, wanted, keep):
-    """:func:`near_queries`' test point by point, the wanted cells given as a mask of the box's cells."""
+def _box_cells(pts, lo, hi, reach, dims, out):
+    """:func:`near_queries`' cell number of each point in the box ``[lo, hi]`` (cells of edge ``reach`` from ``lo``), -1 outside it."""
     for i in range(pts.shape[0]):
         x, y, z = pts[i, 0], pts[i, 1], pts[i, 2]
         if not (x >= lo[0] and x <= hi[0] and y >= lo[1] and y <= hi[1] and z >= lo[2] and z <= hi[2]):
+            out[i] = -1
             continue
         a = min(int(np.floor((x - lo[0]) / reach)), dims[0] - 1)
         b = min(int(np.floor((y - lo[1]) / reach)), dims[1] - 1)
         c = min(int(np.floor((z - lo[2]) / reach)), dims[2] - 1)
-        if wanted[(a * dims[1] + b) * dims[2] + c]:
-            keep[i] = True
+        out[i] = (a * dims[1] + b) * dims[2] + c
 
 
 def nearest_neighbours(
