@@ -211,30 +211,18 @@ def _smooth_mask(pts: np.ndarray, ref: np.ndarray) -> np.ndarray:
 def datasets(sizes, real: bool):
     sys.path.insert(0, str(HERE))
     import synthetic
-    from plyio import read_ply, vertex_normals
+    from plyio import MESHES, mesh_points
 
     for n in sizes:
         p, nn = synthetic.scene(n, seed=0)
         yield f"synthetic-scene-{n // 1000}k", p, nn, "up"
-    meshes = [
-        ("bunny", SHARED / "mesh-stanford-bunny/reconstruction/bun_zipper.ply"),
-        ("dragon", SHARED / "mesh-dragon-decimated/dragon.ply"),
-    ]
-    for name, path in meshes:
+    for name, rel in MESHES:
+        path = SHARED / rel
         if not path.exists():
             print(f"# skipping mesh {name}: {path} not found")
             continue
-        v, f = read_ply(path)
-        xyz = np.column_stack([v["x"], v["y"], v["z"]])
-        if "nx" in v:
-            ref = np.column_stack([v["nx"], v["ny"], v["nz"]])
-        else:
-            ref = vertex_normals(xyz, f)
-        ok = np.linalg.norm(ref, axis=1) > 0.5
-        # make the reference outward: the mesh winding is consistent, check its global sign
-        if np.mean(np.einsum("ij,ij->i", ref[ok], xyz[ok] - xyz[ok].mean(axis=0)) > 0) < 0.5:
-            ref = -ref
-        yield f"mesh-{name}", xyz[ok], ref[ok], "outward"
+        xyz, ref = mesh_points(path)
+        yield f"mesh-{name}", xyz, ref, "outward"
     if real:
         import laspy
 

@@ -81,3 +81,28 @@ def vertex_normals(xyz: np.ndarray, faces: np.ndarray) -> np.ndarray:
         np.add.at(n, faces[:, k], fn)
     norm = np.linalg.norm(n, axis=1)
     return n / np.where(norm > 0, norm, 1.0)[:, None]
+
+
+#: The reference meshes of ../shared/data: name and path below the data folder.
+MESHES = (
+    ("bunny", "mesh-stanford-bunny/reconstruction/bun_zipper.ply"),
+    ("dragon", "mesh-dragon-decimated/dragon.ply"),
+)
+
+
+def mesh_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh's used vertices ``(M, 3)`` and their unit normals ``(M, 3)``, outward.
+
+    The normals are the file's ``nx, ny, nz`` when it has them, else the
+    area-weighted vertex normals of its faces.  The mesh winding is consistent,
+    so one global sign makes them outward: the one under which most of them
+    point away from the centroid.
+    """
+    v, f = read_ply(path)
+    xyz = np.column_stack([v["x"], v["y"], v["z"]])
+    ref = np.column_stack([v["nx"], v["ny"], v["nz"]]) if "nx" in v else vertex_normals(xyz, f)
+    ok = np.linalg.norm(ref, axis=1) > 0.5
+    xyz, ref = xyz[ok], ref[ok] / np.linalg.norm(ref[ok], axis=1)[:, None]
+    if np.mean(np.einsum("ij,ij->i", ref, xyz - xyz.mean(axis=0)) > 0) < 0.5:
+        ref = -ref
+    return xyz, ref
