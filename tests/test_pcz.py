@@ -35,10 +35,14 @@ def parts(rng, record_bytes=18):
     return out
 
 
+#: A stand-in for the input's header: only its point format (byte 104) is read, to tell how the records are stored.
+HEADER = b"LASF" + bytes(100) + bytes([6]) + bytes(270)
+
+
 def write(tmp_path, rng, name="c.pcz", **kw):
     ps = parts(rng)
     grid = dict(origin=[0.0, 0.0, 0.0], tile_size=T, scale=[0.001] * 3, offset=[0.0] * 3)
-    counts = pcz.write_pcz(tmp_path / name, ps, max_error=BUDGET, grid=grid, header=b"LASF" + bytes(371),
+    counts = pcz.write_pcz(tmp_path / name, ps, max_error=BUDGET, grid=grid, header=HEADER,
                            source={"path": "x.las"}, record_bytes=18, **kw)
     return ps, counts
 
@@ -101,13 +105,14 @@ def test_never_overwrites_unasked(tmp_path, rng):
     write(tmp_path, rng, overwrite=True)
 
 
-@pytest.mark.parametrize("version", [2, 3])
+@pytest.mark.parametrize("version", [2, 3, 4])
 def test_a_committed_file_of_each_readable_version_reads_back_field_by_field(version):
     """tests/data/pcz-v{N}.pcz was written by tools/make_pcz_fixture.py at version N; the .npz holds what it was given.
-    Version 3 stores the residual points' X, Y, Z divided by its steps; version 2 has none (exact)."""
+    Version 3 stores the residual points' X, Y, Z divided by its steps; version 2 has none (exact).  Version 4's
+    input is of point format 1, its records stored as format 6 (stream.io.layered); 2 and 3 hold format 6 records."""
     from pathlib import Path
 
-    assert pcz.VERSION == 3 and pcz.READABLE == (2, 3)
+    assert pcz.VERSION == 4 and pcz.READABLE == (2, 3, 4)
     data = Path(__file__).parent / "data"
     expected = np.load(data / f"pcz-v{version}.npz", allow_pickle=False)
     steps = expected["steps"] if version >= 3 else np.ones(3, int)
@@ -116,6 +121,8 @@ def test_a_committed_file_of_each_readable_version_reads_back_field_by_field(ver
         assert f.attrs["version"] == version and f.max_error == 0.01 and f.tile_size == 4.0
         assert f.steps == tuple(steps) and f.dropped == (["gps_time"] if version >= 3 else [])
         assert [tuple(t) for t in f.tiles] == [(0, 0, 0), (1, 0, 0)]
+        stored = f.root["residual/laz"][:400].tobytes()  # the first tile's LAZ header: its point format
+        assert stored[:4] == b"LASF" and stored[104] & 0x3F == 6 and f.input_format_id == (1 if version >= 4 else 0)
         for t in range(2):
             m, cls, inten = f.patches(t)
             for name in fields:

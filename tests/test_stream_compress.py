@@ -10,6 +10,7 @@ from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import compress, decompress
 from patchcloud.stream.cli import main
 from patchcloud.stream.io.point_coding import coarse_steps, coarsen, refine
+from patchcloud.stream.io import pcz
 
 OFFSET = np.array([650000.0, 6860000.0, 0.0])
 BUDGET = 0.02
@@ -140,7 +141,7 @@ def test_cli_and_bad_input(las_file, tmp_path):
 def test_info_describes_a_pcz(las_file, tmp_path):
     compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True)
     r = CliRunner().invoke(main, ["info", str(tmp_path / "s.pcz")])
-    assert r.exit_code == 0 and "patchcloud .pcz version 3 (model mode)" in r.output and "residual" in r.output
+    assert r.exit_code == 0 and f"patchcloud .pcz version {pcz.VERSION} (model mode)" in r.output and "residual" in r.output
 
 
 def test_header_vlrs_and_extended_vlrs_survive(tmp_path):

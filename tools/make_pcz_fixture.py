@@ -25,6 +25,11 @@ T = 4.0
 #: The residual points' X, Y, Z as stored are the input's divided by these (version 3; the reader multiplies them back).
 STEPS = (2, 2, 3)
 DROPPED = ["gps_time"]
+#: The input's point format (version 4 stores records of formats 0-3 as 6 or 7: stream.io.layered) and its record size.
+POINT_FORMAT = 1
+RECORD = laspy.PointFormat(POINT_FORMAT).size
+#: A stand-in for the input's header: the reader reads only its point format (byte 104).
+HEADER = b"LASF" + bytes(100) + bytes([POINT_FORMAT]) + bytes(270)
 FIELDS = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask")
 
 
@@ -45,8 +50,8 @@ def parts(rng: np.random.Generator) -> list[pcz.TilePart]:
         q = quantise_models(fit.models, BUDGET)
         C, R = q.count.shape[0], fit.residual.size
         xyz = np.rint(p[fit.residual] / 0.001).astype("<i4")
-        records = np.hstack([xyz.view(np.uint8).reshape(R, 12), rng.integers(0, 256, (R, 18)).astype(np.uint8)])
-        laz = pcz.residual_laz(records, laspy.PointFormat(6), "1.4", [0.001] * 3, [0.0] * 3)
+        records = np.hstack([xyz.view(np.uint8).reshape(R, 12), rng.integers(0, 256, (R, RECORD - 12)).astype(np.uint8)])
+        laz = pcz.residual_laz(records, laspy.PointFormat(POINT_FORMAT), "1.2", [0.001] * 3, [0.0] * 3)
         out.append(pcz.TilePart(ijk, q, rng.integers(1, 7, C).astype(np.uint8),
                                 rng.integers(0, 60000, C).astype(np.uint16), R, laz))
         out[-1].__dict__["records"] = records
@@ -57,8 +62,8 @@ def main(folder: Path) -> None:
     ps = parts(np.random.default_rng(2026))
     grid = dict(origin=[0.0, 0.0, 0.0], tile_size=T, scale=[0.001] * 3, offset=[0.0] * 3)
     name = folder / f"pcz-v{pcz.VERSION}"
-    pcz.write_pcz(name.with_suffix(".pcz"), ps, max_error=BUDGET, grid=grid, header=b"LASF" + bytes(371),
-                  source={"path": "fixture.las"}, record_bytes=18, overwrite=True, steps=STEPS, dropped=DROPPED)
+    pcz.write_pcz(name.with_suffix(".pcz"), ps, max_error=BUDGET, grid=grid, header=HEADER,
+                  source={"path": "fixture.las"}, record_bytes=RECORD - 12, overwrite=True, steps=STEPS, dropped=DROPPED)
     arrays = {"steps": np.asarray(STEPS)}
     for t, part in enumerate(ps):
         for f in FIELDS:

@@ -3,7 +3,7 @@
 A ``.pcz`` is a zarr (format 3) store in a single zip file (chunks
 stored, not deflated: every chunk is already compressed; the JSON
 metadata deflated).  No pickle
-anywhere: integers, floats, JSON attributes.  Version 3 has two modes.
+anywhere: integers, floats, JSON attributes.  Version 4 has two modes.
 
 **Model mode** (the default: patch models, residual points within the budget)::
 
@@ -46,8 +46,11 @@ anywhere: integers, floats, JSON attributes.  Version 3 has two modes.
     blocks/bounds                 (B, 6) int64  smallest and largest X, Y, Z of its points (input grid)
     points/laz                    (S,) uint8    per block, its records as a LAZ file (as residual/laz)
 
-Version 2 is model mode with exact residual points (no steps, nothing
-dropped); it is read as such.
+Records of point formats 0-3 are stored as formats 6 and 7
+(:mod:`.layered`: LAZ codes those in fewer bytes) and turned back on
+reading; the LAZ columns are in chunks of 4 MiB.  Version 3 stored them
+in their own format, in chunks of 64 KiB; version 2 is model mode with
+exact residual points (no steps, nothing dropped).  Both are read as such.
 
 The file is reproducible: the same input and parameters give the same
 bytes (entries in name order, each dated :data:`ZIP_TIME`; the input
@@ -67,6 +70,7 @@ then every read of a tile's rows is checked against the budget.
 
 from __future__ import annotations
 
+import functools
 import io
 import os
 import shutil
@@ -86,6 +90,7 @@ from zarr.codecs import BloscCodec
 from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
 from .budget import check_memory
+from .layered import LAYERED, from_layered, layered_format, layered_size, to_layered
 from .las import check_header_sizes, check_header_values, undescribed_last, wave_packets_break_laz, writable_version
 from .point_coding import refine
 from .store import tile_name
@@ -94,13 +99,16 @@ __all__ = ["FORMAT", "VERSION", "READABLE", "ZIP_TIME", "TilePart", "PointsBlock
            "PointsPczFile", "open_pcz", "residual_laz"]
 
 FORMAT = "patchcloud-pcz"
-VERSION = 3
-#: The versions this reader reads: 2 (model mode only, residual points exact) and 3.
-READABLE = (2, 3)
+VERSION = 4
+#: The versions this reader reads: 2 (model mode only, residual points exact), 3 and 4.
+READABLE = (2, 3, 4)
 #: The date of every zip entry (the zip format's earliest), so that a ``.pcz`` does not depend on when it was written.
 ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 #: Rows per chunk of every per-patch, per-cell and per-residual-point array.
 CHUNK = 1 << 16
+#: Bytes per chunk of the LAZ columns (residual/laz, points/laz; version 4): a zip entry and a Blosc header per chunk
+#: cost about 120 bytes, 5 kB on a 3 MB file in chunks of 64 KiB (version 3).
+LAZ_CHUNK = 1 << 22
 #: Byte shuffle + Zstd at its strongest level through Blosc (measured on an IGN tile's patches:
 #: 22 % smaller than zarr's default Zstd level 3; the arrays are small next to the points they replace).
 CODEC = BloscCodec(cname="zstd", clevel=9, shuffle="shuffle")
@@ -145,8 +153,9 @@ class TilePart:
 class _Column:
     """Rows appended to one array of a zarr group, written one whole chunk at a time."""
 
-    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...]):
-        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(CHUNK,) + tail, compressors=[CODEC])
+    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...], chunk: int = CHUNK):
+        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(chunk,) + tail, compressors=[CODEC])
+        self.chunk = chunk
         self.buffer: list[np.ndarray] = []
         self.held = 0
         self.dtype = np.dtype(dtype)
@@ -162,12 +171,12 @@ class _Column:
                 raise PatchcloudValueError(f"{self.array.path}: values beyond {self.dtype} (a quantisation step too small for the cell?)")
         self.buffer.append(rows.astype(self.dtype, copy=False))
         self.held += rows.shape[0]
-        if self.held >= CHUNK:
+        if self.held >= self.chunk:
             self._flush(final=False)
 
     def _flush(self, final: bool) -> None:
         data = np.concatenate(self.buffer) if self.buffer else np.zeros((0,) + self.tail, self.dtype)
-        whole = data.shape[0] if final else (data.shape[0] // CHUNK) * CHUNK
+        whole = data.shape[0] if final else (data.shape[0] // self.chunk) * self.chunk
         if whole:
             n = self.array.shape[0]
             self.array.resize((n + whole,) + self.tail)
@@ -232,7 +241,7 @@ def write_pcz(
         residual = root.require_group("residual")
         cols = {name: _Column(root.require_group(group), name, dt, tail)
                 for group, arrays in (("patches", _PATCH_ARRAYS), ("cells", _CELL_ARRAYS)) for name, dt, tail in arrays}
-        laz = _Column(residual, "laz", np.uint8, ())
+        laz = _Column(residual, "laz", np.uint8, (), chunk=LAZ_CHUNK)
         tiles, pstart, cstart, rstart, bstart = [], [0], [0], [0], [0]
         points = 0
         for part in parts:
@@ -300,7 +309,7 @@ def write_points_pcz(
     bytes.  Returns the file's counts (blocks, points).
     """
     with _building(path, overwrite) as root:
-        laz = _Column(root.require_group("points"), "laz", np.uint8, ())
+        laz = _Column(root.require_group("points"), "laz", np.uint8, (), chunk=LAZ_CHUNK)
         pstart, bstart, bounds = [0], [0], []
         for b in blocks:
             laz.add(np.frombuffer(b.laz, dtype=np.uint8))
@@ -372,6 +381,12 @@ class _OpenPcz:
                                     f"the file says {int(self.attrs['record_bytes']) + 12}")
         return header
 
+    @functools.cached_property
+    def input_format_id(self) -> int:
+        """The input's point format (its header's byte 104; -1 if the header is shorter)."""
+        raw = self.header_bytes
+        return raw[104] & 0x3F if len(raw) > 104 else -1
+
     def evlr_bytes(self, count: int) -> bytes:
         """The bytes of the input's ``count`` extended VLRs (LAS 1.4), as they were; empty when it had none."""
         raw = bytes(self._read("evlrs")) if count else b""
@@ -410,13 +425,24 @@ class _OpenPcz:
         raw = self._read(array, s).tobytes()
         check_header_sizes(name, raw[:375], len(raw))
         said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
-        if said != n or record != B + 12:
-            raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {B + 12}")
+        pid = self.input_format_id  # records of formats 0-3 are stored as 6 or 7 (version 4; version 3: as they were)
+        twin = layered_size(pid, B + 12) if self.attrs["version"] >= 4 and raw[104] & 0x3F != pid else None
+        size = B + 12 if twin is None else twin
+        if said != n or record != size:
+            raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {size}")
         try:
             las = laspy.read(io.BytesIO(raw))
         except Exception as exc:
             raise PatchcloudIOError(f"{name} cannot be read ({exc})") from exc
         rows = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
+        if twin is not None:
+            if las.header.point_format.id != LAYERED[pid]:
+                raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says point format {las.header.point_format.id}, "
+                                        f"the input's is {pid}")
+            try:
+                rows = from_layered(rows, pid)
+            except ValueError as exc:
+                raise PatchcloudIOError(f"{name}: damaged ({exc})") from exc
         if rows.shape != (n, B + 12):
             raise PatchcloudIOError(f"{name}: {rows.shape[0]} points of {rows.shape[1]} bytes, the index says {n} of {B + 12}")
         xyz = _refined(self.path, rows[:, :12].copy().view("<i4").reshape(n, 3), self.steps, what)
@@ -722,7 +748,14 @@ def _las_point_count(raw: bytes) -> int:
 
 def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets) -> bytes:
     """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout); LAS where LAZ would
-    not give them back (:func:`~patchcloud.stream.io.las.wave_packets_break_laz`)."""
+    not give them back (:func:`~patchcloud.stream.io.las.wave_packets_break_laz`).
+
+    Records of formats 0-3 are stored as their layered twins, 6 or 7
+    (:mod:`~patchcloud.stream.io.layered`); reading turns them back.
+    """
+    twin = layered_format(point_format)
+    if twin is not None:  # formats 0-3 as 6 or 7: LAZ's layered compressor takes fewer bytes
+        records, point_format, version = to_layered(records, point_format.id), twin, "1.4"
     h = laspy.LasHeader(point_format=point_format, version=writable_version(version))
     h.scales, h.offsets = np.asarray(scales, dtype=np.float64), np.asarray(offsets, dtype=np.float64)
     las = laspy.LasData(h)
