@@ -10,7 +10,9 @@ input's format (LAS or LAZ), ``--repeats`` times each, alternately:
 
 - patchcloud: ``patchcloud normals IN OUT --overwrite -q`` (defaults: in
   memory up to 2 million points, else a local cluster of worker processes),
-  after one untimed run so the numba cache is warm;
+  after one untimed run so the numba cache and Python's byte-code cache
+  are warm (as after ``pip install``: the runs unset
+  ``PYTHONDONTWRITEBYTECODE``);
 - PDAL: ``pdal translate IN OUT normal --filters.normal.knn=8
   --writers.las.extra_dims=all`` (knn 8 as the issue measures it;
   PDAL's ``filters.normal`` is single-threaded).
@@ -77,10 +79,15 @@ def inputs(city_points: list[int], work: Path) -> list[tuple[str, Path]]:
     return out
 
 
+#: The runs' environment: Python may cache byte code (``PYTHONDONTWRITEBYTECODE`` unset), as after ``pip install``,
+#: which byte-compiles the package; a shell that sets it would time the compiling of every module at every start.
+RUN_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+
+
 def timed(cmd: list[str]) -> tuple[float, float]:
     """Wall seconds and peak RSS (MiB, of the process and its children) of ``cmd``; raises if it fails."""
     t0 = time.perf_counter()
-    proc = subprocess.run(["/usr/bin/time", "-f", "%M", *cmd], capture_output=True, text=True)
+    proc = subprocess.run(["/usr/bin/time", "-f", "%M", *cmd], capture_output=True, text=True, env=RUN_ENV)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr.strip()[-400:]}")
@@ -120,7 +127,8 @@ def main() -> None:
         f"{platform.processor() or platform.machine()}, Python {platform.python_version()}",
         f"# command: python tools/bench_small.py {' '.join(sys.argv[1:])}",
         f"# PDAL: {pdal_line}" if pdal else f"# PDAL skipped: {pdal_line}; no goal can be met",
-        f"# {args.repeats} runs each, alternately; seconds min / median / max; ratio = PDAL median / patchcloud median",
+        f"# {args.repeats} runs each, alternately, after a warm-up run (numba and byte-code caches warm, as after pip install); "
+        f"seconds min / median / max; ratio = PDAL median / patchcloud median",
         f"{'file':<58} {'points':>10} {'patchcloud s':>20} {'PDAL s':>20} {'ratio':>6} {'RSS MiB':>8}  goal   (RSS: patchcloud's largest process)",
     ]
     for ln in lines:
