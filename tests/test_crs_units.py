@@ -96,3 +96,21 @@ def test_evlrs_are_kept_byte_for_byte_and_copc_records_dropped(tmp_path):
     assert oe == [ie[0], ie[2]]
     assert iv[0] in ov
     assert laspy.read(str(out)).header.parse_crs().to_epsg() == 2154
+
+
+def test_a_wkt_is_described_once_and_each_caller_gets_its_own_copy(monkeypatch):
+    """A file's WKT is described once per process (pyproj's EPSG search costs about 60 ms for a WKT without an
+    authority, and a run describes its CRS several times); the answer is the same, and a caller's changes stay its own."""
+    from patchcloud.stream.io.crs import crs_description
+
+    searches = []
+    search = CRS.to_epsg
+    monkeypatch.setattr(CRS, "to_epsg", lambda self, *a, **k: searches.append(1) or search(self, *a, **k))
+    wkt = CRS.from_epsg(2154).to_wkt().replace("Lambert-93", "Lambert-93 (this test)")  # not described before
+    first = crs_description(wkt)
+    assert len(searches) == 1
+    first["horizontal_unit"][0] = "changed"
+    again = crs_description(wkt)
+    assert len(searches) == 1 and again["horizontal_unit"][0] == "metre"
+    assert again == crs_description(CRS.from_wkt(wkt)) and again["epsg"] == 2154
+    assert again["label"] == "EPSG:2154 (RGF93 v1 / Lambert-93 (this test))"

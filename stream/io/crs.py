@@ -18,6 +18,8 @@ coordinates look like degrees, is one error naming ``--units``.
 
 from __future__ import annotations
 
+import copy
+import functools
 from dataclasses import dataclass
 
 from patchcloud.core import PatchcloudValueError
@@ -56,7 +58,10 @@ def crs_name(crs) -> str:
     'EPSG:2154 (RGF93 v1 / Lambert-93)'
     """
     c = _crs(crs)
-    code = c.to_epsg()
+    return _label(c, c.to_epsg())
+
+
+def _label(c, code) -> str:
     return f"EPSG:{code} ({c.name})" if code else c.name
 
 
@@ -88,11 +93,22 @@ def crs_description(crs) -> dict:
     >>> d["epsg"], d["horizontal_unit"], d["vertical_unit"]
     (2154, ['metre', 1.0], ['metre', 1.0])
     """
-    c = _crs(crs)
+    if isinstance(crs, str):  # a file's WKT: pyproj's EPSG search takes about 60 ms for a WKT without an authority
+        return copy.deepcopy(_described(crs))
+    return _describe(_crs(crs))
+
+
+@functools.lru_cache(maxsize=64)
+def _described(text: str) -> dict:
+    return _describe(_crs(text))
+
+
+def _describe(c) -> dict:
     h, v = _horizontal_and_vertical(c)
     hu = _unit(h.axis_info[0]) if h.axis_info else ("unknown", float("nan"))
     vu = _unit(v.axis_info[0]) if v is not None and v.axis_info else hu
-    return {"name": c.name, "epsg": c.to_epsg(), "label": crs_name(c), "geographic": bool(h.is_geographic),
+    code = c.to_epsg()
+    return {"name": c.name, "epsg": code, "label": _label(c, code), "geographic": bool(h.is_geographic),
             "horizontal_unit": [hu[0], hu[1]], "vertical_unit": [vu[0], vu[1]]}
 
 
