@@ -49,6 +49,7 @@ def write(tmp_path, rng, name="c.pcz", **kw):
 
 def test_written_file_reads_back_field_by_field(tmp_path, rng, monkeypatch):
     monkeypatch.setattr(pcz, "CHUNK", 64)  # several chunks per array, flushed across tiles
+    monkeypatch.setattr(pcz, "LAZ_CHUNK", 64)  # the residual LAZ bytes too
     ps, counts = write(tmp_path, rng)
     assert counts["points"] == 12000 and counts["residual"] >= 50
     with pcz.open_pcz(tmp_path / "c.pcz") as f:

@@ -153,9 +153,9 @@ class TilePart:
 class _Column:
     """Rows appended to one array of a zarr group, written one whole chunk at a time."""
 
-    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...], chunk: int = CHUNK):
-        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(chunk,) + tail, compressors=[CODEC])
-        self.chunk = chunk
+    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...], chunk: int | None = None):
+        self.chunk = CHUNK if chunk is None else chunk  # read when called: tests make chunks small
+        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(self.chunk,) + tail, compressors=[CODEC])
         self.buffer: list[np.ndarray] = []
         self.held = 0
         self.dtype = np.dtype(dtype)
@@ -426,8 +426,8 @@ class _OpenPcz:
         check_header_sizes(name, raw[:375], len(raw))
         said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
         pid = self.input_format_id  # records of formats 0-3 are stored as 6 or 7 (version 4; version 3: as they were)
-        twin = layered_size(pid, B + 12) if self.attrs["version"] >= 4 and raw[104] & 0x3F != pid else None
-        size = B + 12 if twin is None else twin
+        layered = self.attrs["version"] >= 4 and raw[104] & 0x3F == LAYERED.get(pid)
+        size = layered_size(pid, B + 12) if layered else B + 12
         if said != n or record != size:
             raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {size}")
         try:
@@ -435,10 +435,7 @@ class _OpenPcz:
         except Exception as exc:
             raise PatchcloudIOError(f"{name} cannot be read ({exc})") from exc
         rows = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), -1)
-        if twin is not None:
-            if las.header.point_format.id != LAYERED[pid]:
-                raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says point format {las.header.point_format.id}, "
-                                        f"the input's is {pid}")
+        if layered:
             try:
                 rows = from_layered(rows, pid)
             except ValueError as exc:
