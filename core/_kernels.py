@@ -672,6 +672,38 @@ def shift_to_parents(moments, gstart, octant, rows, cols, coef, out):
 
 
 @parallel_kernel
+def box_cell_keys(points, edge, lo, span, keys):
+    """Key of each point's cell of edge ``edge`` (anchored at the origin) in the box of cells ``lo`` to ``lo + span - 1``: ``-1`` outside.
+
+    A cell ``c`` (integer coordinates) has key ``((c - lo) . (span1 span2, span2, 1))``.
+    """
+    for i in prange(points.shape[0]):
+        c0 = int(np.floor(points[i, 0] / edge)) - lo[0]
+        c1 = int(np.floor(points[i, 1] / edge)) - lo[1]
+        c2 = int(np.floor(points[i, 2] / edge)) - lo[2]
+        if 0 <= c0 < span[0] and 0 <= c1 < span[1] and 0 <= c2 < span[2]:
+            keys[i] = (c0 * span[1] + c1) * span[2] + c2
+        else:
+            keys[i] = -1
+
+
+@njit(cache=True, nogil=True)
+def _cells_at(ckeys, c0, c1, c2, span, at):
+    """Rows in the sorted ``ckeys`` of the 8 cells ``(c0, c1, c2) + (o & 1, o >> 1 & 1, o >> 2 & 1)`` (-1 where absent).
+
+    The cells are relative to ``lo`` (:func:`interpolated_pca`); two cells
+    one apart along the last axis have consecutive keys, so 4 searches find 8.
+    """
+    C = ckeys.shape[0]
+    for o in range(4):
+        key = ((c0 + (o & 1)) * span[1] + (c1 + (o >> 1))) * span[2] + c2
+        pos = np.searchsorted(ckeys, key)
+        at[o] = pos if pos < C and ckeys[pos] == key else -1
+        nxt = pos + 1 if at[o] >= 0 else pos  # where key + 1 is, if anywhere
+        at[o + 4] = nxt if nxt < C and ckeys[nxt] == key + 1 else -1
+
+
+@parallel_kernel
 def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2, sigma3, dir1, votes, count):
     """PCA of cell moments interpolated at each query point (:mod:`patchcloud.core.moment_normals`).
 
@@ -687,7 +719,6 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
     votes and the points of the cells of non-zero weight.
     """
     M = queries.shape[0]
-    C = ckeys.shape[0]
     chunks = (M + CHUNK - 1) // CHUNK
     for chunk in prange(chunks):  # scratch allocated once per chunk of queries, not once per query
         s = np.empty(3)
@@ -699,12 +730,17 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
         work = np.empty((3, 3))
         ev = np.empty(3)
         vec = np.empty((3, 3))
+        at = np.empty(8, dtype=np.int64)  # the 8 cells' rows in ckeys (-1: empty), kept while the base cell stays
+        p0, p1, p2 = np.inf, np.inf, np.inf
         for m in range(chunk * CHUNK, min(M, (chunk + 1) * CHUNK)):
             f0 = queries[m, 0] / h - 0.5
             f1 = queries[m, 1] / h - 0.5
             f2 = queries[m, 2] / h - 0.5
             b0, b1, b2 = np.floor(f0), np.floor(f1), np.floor(f2)
             t0, t1, t2 = f0 - b0, f1 - b1, f2 - b2
+            if b0 != p0 or b1 != p1 or b2 != p2:  # queries come in space order: most share the last one's cells
+                p0, p1, p2 = b0, b1, b2
+                _cells_at(ckeys, int(b0) - lo[0], int(b1) - lo[1], int(b2) - lo[2], span, at)
             W = 0.0
             for a in range(3):
                 s[a] = 0.0
@@ -717,11 +753,10 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
                 w = (t0 if o0 else 1.0 - t0) * (t1 if o1 else 1.0 - t1) * (t2 if o2 else 1.0 - t2)
                 if w <= 0.0:
                     continue
-                c0, c1, c2 = int(b0) + o0, int(b1) + o1, int(b2) + o2
-                key = ((c0 - lo[0]) * span[1] + (c1 - lo[1])) * span[2] + (c2 - lo[2])
-                pos = np.searchsorted(ckeys, key)
-                if pos >= C or ckeys[pos] != key:
+                pos = at[o]
+                if pos < 0:
                     continue
+                c0, c1, c2 = int(b0) + o0, int(b1) + o1, int(b2) + o2
                 n = cmom[pos, 0]
                 n_all += n
                 # the cell's moments about the query point: coordinates p - q = (p - centre) + d

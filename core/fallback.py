@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _kernels
-from .knn import PointGrid, nearest_neighbours, point_grid
+from .knn import PointGrid, near_queries, nearest_neighbours, point_grid
 from .morton import MAX_DEPTH, decode, encode
 
 __all__ = ["knn_normals", "points_near"]
@@ -51,7 +51,7 @@ def points_near(q: np.ndarray, keys: np.ndarray, level: int, query: np.ndarray, 
 
 def knn_normals(
     points: np.ndarray, query: np.ndarray, k: int, grid: tuple[np.ndarray, np.ndarray, int, float] | None = None,
-    chunk: int = 65536,
+    chunk: int = 65536, near: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """k-nearest-neighbour PCA normals of some points of a cloud.
 
@@ -69,6 +69,13 @@ def knn_normals(
         on the points of the cells around the queries only (see
         :func:`points_near`), widening for the queries whose k-th neighbour
         lies beyond; the result is the same as a search in the whole cloud.
+    near : float, optional
+        Without ``grid``: a distance (metres) within which most queries
+        have their ``k`` neighbours.  Few queries (at most a tenth of the
+        points) are then searched among the points within ``near`` of them
+        only, widening fourfold for those whose k-th neighbour lies beyond:
+        the same result as a search in the whole cloud, without indexing
+        all of it for a handful of points.
 
     Returns
     -------
@@ -90,16 +97,31 @@ def knn_normals(
     neighbours = np.zeros((m, k), dtype=np.int64)
     if m == 0:
         return normals, sigma3, k1, k2, dir1, neighbours
-    if grid is not None and m > n // 10:
-        grid = None  # many queries: one tree over the whole cloud is cheaper than cells
+    if m > n // 10:
+        grid = near = None  # many queries: one tree over the whole cloud is cheaper than cells
     whole: list[PointGrid] = []  # the whole-cloud grid, built at most once
     for lo in range(0, m, chunk):
         qi = query[lo : lo + chunk]
-        nb = _knn(points, qi, k, grid, whole)
+        nb = _knn(points, qi, k, grid, whole) if near is None or grid is not None else _knn_near(points, qi, k, float(near), whole)
         neighbours[lo : lo + chunk] = nb
         hi = lo + qi.size
         _kernels.knn_pca(points, qi, nb, normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
     return normals, sigma3, k1, k2, dir1, neighbours
+
+
+def _knn_near(points, qi, k, reach: float, whole: list) -> np.ndarray:
+    """Exact k nearest neighbours of ``points[qi]`` among the points within ``reach`` (metres) of them, widening as needed."""
+    while reach > 0 and np.isfinite(reach):
+        subset = np.flatnonzero(near_queries(points, points[qi], reach))  # every point within reach of a query
+        if 4 * subset.size > points.shape[0]:  # most of the cloud: index all of it, once
+            break
+        dist, nb = nearest_neighbours(point_grid(points[subset], k, ids=subset), points[qi], k)  # inf where fewer than k
+        far = np.flatnonzero(dist[:, -1] >= 0.999 * reach)  # (a margin for the rounding of the cells that found the subset)
+        if far.size == 0:
+            return nb
+        nb[far] = _knn_near(points, qi[far], k, 4.0 * reach, whole)
+        return nb
+    return _knn(points, qi, k, None, whole)
 
 
 def _knn(points, qi, k, grid, whole: list, reach: int = 1) -> np.ndarray:

@@ -164,10 +164,10 @@ def _at_points(points, weighted, where, edge):
             for o, values in zip(out, _at_points(points, weighted, where[part], edge)):
                 o[part] = values
         return tuple(out)
-    cells = np.floor(points / edge).astype(np.int64)
-    inside = np.flatnonzero(np.all((cells >= lo) & (cells < lo + span), axis=1))
-    c = cells[inside] - lo
-    keys = (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+    keys = np.empty(points.shape[0], dtype=np.int64)
+    _kernels.box_cell_keys(points, float(edge), lo, span, keys)
+    inside = np.flatnonzero(keys >= 0)
+    keys = keys[inside]
     order = np.argsort(keys, kind="stable")
     rows, keys = inside[order], keys[order]
     starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if keys.size else np.zeros(0, np.int64)

@@ -435,7 +435,7 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, points, k, orienting
     if query.size == 0:
         return
     cells = (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level) if grid else None
-    nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grid=cells)
+    nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grid=cells, near=None if grid else tree.edge / 2.0**tree.max_level)
     normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])
     # the quadric's k1 direction lies in the quadric's tangent plane at the point;

@@ -1,5 +1,6 @@
 """The compiled kernels against their numpy references."""
 
+import pytest
 import numpy as np
 
 from patchcloud.core import _kernels
@@ -58,3 +59,26 @@ def test_grid_knn_equals_whole_cloud_knn(rng):
     a = knn_normals(ps, query, 10, grid=(q, keys, 5, 8.0 / 32))[5]
     b = knn_normals(ps, query, 10)[5]
     assert np.array_equal(np.sort(a, axis=1), np.sort(b, axis=1))
+
+
+@pytest.mark.parametrize("near", [0.02, 0.3, 5.0])
+def test_knn_near_the_queries_equals_whole_cloud_knn(rng, near):
+    # a few queries among many points (the k-NN fallback of a tile with its skin), some isolated so the search widens,
+    # points on a grid so that many neighbours tie in distance (ties go to the smaller index in both searches)
+    g = np.arange(0.0, 2.0, 0.02)
+    flat = np.column_stack([a.ravel() for a in np.meshgrid(g, g, [0.0])])
+    p = np.concatenate([flat, rng.uniform(0, 2, (5000, 3)), rng.uniform(5, 6, (3, 3)), [[40.0, 40.0, 40.0]]])
+    query = np.r_[np.arange(0, 10000, 997), 7000, len(p) - 4, len(p) - 1]
+    whole = knn_normals(p, query, 12)
+    near_only = knn_normals(p, query, 12, near=near)
+    for a, b in zip(whole, near_only):
+        assert np.array_equal(a, b)
+
+
+def test_knn_near_the_queries_widens_past_a_nearer_looking_corner():
+    # the query's 12th neighbour (0.35 m along x) lies outside the box searched first (0.3 m each way), while a farther
+    # point (0.50 m, on the box's diagonal) lies inside it: the search must widen, not take the diagonal point
+    p = np.array([[0.001 * i, 0.0, 0.0] for i in range(11)] + [[0.35, 0.0, 0.0], [0.29, 0.29, 0.29]]
+                 + [[3.0 + 0.01 * i, 3.0, 3.0] for i in range(200)])
+    nb = knn_normals(p, np.array([0]), 12, near=0.3)[5]
+    assert sorted(nb[0].tolist()) == list(range(12))

@@ -68,6 +68,25 @@ def test_a_plane_gives_its_normal_and_a_line_gives_none():
     assert np.all(res.sigma3[:5000] < 1e-12)
 
 
+def test_a_query_gets_the_same_answer_whatever_the_queries_before_it():
+    # a curved wall queried column by column (consecutive queries one cell apart along z only, then along y), in
+    # shuffled order, and one at a time: every answer is the same array, bit for bit
+    rng = np.random.default_rng(4)
+    y, z = rng.uniform(0, 6, 3000), rng.uniform(0, 6, 3000)
+    pts = np.column_stack([0.3 + 0.05 * np.sin(y) * np.cos(z), y, z])
+    by_column = np.lexsort((z, y))
+    shuffled = rng.permutation(3000)
+    a = moment_normals(pts, by_column, 0.5, min_sigma2=0.01)
+    b = moment_normals(pts, shuffled, 0.5, min_sigma2=0.01)
+    back = np.argsort(shuffled)[by_column]
+    assert a.defined.sum() > 2900
+    for name in ("defined", "normal", "sigma3", "dir1", "coarse"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)[back]), name
+    for i in (0, 1500, 2999):
+        one = moment_normals(pts, by_column[i : i + 1], 0.5, min_sigma2=0.01)
+        assert np.array_equal(one.normal[0], a.normal[i])
+
+
 def test_too_few_points_give_no_normal():
     pts = np.array([[0.1, 0.1, 0.1], [0.3, 0.2, 0.1], [0.2, 0.4, 0.3], [50.0, 50.0, 50.0]])
     res = moment_normals(pts, np.arange(4), 1.0, min_sigma2=0.01)
