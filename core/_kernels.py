@@ -649,6 +649,20 @@ def neighbour_signs(nrm, nb, normals, oriented, sign):
 
 
 @parallel_kernel
+def summed_votes(votes, idx, total):
+    """``total[m]``: the sum of ``votes[idx[m, j]]`` over the ``j`` where ``idx[m, j] >= 0``, in order of ``j``."""
+    for m in prange(idx.shape[0]):
+        tx, ty, tz = 0.0, 0.0, 0.0
+        for j in range(idx.shape[1]):
+            o = idx[m, j]
+            if o >= 0:
+                tx += votes[o, 0]
+                ty += votes[o, 1]
+                tz += votes[o, 2]
+        total[m, 0], total[m, 1], total[m, 2] = tx, ty, tz
+
+
+@parallel_kernel
 def shift_to_parents(moments, gstart, octant, rows, cols, coef, out):
     """Sum children's moments into their parents, each shifted to the parent centre.
 

@@ -469,8 +469,8 @@ def _nearby_signs(points, votes, voters, where, nrm, k: int, reach: float, min_c
     if 4 * where.shape[0] < rows.size:  # few queries: only the voters that may be within reach (the same answer, sooner)
         rows = rows[near_queries(points[rows], where, reach)]  # (many: they reach most voters, the filter costs more than it saves)
     _, idx = nearest_neighbours(point_grid(points[rows], kk, ids=rows), where, kk, max_distance=reach)
-    found = idx >= 0  # idx: rows of votes, -1 where none
-    total = (votes[np.maximum(idx, 0)] * found[..., None]).sum(axis=1)
+    total = np.empty((where.shape[0], 3))
+    _kernels.summed_votes(np.ascontiguousarray(votes, dtype=np.float64), idx, total)  # idx: rows of votes, -1 where none
     return _agreeing_signs(total, nrm, min_cos)
 
 
