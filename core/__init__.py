@@ -28,7 +28,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.codes': ('Method', 'PatchKind'),
     '.normals': ('NormalsParameters', 'NormalsResult', 'estimate_normals'),
     '.options': ('CompressOptions', 'DonOptions', 'NormalsOptions', 'SegmentOptions', 'options_with'),
-    '.octree': ('max_level_for', 'point_keys', 'sort_points'),
+    '.octree': ('level_occupancy', 'max_level_for', 'point_keys', 'sort_points'),
     '.calibration': ('rmse_histograms', 'threshold_from_histograms'),
     '.forest': ('Expansion', 'ForestLinks', 'ForestNodes', 'concat_links', 'expand_signs', 'forest_links', 'forest_nodes', 'lookup', 'merge_nodes', 'reduce_forest'),
     '.orient': ('MIN_RELIABILITY', 'LeafSet', 'cross_face_pairs', 'link_agreements'),
@@ -76,6 +76,7 @@ __all__ = [
     "MAX_DEPTH",
     "decode",
     # .octree
+    "level_occupancy",
     "max_level_for",
     "point_keys",
     "sort_points",

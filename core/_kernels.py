@@ -648,6 +648,42 @@ def neighbour_signs(nrm, nb, normals, oriented, sign):
             sign[m] = -1.0 if dot < 0.0 else 1.0
 
 
+@njit(cache=True, nogil=True)
+def first_split_levels(keys, depth, counts):
+    """``counts[l]``: how many neighbours in the sorted Morton ``keys`` (``depth`` levels) first differ at level ``l``."""
+    for i in range(1, keys.shape[0]):
+        x = keys[i] ^ keys[i - 1]
+        if x == 0:
+            continue
+        lev = depth
+        while lev > 0 and (x >> np.uint64(3 * (depth - lev + 1))) != 0:
+            lev -= 1
+        counts[lev] += 1
+
+
+@parallel_kernel
+def hashed_cell_picks(points, origin, edge, hash3, stride, out):
+    """``out[i]``: whether point ``i``'s cell ``c = floor((p + origin) / edge)`` has ``(c . hash3) mod stride == 0``."""
+    for i in prange(points.shape[0]):
+        h = 0
+        for a in range(3):
+            h += np.int64(np.floor((points[i, a] + origin[a]) / edge)) * hash3[a]
+        out[i] = h % stride == 0
+
+
+@parallel_kernel
+def gathered_run_sums(values, rows, starts, out):
+    """``out[c]``: the sum of ``values[rows[i]]`` for ``i`` in run ``c`` (``starts[c]`` to the next start), in order of ``i``."""
+    n = rows.shape[0]
+    for c in prange(starts.shape[0]):
+        hi = starts[c + 1] if c + 1 < starts.shape[0] else n
+        for a in range(values.shape[1]):
+            t = 0.0
+            for i in range(starts[c], hi):
+                t += values[rows[i], a]
+            out[c, a] = t
+
+
 @parallel_kernel
 def summed_votes(votes, idx, total):
     """``total[m]``: the sum of ``votes[idx[m, j]]`` over the ``j`` where ``idx[m, j] >= 0``, in order of ``j``."""

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._kernels import hashed_cell_picks
 from .moments import cell_moments
 from .quadric import fit_nodes
 
@@ -97,11 +98,12 @@ def rmse_histograms(points: np.ndarray, d_min: float, n_min: int, origin=(0.0, 0
     out = np.zeros((2, RMSE_BINS.size - 1), dtype=np.int64)
     o = np.asarray(origin, dtype=np.float64)
     for row, c in enumerate(calibration_edges(d_min)[:2]):
-        ijk = np.floor((pts + o) / c).astype(np.int64)  # absolute cells
-        chosen = np.flatnonzero(np.mod(ijk @ _HASH, CALIBRATION_STRIDE) == 0)
+        picked = np.empty(pts.shape[0], dtype=np.bool_)
+        hashed_cell_picks(pts, o, float(c), _HASH, CALIBRATION_STRIDE, picked)  # one cell in CALIBRATION_STRIDE
+        chosen = np.flatnonzero(picked)
         if chosen.size == 0:
             continue
-        cells = ijk[chosen]
+        cells = np.floor((pts[chosen] + o) / c).astype(np.int64)  # absolute cells
         order = np.lexsort(cells.T[::-1])
         cells = cells[order]
         starts = np.flatnonzero(np.r_[True, np.any(cells[1:] != cells[:-1], axis=1)])

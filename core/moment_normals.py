@@ -128,7 +128,7 @@ def moment_normals(
     n, m = points.shape[0], query.size
     if votes is None or voters is None:
         votes, voters = np.zeros((n, 3)), np.zeros(n, dtype=bool)
-    weighted = np.where(np.asarray(voters, dtype=bool)[:, None], votes, 0.0)
+    votes, voters = np.asarray(votes, dtype=np.float64), np.asarray(voters, dtype=bool)
     defined = np.zeros(m, dtype=bool)
     coarse = np.zeros(m, dtype=bool)
     normal, dir1, vote = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, 3))
@@ -137,7 +137,8 @@ def moment_normals(
     where = points[query]
     if m and 8 * m < n:  # few queries: only the points that may lie in their cells (each such cell whole, so the same sums)
         near = near_queries(points, where, 2.0 * h)  # a query's cells lie within 1.5 h of it along each axis, at both scales
-        points, weighted = points[near], weighted[near]
+        points, votes, voters = points[near], votes[near], voters[near]
+    weighted = np.where(voters[:, None], votes, 0.0)
     for edge in (0.5 * h, h):  # the flatter of the two scales, the finer on a tie
         nrm, s2, s3, d1, v, count = _at_points(points, weighted, where, float(edge))
         ok = (count >= MIN_POINTS) & (s2 >= min_sigma2) & (s3 < best)
@@ -174,7 +175,8 @@ def _at_points(points, weighted, where, edge):
     ckeys = keys[starts]
     cxyz = np.stack([ckeys // (span[1] * span[2]), (ckeys // span[2]) % span[1], ckeys % span[2]], axis=1) + lo
     cmom = np.ascontiguousarray(cell_moments(_kernels.take_rows(points, rows), starts, (cxyz + 0.5) * edge)[:, :10])
-    cvotes = np.add.reduceat(weighted[rows], starts, axis=0) if rows.size else np.zeros((0, 3))
+    cvotes = np.empty((starts.size, 3))
+    _kernels.gathered_run_sums(weighted, rows, starts, cvotes)
     normals, dir1, votes = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
     sigma2, sigma3, count = np.empty(m), np.empty(m), np.empty(m)
     _kernels.interpolated_pca(

@@ -22,7 +22,7 @@ from .morton import MAX_DEPTH, containing, decode, key_range
 from .moments import EXPONENTS, shift_entries
 from .quadric import NodeFit, fit_nodes
 
-__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "max_level_for", "point_keys"]
+__all__ = ["Octree", "build_octree", "sort_points", "estimate_spacing", "max_level_for", "point_keys", "level_occupancy"]
 
 #: Leaf kinds: a smooth patch modelled by its quadric, a sharp feature or 3D curve, too few points.
 
@@ -144,6 +144,17 @@ def sort_points(points: np.ndarray, corner: np.ndarray, edge: float) -> tuple[np
         sub_order = np.lexsort((sub[:, 2], sub[:, 1], sub[:, 0], keys[pos]))
         order[pos] = order[pos[sub_order]]
     return order, keys, _kernels.take_rows(q, order)
+
+
+def level_occupancy(keys: np.ndarray) -> list[int]:
+    """Occupied cells at each level 0 to ``MAX_DEPTH`` of points with sorted Morton ``keys`` ((N,) uint64, N > 0).
+
+    >>> level_occupancy(np.array([0, 1, 8, 2**63], dtype=np.uint64))[:3], level_occupancy(np.array([0, 1, 8, 2**63], dtype=np.uint64))[-1]
+    ([2, 2, 2], 4)
+    """
+    counts = np.zeros(MAX_DEPTH + 1, dtype=np.int64)
+    _kernels.first_split_levels(np.ascontiguousarray(keys, dtype=np.uint64), MAX_DEPTH, counts)
+    return (np.cumsum(counts) + 1).tolist()
 
 
 def _occupied(keys: np.ndarray, level: int) -> int:

@@ -82,3 +82,13 @@ def test_knn_near_the_queries_widens_past_a_nearer_looking_corner():
                  + [[3.0 + 0.01 * i, 3.0, 3.0] for i in range(200)])
     nb = knn_normals(p, np.array([0]), 12, near=0.3)[5]
     assert sorted(nb[0].tolist()) == list(range(12))
+
+
+def test_level_occupancy_counts_the_distinct_cells_of_every_level(rng):
+    from patchcloud.core import MAX_DEPTH, level_occupancy, sort_points
+
+    # a spread cloud, duplicates, and one far point (keys that differ in the top level only)
+    pts = np.concatenate([rng.uniform(0, 3, (5000, 3)), np.repeat(rng.uniform(0, 1, (50, 3)), 4, axis=0), [[127.0, 127.0, 127.0]]])
+    _, keys, _ = sort_points(pts, np.zeros(3), 128.0)
+    want = [np.unique(keys >> np.uint64(3 * (MAX_DEPTH - lev))).size for lev in range(MAX_DEPTH + 1)]
+    assert level_occupancy(keys) == want and want[0] == 1 and want[1] == 2

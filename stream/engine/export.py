@@ -167,17 +167,16 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     n = len(records)
     out = laspy.PackedPointRecord.zeros(n, header.point_format)
     las_output.copy_records(records, out.array)
+    stored = {}  # each new dimension's values as stored, contiguous: its header range is read from them
     for col, v in zip(columns, values):
         if col.renumber:
             known, number = store.get(f"export/{col.array}_ids"), store.get(f"export/{col.array}_numbers")
             w = np.asarray(v, dtype=np.int64)
             v = np.where(w != 0, number[np.clip(np.searchsorted(known, w), 0, max(known.size - 1, 0))] if known.size else 0, 0)
-        if len(col.dims) == 1:
-            out[col.dims[0]] = np.asarray(v).reshape(n)
-        else:
-            for k, name in enumerate(col.dims):
-                out[name] = v[:, k]
-    stats = las_output.point_stats(header, out)
+        for k, name in enumerate(col.dims):
+            stored[name] = np.ascontiguousarray((v if len(col.dims) == 1 else v[:, k]).reshape(n), dtype=out.array.dtype[name])
+            out[name] = stored[name]
+    stats = las_output.point_stats(header, out, stored)
     if compressed:
         return stats, las_output.write_laz_part(tmp, local, header, out, parallel=laz_parallel)
     las_output.write_las_part(tmp, start, first, out)

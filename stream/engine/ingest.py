@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from patchcloud.core import MAX_DEPTH, PatchcloudValueError, sort_points
+from patchcloud.core import PatchcloudValueError, level_occupancy, sort_points
 
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
@@ -337,7 +337,7 @@ def sort_tile(url: str, ijk: tuple) -> list[int]:
     order, keys, _ = sort_points(local, np.zeros(3), grid.tile_size)
     store.write(ijk, "xyz", raw[order])
     store.write(ijk, "rank", order.astype(np.uint32))
-    occ = [int(np.count_nonzero(np.diff(keys >> np.uint64(3 * (MAX_DEPTH - lev))))) + 1 for lev in range(MAX_DEPTH + 1)]
+    occ = level_occupancy(keys)
     store.mark_tile(ijk, "sort", index=[int(v) for v in ijk], count=int(raw.shape[0]), occupancy=occ)
     return occ
 

@@ -89,18 +89,21 @@ def _eb_structs(h: laspy.LasHeader) -> list:
     return list(vlrs[0].extra_bytes_structs) if vlrs else []
 
 
-def _eb_range(st, points: laspy.PackedPointRecord) -> tuple[np.ndarray, np.ndarray]:
+def _eb_range(st, points: laspy.PackedPointRecord, columns: dict) -> tuple[np.ndarray, np.ndarray]:
     """Stored (unscaled) min and max of one extra-bytes dimension over ``points``, no-data and NaN values left out.
 
     laspy's own ``grow`` takes each call's first value for the whole call,
     so its ranges depend on how the points were cut: these are the true ones.
+    ``columns``: contiguous copies of some dimensions' stored values, read
+    instead of the records' strided field.
     """
     t, n = np.dtype(st._long_type()), st.num_elements()
     info = np.finfo(t) if t.kind == "f" else np.iinfo(t)
     lo, hi = np.full(n, info.max, dtype=t), np.full(n, info.min, dtype=t)
     if st.data_type == 0 or len(points) == 0:
         return lo, hi
-    v = np.asarray(points.array[st.format_name()]).reshape(len(points), n)
+    name = st.format_name()
+    v = np.asarray(columns[name] if name in columns else points.array[name]).reshape(len(points), n)
     for i in range(n):
         col = v[:, i]
         valid = np.ones(col.shape, dtype=bool)
@@ -113,8 +116,14 @@ def _eb_range(st, points: laspy.PackedPointRecord) -> tuple[np.ndarray, np.ndarr
     return lo, hi
 
 
-def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord) -> PointStats:
-    """The header statistics of ``points`` alone (``header`` from :func:`prepare_header`)."""
+def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord, columns: dict | None = None) -> PointStats:
+    """The header statistics of ``points`` alone (``header`` from :func:`prepare_header`).
+
+    ``columns``: optional ``{name: array}``, the stored values of some
+    extra-bytes dimensions of ``points`` as they were set (same dtype, one
+    row per point), so their ranges are read from these contiguous arrays.
+    """
+    columns = columns or {}
     structs = _eb_structs(header)
     h = deepcopy(header)
     try:  # laspy's grow would set wrong extra-bytes ranges (see _eb_range): they are computed here
@@ -123,7 +132,7 @@ def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord) -> Poi
         pass
     h.partial_reset()
     h.grow(points)
-    ranges = [_eb_range(st, points) for st in structs]
+    ranges = [_eb_range(st, points, columns) for st in structs]
     return PointStats(
         mins=np.asarray(h.mins, dtype=np.float64), maxs=np.asarray(h.maxs, dtype=np.float64),
         gps=(float(h.min_gps_time), float(h.max_gps_time)), by_return=np.asarray(h.number_of_points_by_return, dtype=np.uint64),

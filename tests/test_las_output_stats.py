@@ -1,0 +1,47 @@
+"""Header statistics of written points: the extra-bytes ranges leave out no-data and NaN values, whether they are read
+from the records or from the columns as they were set."""
+
+import laspy
+import numpy as np
+
+from patchcloud.stream.io import las_output
+
+
+def _points(n=1000):
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.add_extra_dims([laspy.ExtraBytesParams("Curvature", np.float32, no_data=[-1.0]),
+                      laspy.ExtraBytesParams("Deviation", np.uint16, no_data=[65535]),
+                      laspy.ExtraBytesParams("Plain", np.int32)])
+    rng = np.random.default_rng(5)
+    pts = laspy.PackedPointRecord.zeros(n, h.point_format)
+    curv = rng.uniform(0.1, 0.4, n).astype(np.float32)
+    curv[:5], curv[5] = np.nan, -1.0  # NaN and no-data: not in the range
+    dev = rng.integers(10, 900, n).astype(np.uint16)
+    dev[7] = 65535
+    plain = rng.integers(-50, 50, n).astype(np.int32)
+    for name, v in (("Curvature", curv), ("Deviation", dev), ("Plain", plain)):
+        pts[name] = v
+    return h, pts, dict(Curvature=curv, Deviation=dev, Plain=plain)
+
+
+def test_extra_bytes_ranges_leave_out_no_data_and_nan():
+    h, pts, cols = _points()
+    st = las_output.point_stats(h, pts)
+    lo = [np.frombuffer(b, dtype=d)[0] for b, d in zip(st.eb_min, ("<f8", "<u8", "<i8"))]
+    hi = [np.frombuffer(b, dtype=d)[0] for b, d in zip(st.eb_max, ("<f8", "<u8", "<i8"))]
+    c = cols["Curvature"][6:]
+    assert lo[0] == np.float64(c.min()) and hi[0] == np.float64(c.max())
+    d = np.delete(cols["Deviation"], 7)
+    assert (lo[1], hi[1]) == (d.min(), d.max())
+    assert (lo[2], hi[2]) == (cols["Plain"].min(), cols["Plain"].max())
+
+
+def test_ranges_from_the_columns_as_set_equal_ranges_from_the_records():
+    h, pts, cols = _points()
+    ref = las_output.point_stats(h, pts)
+    for given in (cols, {"Plain": cols["Plain"]}):
+        st = las_output.point_stats(h, pts, given)
+        assert (st.eb_min, st.eb_max, st.count, st.gps) == (ref.eb_min, ref.eb_max, ref.count, ref.gps)
+        assert np.array_equal(st.mins, ref.mins) and np.array_equal(st.maxs, ref.maxs)
+    wrong = dict(cols, Plain=cols["Plain"] + 1)  # the ranges do come from the columns given
+    assert las_output.point_stats(h, pts, wrong).eb_max[2] != ref.eb_max[2]
