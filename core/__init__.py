@@ -25,6 +25,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.errors': ('PatchcloudError', 'PatchcloudIOError', 'PatchcloudMemoryError', 'PatchcloudNotImplementedError', 'PatchcloudValueError', 'os_error_line'),
     '.moments': ('cell_moments',),
     '.morton': ('MAX_DEPTH', 'decode'),
+    '.frame': ('cell_indices', 'local_coordinates'),
     '.codes': ('Method', 'PatchKind'),
     '.normals': ('NormalsParameters', 'NormalsResult', 'estimate_normals'),
     '.options': ('CompressOptions', 'DonOptions', 'NormalsOptions', 'SegmentOptions', 'options_with'),
@@ -75,6 +76,9 @@ __all__ = [
     # .morton
     "MAX_DEPTH",
     "decode",
+    # .frame
+    "local_coordinates",
+    "cell_indices",
     # .octree
     "level_occupancy",
     "max_level_for",

@@ -92,3 +92,13 @@ def test_level_occupancy_counts_the_distinct_cells_of_every_level(rng):
     _, keys, _ = sort_points(pts, np.zeros(3), 128.0)
     want = [np.unique(keys >> np.uint64(3 * (MAX_DEPTH - lev))).size for lev in range(MAX_DEPTH + 1)]
     assert level_occupancy(keys) == want and want[0] == 1 and want[1] == 2
+
+
+def test_local_frame_kernels_equal_the_numpy_expressions_bit_for_bit(rng):
+    from patchcloud.core import cell_indices, local_coordinates
+
+    xyz = rng.integers(-2**31, 2**31 - 1, (20000, 3)).astype(np.int32)
+    scale, shift = np.array([0.001, 0.01, 0.0003]), np.array([123456.7, -5e6, 33.3])
+    ref = xyz.astype(np.float64) * scale + shift
+    assert np.array_equal(local_coordinates(xyz, scale, shift), ref)
+    assert np.array_equal(cell_indices(xyz, scale, shift, 64.0), np.floor(ref / 64.0).astype(np.int64))

@@ -116,12 +116,13 @@ def unpack_tile_keys(key: np.ndarray) -> np.ndarray:
 
 def tile_keys(grid: Grid, xyz: np.ndarray) -> np.ndarray:
     """Packed tile index of each point (LAS integer coordinates); ordering keys orders tiles lexicographically."""
-    return pack_tile_keys(grid.tile_of(grid.local(xyz)))
+    return pack_tile_keys(grid.tiles_of(xyz))
 
 
-def _route(grid: Grid, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Points of a chunk by tile: the stable order that groups them, the sorted tile keys, and each run's start and end."""
-    keys = pack_tile_keys(grid.tile_of(local))
+def _route(grid: Grid, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points of a chunk (LAS integer coordinates) by tile: the stable order that groups them, the sorted tile keys, and
+    each run's start and end."""
+    keys = tile_keys(grid, xyz)
     order = np.argsort(keys, kind="stable")
     sk = keys[order]
     starts = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]]) if sk.size else np.zeros(0, dtype=np.int64)
@@ -217,7 +218,7 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
     if not keep.all():
         records = records[keep]
     xyz = cat.common(f, records["X"], records["Y"], records["Z"])
-    order, sk, starts, ends = _route(grid, grid.local(xyz))
+    order, sk, starts, ends = _route(grid, xyz)
     if field == "xyz":
         store.put(f"{path}/xyz", xyz[order])
         sums = xyz.astype(np.int64).sum(axis=0)

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from patchcloud.core import PatchcloudIOError, PatchcloudValueError, PatchTable
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError, PatchTable, cell_indices, local_coordinates
 
 from . import memory_group
 from .catalog import Catalog
@@ -94,13 +94,16 @@ class Grid:
 
     def local(self, xyz_int: np.ndarray) -> np.ndarray:
         """(n, 3) float64 local coordinates (metres) of LAS integer coordinates."""
-        s = np.asarray(self.scale)
-        shift = np.asarray(self.offset) - np.asarray(self.origin)
-        return xyz_int.astype(np.float64) * s + shift
+        return local_coordinates(xyz_int, self.scale, self.shift)
 
-    def tile_of(self, local: np.ndarray) -> np.ndarray:
-        """(n, 3) int64 tile indices of local coordinates."""
-        return np.floor(local / self.tile_size).astype(np.int64)
+    @property
+    def shift(self) -> np.ndarray:
+        """(3,) float64: the local frame's offset, ``offset - origin`` (metres)."""
+        return np.asarray(self.offset, dtype=np.float64) - np.asarray(self.origin, dtype=np.float64)
+
+    def tiles_of(self, xyz_int: np.ndarray) -> np.ndarray:
+        """(n, 3) int64 tile indices of LAS integer coordinates: ``floor(local(xyz_int) / tile_size)``, in one pass."""
+        return cell_indices(xyz_int, self.scale, self.shift, self.tile_size)
 
     def corner(self, ijk) -> np.ndarray:
         """Local minimum corner of tile ``ijk``."""
