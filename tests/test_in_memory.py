@@ -11,6 +11,7 @@ from test_stream import write_scene
 
 from patchcloud.core import PatchcloudValueError
 from patchcloud.stream import RunOptions, compress, don, normals, segment
+from patchcloud.stream.engine.job import in_memory_points
 from patchcloud.stream.io import memory_group
 from patchcloud.stream.jobs import normals_tiles
 
@@ -46,8 +47,19 @@ def test_in_memory_equals_a_run_on_a_store(scene, tmp_path, job):
         assert mem.read_bytes() == disk.read_bytes()
 
 
-def test_auto_runs_small_inputs_in_memory_unless_a_store_or_scheduler_is_asked():
+def test_the_in_memory_limit_is_larger_only_where_worker_processes_cannot_win(monkeypatch):
+    from patchcloud.stream.engine import job
+
+    assert in_memory_points(1) == in_memory_points(2) == 10_000_000 and in_memory_points(3) == in_memory_points(64) == 2_000_000
+    monkeypatch.setattr(job.os, "cpu_count", lambda: 16)
     assert RunOptions().runs_in_memory(2_000_000) and not RunOptions().runs_in_memory(2_000_001)
+    monkeypatch.setattr(job.os, "cpu_count", lambda: 2)
+    assert RunOptions().runs_in_memory(4_000_000)
+
+
+def test_auto_runs_small_inputs_in_memory_unless_a_store_or_scheduler_is_asked():
+    limit = in_memory_points()
+    assert RunOptions().runs_in_memory(limit) and not RunOptions().runs_in_memory(limit + 1)
     assert not RunOptions(store="s.zarr").runs_in_memory(10)
     assert not RunOptions(keep_store=True).runs_in_memory(10)
     assert not RunOptions(scheduler="processes").runs_in_memory(10)

@@ -9,7 +9,7 @@ tools run as a whole process, input file to output file, output in the
 input's format (LAS or LAZ), ``--repeats`` times each, alternately:
 
 - patchcloud: ``patchcloud normals IN OUT --overwrite -q`` (defaults: in
-  memory up to 2 million points, else a local cluster of worker processes),
+  memory up to 2 million points (10 million on a machine of at most 2 cores), else a local cluster of worker processes),
   after one untimed run so the numba cache and Python's byte-code cache
   are warm (as after ``pip install``: the runs unset
   ``PYTHONDONTWRITEBYTECODE``);

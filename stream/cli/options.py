@@ -60,7 +60,8 @@ quiet = click.option("--quiet", "-q", is_flag=True, help="No progress bars or su
 in_memory = click.option(
     "--in-memory/--on-disk", "in_memory", default=None,
     help="Run in this process with the tiles in memory (no dask cluster, no store on disk; same results), or on a store. "
-    "Default: in memory for inputs of up to 2 million points when no --store, --keep-store, --workers or --scheduler is given.",
+    "Default: in memory for inputs of up to 2 million points (10 million on a machine of at most 2 cores) when no --store, "
+    "--keep-store, --workers or --scheduler is given.",
 )
 profile = click.option(
     "--profile", type=click.Path(dir_okay=False), default=None, metavar="PATH",

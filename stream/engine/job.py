@@ -72,13 +72,27 @@ from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store_dir, removing_path
 
 __all__ = [
-    "IN_MEMORY_POINTS", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
+    "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
     "time_and_memory_lines", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines",
 ]
 
 #: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.61 GB
 #: (city LAZ, 2-core machine; about 0.45 GB plus 90 bytes per point: 0.77 GB at 4M points, 1.35 GB at 10M).
 IN_MEMORY_POINTS = 2_000_000
+#: The same on a machine of at most :data:`FEW_CORES` cores: there worker processes cannot win (2 cores, city LAZ: in
+#: memory 9.0 s against 14.0 s on disk at 4M points, 18.4 s against 24.9 s at 8M, 22.6 s against 29.5 s at 10M).
+IN_MEMORY_POINTS_FEW_CORES = 10_000_000
+FEW_CORES = 2
+
+
+def in_memory_points(cores: int | None = None) -> int:
+    """The largest input (points) that runs in memory by default on a machine of ``cores`` cores (default: this one's).
+
+    >>> in_memory_points(2), in_memory_points(16)
+    (10000000, 2000000)
+    """
+    cores = (os.cpu_count() or 1) if cores is None else int(cores)
+    return IN_MEMORY_POINTS_FEW_CORES if cores <= FEW_CORES else IN_MEMORY_POINTS
 #: Peak memory of a run in memory: this much, plus :data:`IN_MEMORY_POINT_BYTES` per point (measured on the city, 2M to 10M points).
 IN_MEMORY_BASE = 450 << 20
 IN_MEMORY_POINT_BYTES = 90
@@ -154,7 +168,8 @@ class RunOptions:
         store on disk, the kernels on ``workers`` threads (default: every
         core); the same tiles and the
         same results, byte for byte, as a run on a store.  Default (None):
-        for inputs of at most :data:`IN_MEMORY_POINTS` points when neither
+        for inputs of at most :func:`in_memory_points` (2 million points;
+        10 million on a machine of at most 2 cores) when neither
         ``store``, ``keep_store``, ``workers`` nor a ``scheduler`` other
         than "auto" is given, and its peak fits the memory budget.  True:
         whatever the size within the budget (memory grows with it: about
@@ -214,7 +229,7 @@ class RunOptions:
             check_memory(need, f"a run in memory of {int(points):,} points", "--on-disk runs in bounded memory")
         if self.in_memory is not None:
             return self.in_memory
-        return (points <= IN_MEMORY_POINTS and self.store is None and not self.keep_store and self.scheduler == "auto"
+        return (points <= in_memory_points() and self.store is None and not self.keep_store and self.scheduler == "auto"
                 and self.workers is None and need <= max_memory())
 
 
