@@ -79,8 +79,9 @@ __all__ = [
 #: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.61 GB
 #: (city LAZ, 2-core machine; about 0.45 GB plus 90 bytes per point: 0.77 GB at 4M points, 1.35 GB at 10M).
 IN_MEMORY_POINTS = 2_000_000
-#: The same on a machine of at most :data:`FEW_CORES` cores: there worker processes cannot win (2 cores, city LAZ: in
-#: memory 9.0 s against 14.0 s on disk at 4M points, 18.4 s against 24.9 s at 8M, 22.6 s against 29.5 s at 10M).
+#: The same on a machine of at most :data:`FEW_CORES` cores: there worker processes do not win (2 cores, city LAZ,
+#: tools/results/bench_small_modes-2026-11-25.txt: in memory 9.56 s against 14.01 s on disk at 4M points, 22.60 s
+#: against 29.56 s at 10M, peak 1.49 GB).
 IN_MEMORY_POINTS_FEW_CORES = 10_000_000
 FEW_CORES = 2
 
