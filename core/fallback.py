@@ -102,7 +102,7 @@ def knn_normals(
     whole: list[PointGrid] = []  # the whole-cloud grid, built at most once
     for lo in range(0, m, chunk):
         qi = query[lo : lo + chunk]
-        nb = _knn(points, qi, k, grid, whole) if near is None or grid is not None else _knn_near(points, qi, k, float(near), whole)
+        nb = _knn_near(points, qi, k, float(near), whole) if near is not None and grid is None else _knn(points, qi, k, grid, whole)
         neighbours[lo : lo + chunk] = nb
         hi = lo + qi.size
         _kernels.knn_pca(points, qi, nb, normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
@@ -111,17 +111,14 @@ def knn_normals(
 
 def _knn_near(points, qi, k, reach: float, whole: list) -> np.ndarray:
     """Exact k nearest neighbours of ``points[qi]`` among the points within ``reach`` (metres) of them, widening as needed."""
-    while reach > 0 and np.isfinite(reach):
-        subset = np.flatnonzero(near_queries(points, points[qi], reach))  # every point within reach of a query
-        if 4 * subset.size > points.shape[0]:  # most of the cloud: index all of it, once
-            break
-        dist, nb = nearest_neighbours(point_grid(points[subset], k, ids=subset), points[qi], k)  # inf where fewer than k
-        far = np.flatnonzero(dist[:, -1] >= 0.999 * reach)  # (a margin for the rounding of the cells that found the subset)
-        if far.size == 0:
-            return nb
+    subset = np.flatnonzero(near_queries(points, points[qi], reach)) if reach > 0 and np.isfinite(reach) else None
+    if subset is None or 4 * subset.size > points.shape[0]:  # most of the cloud: index all of it, once
+        return _knn(points, qi, k, None, whole)
+    dist, nb = nearest_neighbours(point_grid(points[subset], k, ids=subset), points[qi], k)  # inf where fewer than k
+    far = np.flatnonzero(dist[:, -1] >= 0.999 * reach)  # (a margin for the rounding of the cells that found the subset)
+    if far.size:
         nb[far] = _knn_near(points, qi[far], k, 4.0 * reach, whole)
-        return nb
-    return _knn(points, qi, k, None, whole)
+    return nb
 
 
 def _knn(points, qi, k, grid, whole: list, reach: int = 1) -> np.ndarray:
