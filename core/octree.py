@@ -157,11 +157,6 @@ def level_occupancy(keys: np.ndarray) -> list[int]:
     return (np.cumsum(counts) + 1).tolist()
 
 
-def _occupied(keys: np.ndarray, level: int) -> int:
-    c = keys >> np.uint64(3 * (MAX_DEPTH - level))
-    return int(np.count_nonzero(c[1:] != c[:-1])) + 1
-
-
 def estimate_spacing(keys: np.ndarray, edge: float, target: float = 16.0) -> float:
     """Typical distance between neighbouring points (metres), from octree occupancy.
 
@@ -170,14 +165,9 @@ def estimate_spacing(keys: np.ndarray, edge: float, target: float = 16.0) -> flo
     edge ``h`` holding ``m`` points gives a spacing ``h / sqrt(m)``.
     """
     n = keys.shape[0]
-    lo, hi = 0, MAX_DEPTH
-    while lo < hi:  # first level with n / occupied < target
-        mid = (lo + hi) // 2
-        if n / _occupied(keys, mid) < target:
-            hi = mid
-        else:
-            lo = mid + 1
-    m = n / _occupied(keys, lo)
+    occupied = level_occupancy(keys)  # grows with the level
+    lo = next((lev for lev in range(MAX_DEPTH) if n / occupied[lev] < target), MAX_DEPTH)
+    m = n / occupied[lo]
     return edge / 2.0**lo / np.sqrt(max(m, 1.0))
 
 

@@ -305,7 +305,7 @@ def _index_parts(store: Store) -> None:
     store.put("index/tile_start", tile_start)
     g = store.grid
     mean = np.asarray([s / kept for s in sums])  # exact integer sums: whatever the parts
-    centroid = mean * np.asarray(g.scale) + (np.asarray(g.offset) - np.asarray(g.origin))
+    centroid = mean * np.asarray(g.scale) + g.shift
     store.update(tiles=unpack_tile_keys(keys_sorted).tolist(), tile_counts=counts.tolist(), centroid_local=centroid.tolist(),
                  left_out=dict(zip(REASONS, left_out.tolist())), classes=classes)
 
