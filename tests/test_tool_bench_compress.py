@@ -58,6 +58,9 @@ def test_main_writes_a_sane_table(tmp_path, capsys):
     assert sz["laz_xyz"] < sz["laz4"] <= sz["laz"]
     text = out.read_text()
     assert "### plane_box" in text and "| 0.05 |" in text and "### Goals per input" in text and "### Goals of the two modes" in text
+    speed = info["laz_speed"]  # the LAZ baselines of compress and decompress, one row per mode
+    assert speed["write_s"] > 0 and speed["read_s"] > 0
+    assert "### Speed against LAZ" in text and "| plane_box | 0.05 | model |" in text and "| plane_box | 0.05 | points |" in text
     assert "| max-error m | .pcz bits/pt | x LAS | x LAZ |" in capsys.readouterr().out
 
 

@@ -51,6 +51,11 @@ Baselines, from the same points in the same run:
   "x Draco @ D2" compare with Draco's curve interpolated (log-log) at the
   ``.pcz`` symmetric mean error; "-" when that error is outside the curve.
 
+Speed: the same points written to a LAZ file and read back with lazrs'
+parallel codec (median of 3), in this process; the last table sets
+compress and decompress times, both modes, against them (goals: compress
+within 3x the LAZ write, decompress within 2x the LAZ read).
+
 Ratios are "other bytes / .pcz bytes": above 1, the ``.pcz`` is smaller.
 Draco and LAZ-xyz store only coordinates; a ``.pcz`` also keeps every
 attribute of its residual points (byte for byte) and a class and an
@@ -310,6 +315,25 @@ def _warm_up(tmp: Path) -> None:
     estimate_normals(np.column_stack([las.x, las.y, las.z]))
 
 
+def laz_times(las, tmp: Path, repeats: int = 3) -> dict:
+    """Seconds to write the cloud as a LAZ file (all dimensions) and to read it back, lazrs on every core (the median of
+    ``repeats``): the speed baselines of compress and decompress, in this process, as they run."""
+    import laspy
+
+    path = tmp / "speed.laz"
+    backend = laspy.LazBackend.LazrsParallel
+    write, read = [], []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        las.write(path, do_compress=True, laz_backend=backend)
+        write.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        laspy.read(path, laz_backend=backend)
+        read.append(time.perf_counter() - t)
+    path.unlink()
+    return {"write_s": float(np.median(write)), "read_s": float(np.median(read))}
+
+
 def bench_file(name: str, path: Path, budgets, draco: bool, tmp: Path, log) -> dict:
     """Everything measured on one input; a dict for :func:`file_table` and :func:`plot`."""
     import laspy
@@ -330,6 +354,7 @@ def bench_file(name: str, path: Path, budgets, draco: bool, tmp: Path, log) -> d
             "extent": A.max(axis=0).tolist(), "building_share": float(np.mean(cls == 6)), "ground_share": float(np.mean(cls == 2))}
     log(f"# {name}: {n:,} points, baselines ...")
     info["sizes"] = baseline_sizes(las)
+    info["laz_speed"] = laz_times(las, tmp)
     t = time.perf_counter()
     nA = estimate_normals(A).normals.astype(np.float64)
     info["normals_s"] = time.perf_counter() - t
@@ -502,6 +527,32 @@ def goals_table(infos: list[dict]) -> list[str]:
                     ", geometry-only yes" if r["draco_d2_bpp"] > r["bpp_xyz"] else ", geometry-only no")
             out.append(f"| {info['name']} | {r['budget']:g} | {_cm(r['d1'])} | {_cm(r['d2'])} | {ratio:.2f}x | {a1} | {a2} | "
                        f"{d1x} | {d2x} | {g2x} | {b} |")
+    return out + [""]
+
+
+def speed_goals_table(infos: list[dict]) -> list[str]:
+    """Markdown lines: compress and decompress times against writing and reading the same points as LAZ, both modes.
+
+    Goals (issue 19): compress within 3x the time of writing the same
+    points as LAZ with lazrs, decompress within 2x the time of reading them,
+    same machine, same threads, same run.
+    """
+    out = ["### Speed against LAZ", "",
+           f"- LAZ: the same points, all dimensions, written to a file and read back with laspy + lazrs' parallel codec "
+           f"({os.cpu_count()} threads; median of 3); compress and decompress run in this process with their defaults "
+           f"(in memory, numba on {os.cpu_count()} threads): compress from the input file (read, tile, fit, write the .pcz), "
+           "decompress from the .pcz to a LAS file;",
+           "- goals: compress / LAZ write <= 3, decompress / LAZ read <= 2.", "",
+           "| input | max-error m | mode | compress s | LAZ write s | compress / write | decompress s | LAZ read s "
+           "| decompress / read | goal |",
+           "|---|---:|---|---:|---:|---:|---:|---:|---:|---|"]
+    for info in infos:
+        w, rd = info["laz_speed"]["write_s"], info["laz_speed"]["read_s"]
+        for r in info["rows"]:
+            for mode, m in (("model", r), ("points", r["points_mode"])):
+                c, d = m["compress_s"] / w, m["decompress_s"] / rd
+                out.append(f"| {info['name']} | {r['budget']:g} | {mode} | {m['compress_s']:.2f} | {w:.2f} | {c:.1f}x | "
+                           f"{m['decompress_s']:.2f} | {rd:.2f} | {d:.1f}x | {'yes' if c <= 3 and d <= 2 else 'no'} |")
     return out + [""]
 
 
@@ -712,6 +763,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if infos:
         emit(goals_table(infos))
         emit(modes_goals_table(infos))
+        emit(speed_goals_table(infos))
     emit([f"- total wall time {time.perf_counter() - started:.0f} s; load average at end "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}.", ""])
     if a.out:

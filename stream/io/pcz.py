@@ -91,7 +91,7 @@ from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueE
 
 from .budget import check_memory
 from .layered import LAYERED, from_layered, layered_format, layered_size, to_layered
-from .las import check_header_sizes, check_header_values, undescribed_last, wave_packets_break_laz, writable_version
+from .las import check_header_sizes, check_header_values, laz_backend, undescribed_last, wave_packets_break_laz, writable_version
 from .point_coding import refine
 from .store import tile_name
 
@@ -112,6 +112,10 @@ LAZ_CHUNK = 1 << 22
 #: Byte shuffle + Zstd at its strongest level through Blosc (measured on an IGN tile's patches:
 #: 22 % smaller than zarr's default Zstd level 3; the arrays are small next to the points they replace).
 CODEC = BloscCodec(cname="zstd", clevel=9, shuffle="shuffle")
+#: The LAZ columns' codec: LAZ is entropy-coded already, so Zstd at level 9 took 0.2 s a megabyte to save 0.2 % of it
+#: (a 697,721-point file's 3.2 MB: 0.75 s); at level 1 it costs nothing.  Still Blosc, so every reader, and the check of
+#: the size a chunk states before it is read, are unchanged.
+LAZ_CODEC = BloscCodec(cname="zstd", clevel=1, shuffle="noshuffle")
 
 #: A compressed zip entry may expand to at most this many times its size, and 1 MiB in any case (a ``.pcz``'s entries
 #: are stored, not compressed; a repacked one's JSON deflates about tenfold): beyond, a zip bomb.
@@ -153,9 +157,10 @@ class TilePart:
 class _Column:
     """Rows appended to one array of a zarr group, written one whole chunk at a time."""
 
-    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...], chunk: int | None = None):
+    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...], chunk: int | None = None, codec=None):
         self.chunk = CHUNK if chunk is None else chunk  # read when called: tests make chunks small
-        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(self.chunk,) + tail, compressors=[CODEC])
+        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(self.chunk,) + tail,
+                                        compressors=[CODEC if codec is None else codec])
         self.buffer: list[np.ndarray] = []
         self.held = 0
         self.dtype = np.dtype(dtype)
@@ -241,7 +246,7 @@ def write_pcz(
         residual = root.require_group("residual")
         cols = {name: _Column(root.require_group(group), name, dt, tail)
                 for group, arrays in (("patches", _PATCH_ARRAYS), ("cells", _CELL_ARRAYS)) for name, dt, tail in arrays}
-        laz = _Column(residual, "laz", np.uint8, (), chunk=LAZ_CHUNK)
+        laz = _Column(residual, "laz", np.uint8, (), chunk=LAZ_CHUNK, codec=LAZ_CODEC)
         tiles, pstart, cstart, rstart, bstart = [], [0], [0], [0], [0]
         points = 0
         for part in parts:
@@ -309,7 +314,7 @@ def write_points_pcz(
     bytes.  Returns the file's counts (blocks, points).
     """
     with _building(path, overwrite) as root:
-        laz = _Column(root.require_group("points"), "laz", np.uint8, (), chunk=LAZ_CHUNK)
+        laz = _Column(root.require_group("points"), "laz", np.uint8, (), chunk=LAZ_CHUNK, codec=LAZ_CODEC)
         pstart, bstart, bounds = [0], [0], []
         for b in blocks:
             laz.add(np.frombuffer(b.laz, dtype=np.uint8))
@@ -743,12 +748,14 @@ def _las_point_count(raw: bytes) -> int:
     return legacy
 
 
-def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets) -> bytes:
+def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets, parallel: bool = False) -> bytes:
     """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout); LAS where LAZ would
     not give them back (:func:`~patchcloud.stream.io.las.wave_packets_break_laz`).
 
     Records of formats 0-3 are stored as their layered twins, 6 or 7
     (:mod:`~patchcloud.stream.io.layered`); reading turns them back.
+    ``parallel``: compress with lazrs' multi-threaded coder (for a process
+    that runs one task at a time; the same bytes as the sequential one).
     """
     twin = layered_format(point_format)
     if twin is not None:  # formats 0-3 as 6 or 7: LAZ's layered compressor takes fewer bytes
@@ -756,9 +763,9 @@ def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: 
     h = laspy.LasHeader(point_format=point_format, version=writable_version(version))
     h.scales, h.offsets = np.asarray(scales, dtype=np.float64), np.asarray(offsets, dtype=np.float64)
     las = laspy.LasData(h)
-    rows = np.frombuffer(np.ascontiguousarray(records).tobytes(), dtype=point_format.dtype()).copy()
+    rows = np.ascontiguousarray(records, dtype=np.uint8).reshape(-1, point_format.size).view(point_format.dtype()).reshape(-1)
     las.points = laspy.PackedPointRecord(rows, point_format)
     undescribed_last(las.header)  # undescribed bytes stay so: laspy cannot read back its own description of them
     buf = io.BytesIO()
-    las.write(buf, do_compress=not wave_packets_break_laz(las.points), laz_backend=laspy.LazBackend.Lazrs)
+    las.write(buf, do_compress=not wave_packets_break_laz(las.points), laz_backend=laz_backend(parallel))
     return buf.getvalue()

@@ -57,7 +57,7 @@ def encode_block(src: LasSource, first: int, count: int, steps, dropped, folder:
     back = np.column_stack([refine(rows[:, 4 * a : 4 * a + 4].copy().view("<i4").ravel(), k) for a, k in enumerate(steps)])
     bounds = np.r_[back.min(axis=0), back.max(axis=0)].tolist() if len(back) else [0] * 6
     s = np.asarray(src.scale, dtype=np.float64) * np.asarray(steps)
-    raw = pcz.residual_laz(rows, pf, src.version, s, src.offset)
+    raw = pcz.residual_laz(rows, pf, src.version, s, src.offset, parallel=laz_parallel)
     path = Path(folder) / f"{b:06d}.laz"
     tmp = path.with_name(path.name + ".partial")
     tmp.write_bytes(raw)
