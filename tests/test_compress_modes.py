@@ -4,6 +4,7 @@ import laspy
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import ROOT, shared_file
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, dequantise_models, patch_distances
 from patchcloud.stream import compress, decompress
@@ -127,6 +128,18 @@ def test_points_mode_below_the_grid_is_exact_and_drop_zeroes_exactly_what_it_nam
     small = tmp_path / "d.pcz"
     compress(src, small, max_error=0.01, keep_points=True, quiet=True)
     assert (tmp_path / "a.pcz").stat().st_size < small.stat().st_size
+
+
+@pytest.mark.parametrize("name", ["embedded", "lidar-ign-extrabytes/las_with_several_extra_byte_bloc.laz"])
+def test_points_mode_on_the_files_grid_is_no_larger_than_the_input_laz(tmp_path, name):
+    """At a budget below the grid the blocks are the input's records re-coded by lazrs, plus the .pcz's own arrays: the
+    strongest Zstd level on the blocks (pcz.LAZ_CODEC_EXACT) is what keeps the file from growing (the 697,721-point
+    extra-bytes file: 3,238,440 bytes against its 3,240,041; its blocks alone are 3,244,446 bytes at the middle
+    level)."""
+    src = ROOT / "data" / "test_data_77055_627760_LA93_IGN69.laz" if name == "embedded" else shared_file(name)
+    s = compress(src, tmp_path / "a.pcz", max_error=0.01, keep_points=True, quiet=True)
+    assert s.steps == [1, 1, 1]
+    assert (tmp_path / "a.pcz").stat().st_size <= src.stat().st_size
 
 
 def test_points_mode_does_not_depend_on_the_part_size_or_the_scheduler_and_reads_a_box(tmp_path):
