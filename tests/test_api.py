@@ -151,8 +151,16 @@ def test_a_job_run_three_times_leaves_no_thread_and_no_client(how, tmp_path):
         with pytest.raises(ValueError, match="No clients found"):
             default_client()
     # numba's pool (in memory) starts once per process, with the first run: no growth after it (the first count
-    # may still hold a thread of run 1 that is ending in the OS, so a later count may be lower: that is no leak)
-    assert counts[1] <= counts[0] and counts[2] <= counts[0], counts
+    # may still hold a thread of run 1 that is ending in the OS, so a later count may be lower: that is no leak).
+    # Numba's TBB layer (chosen where libtbb is installed) starts its workers on demand, so a later run may start
+    # some that the first did not need: never more than the pool holds (seen on a 2-core machine: 6, 7, 7).
+    try:
+        tbb = numba.threading_layer() == "tbb"
+    except ValueError:  # no parallel kernel has run in this process
+        tbb = False
+    slack = numba.config.NUMBA_NUM_THREADS - 1 if tbb else 0
+    assert counts[1][1] <= counts[0][1] + slack and counts[2][1] <= counts[0][1] + slack, counts
+    assert counts[1][0] <= counts[0][0] and counts[2][0] <= counts[0][0], counts
 
 
 def test_the_other_entry_points_leave_no_thread(tmp_path):
