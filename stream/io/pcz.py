@@ -162,10 +162,10 @@ class TilePart:
 class _Column:
     """Rows appended to one array of a zarr group, written one whole chunk at a time."""
 
-    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...], chunk: int | None = None, codec=None):
+    def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...], chunk: int | None = None,
+                 codec: BloscCodec = CODEC):
         self.chunk = CHUNK if chunk is None else chunk  # read when called: tests make chunks small
-        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(self.chunk,) + tail,
-                                        compressors=[CODEC if codec is None else codec])
+        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(self.chunk,) + tail, compressors=[codec])
         self.buffer: list[np.ndarray] = []
         self.held = 0
         self.dtype = np.dtype(dtype)
