@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "CHUNK"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "CHUNK"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -735,6 +735,89 @@ def box_cell_keys(points, edge, lo, span, keys):
             keys[i] = (c0 * span[1] + c1) * span[2] + c2
         else:
             keys[i] = -1
+
+
+@njit(cache=True, nogil=True)
+def run_starts(keys):
+    """Index of the first row of each run of equal values in the sorted ``keys`` (empty for no keys)."""
+    n = keys.shape[0]
+    runs = 0
+    for i in range(n):
+        if i == 0 or keys[i] != keys[i - 1]:
+            runs += 1
+    out = np.empty(runs, dtype=np.int64)
+    r = 0
+    for i in range(n):
+        if i == 0 or keys[i] != keys[i - 1]:
+            out[r] = i
+            r += 1
+    return out
+
+
+@parallel_kernel
+def box_cell_stats(points, weighted, rows, starts, ckeys, edge, lo, span, cmom, cvotes):
+    """Second-order moments and summed vectors of the cells of :func:`box_cell_keys`, points gathered by ``rows``.
+
+    Cell ``c`` holds ``points[rows[starts[c]:starts[c + 1]]]`` and has key
+    ``ckeys[c]``; ``cmom[c]`` gets the count, first and second moments
+    about the cell's centre (the first 10 columns of :func:`cell_moments`,
+    the same sums in the same order), ``cvotes[c]`` the sum of
+    ``weighted`` over the same rows in the same order
+    (:func:`gathered_run_sums`).
+    """
+    C = starts.shape[0]
+    n = rows.shape[0]
+    s12 = span[1] * span[2]
+    for c in prange(C):
+        hi = starts[c + 1] if c + 1 < C else n
+        key = ckeys[c]
+        cx = (np.float64(key // s12 + lo[0]) + 0.5) * edge
+        cy = (np.float64((key // span[2]) % span[1] + lo[1]) + 0.5) * edge
+        cz = (np.float64(key % span[2] + lo[2]) + 0.5) * edge
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        a3 = 0.0
+        a4 = 0.0
+        a5 = 0.0
+        a6 = 0.0
+        a7 = 0.0
+        a8 = 0.0
+        a9 = 0.0
+        v0 = 0.0
+        v1 = 0.0
+        v2 = 0.0
+        for i in range(starts[c], hi):
+            r = rows[i]
+            x = points[r, 0] - cx
+            y = points[r, 1] - cy
+            z = points[r, 2] - cz
+            a0 += 1.0
+            a1 += x
+            a2 += y
+            a3 += z
+            a4 += x * x
+            a5 += x * y
+            a6 += x * z
+            a7 += y * y
+            a8 += y * z
+            a9 += z * z
+            v0 += weighted[r, 0]
+            v1 += weighted[r, 1]
+            v2 += weighted[r, 2]
+        cmom[c, 0] = a0
+        cmom[c, 1] = a1
+        cmom[c, 2] = a2
+        cmom[c, 3] = a3
+        cmom[c, 4] = a4
+        cmom[c, 5] = a5
+        cmom[c, 6] = a6
+        cmom[c, 7] = a7
+        cmom[c, 8] = a8
+        cmom[c, 9] = a9
+        cvotes[c, 0] = v0
+        cvotes[c, 1] = v1
+        cvotes[c, 2] = v2
 
 
 @njit(cache=True, nogil=True)

@@ -46,7 +46,6 @@ import numpy as np
 
 from . import _kernels
 from .knn import near_queries
-from .moments import cell_moments
 
 __all__ = ["MomentNormals", "moment_normals", "MIN_POINTS"]
 
@@ -171,12 +170,10 @@ def _at_points(points, weighted, where, edge):
     keys = keys[inside]
     order = np.argsort(keys, kind="stable")
     rows, keys = inside[order], keys[order]
-    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if keys.size else np.zeros(0, np.int64)
+    starts = _kernels.run_starts(keys)
     ckeys = keys[starts]
-    cxyz = np.stack([ckeys // (span[1] * span[2]), (ckeys // span[2]) % span[1], ckeys % span[2]], axis=1) + lo
-    cmom = np.ascontiguousarray(cell_moments(_kernels.take_rows(points, rows), starts, (cxyz + 0.5) * edge)[:, :10])
-    cvotes = np.empty((starts.size, 3))
-    _kernels.gathered_run_sums(weighted, rows, starts, cvotes)
+    cmom, cvotes = np.empty((starts.size, 10)), np.empty((starts.size, 3))
+    _kernels.box_cell_stats(points, weighted, rows, starts, ckeys, float(edge), lo, span, cmom, cvotes)
     normals, dir1, votes = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
     sigma2, sigma3, count = np.empty(m), np.empty(m), np.empty(m)
     _kernels.interpolated_pca(

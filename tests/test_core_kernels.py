@@ -20,6 +20,33 @@ def test_cell_moments_match_numpy(rng):
     assert np.allclose(out, ref, rtol=1e-12, atol=1e-9)
 
 
+def test_box_cell_stats_equal_the_cell_moments_and_run_sums_bit_for_bit(rng):
+    # points in cells of 0.5 m keyed row-major in a box; some points outside it
+    p = rng.uniform(-1.0, 3.0, (4000, 3))
+    w = rng.normal(size=(4000, 3))
+    edge, lo, span = 0.5, np.array([-1, -2, 0]), np.array([6, 7, 5])
+    keys = np.empty(4000, dtype=np.int64)
+    _kernels.box_cell_keys(p, edge, lo, span, keys)
+    inside = np.flatnonzero(keys >= 0)
+    assert 0 < inside.size < 4000
+    order = np.argsort(keys[inside], kind="stable")
+    rows, keys = inside[order], keys[inside][order]
+    starts = _kernels.run_starts(keys)
+    assert np.array_equal(starts, np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]))
+    ckeys = keys[starts]
+    cxyz = np.stack([ckeys // (span[1] * span[2]), (ckeys // span[2]) % span[1], ckeys % span[2]], axis=1) + lo
+    assert np.array_equal(np.floor(p[rows[starts]] / edge).astype(np.int64), cxyz)  # each run is its cell
+    cmom, cvotes = np.empty((starts.size, 10)), np.empty((starts.size, 3))
+    _kernels.box_cell_stats(p, w, rows, starts, ckeys, edge, lo, span, cmom, cvotes)
+    ref = np.empty((starts.size, len(EXPONENTS)))
+    _kernels.cell_moments(p[rows], starts, (cxyz + 0.5) * edge, ref)
+    ref = ref[:, :10]
+    ref_votes = np.empty((starts.size, 3))
+    _kernels.gathered_run_sums(w, rows, starts, ref_votes)
+    assert np.array_equal(cmom, ref) and np.array_equal(cvotes, ref_votes)
+    assert _kernels.run_starts(np.zeros(0, dtype=np.int64)).size == 0
+
+
 def test_morton_keys_match_numpy(rng):
     p = rng.uniform(-5, 5, (10000, 3))
     corner, edge = np.array([-5.0, -5.0, -5.0]), 10.0

@@ -37,7 +37,7 @@ JOBS = {
 def test_in_memory_equals_a_run_on_a_store(scene, tmp_path, job):
     func, opts, suffix = JOBS[job]
     mem, disk = tmp_path / f"mem{suffix}", tmp_path / f"disk{suffix}"
-    s = func(scene, mem, tile_size=16, quiet=True, **opts)  # several tiles: seams and halos in memory too
+    s = func(scene, mem, tile_size=16, quiet=True, in_memory=True, workers=2, **opts)  # several tiles: seams and halos in memory too, tasks on 2 threads
     assert s.scheduler == "in memory"
     assert not list(tmp_path.glob("*.store")) and memory_group.urls() == []
     func(scene, disk, tile_size=16, quiet=True, in_memory=False, scheduler="threads", workers=2, **opts)
@@ -100,3 +100,60 @@ def test_the_cli_on_a_small_file_imports_neither_dask_zarr_nor_matplotlib(tmp_pa
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]" and (tmp_path / "n.laz").stat().st_size > 0
     np.testing.assert_equal(sorted(p.name for p in tmp_path.iterdir()), ["n.laz"])
+
+
+def _meet(barrier, k):
+    barrier.wait(timeout=20)  # both tasks must be running at once to get past this
+    return k * k
+
+
+def _fail_first(k):
+    if k == 0:
+        raise ValueError("task 0 failed")
+    return k
+
+
+def test_an_in_process_pool_runs_a_steps_tasks_side_by_side_with_results_in_call_order():
+    import threading
+
+    from patchcloud.core.threads import in_single_threaded
+    from patchcloud.stream.engine.runner import Runner
+
+    with Runner("synchronous", workers=2, pool=True, quiet=True) as r:
+        assert r.slots == 2 and r.task_threads(4) == 1 and r.task_threads(1) == 2 and r.laz_parallel
+        barrier = threading.Barrier(2)
+        assert r.map(_meet, [((barrier, k), {}) for k in range(4)], "meet") == [0, 1, 4, 9]
+        assert r.map(in_single_threaded, [((), {}), ((), {})], "pooled") == [True, True]  # kernels: sequential versions
+        assert r.map(in_single_threaded, [((), {})], "alone") == [False]  # one task: every thread in it
+        with pytest.raises(ValueError, match="task 0 failed"):
+            r.map(_fail_first, [((k,), {}) for k in range(3)], "fails")
+    with Runner("synchronous", workers=2, quiet=True) as r:  # without the pool: one task at a time
+        assert r.slots == 1 and r.task_threads(4) == 2
+        assert r.map(in_single_threaded, [((), {}), ((), {})], "inline") == [False, False]
+    with pytest.raises(PatchcloudValueError, match="synchronous"):
+        Runner("threads", workers=2, pool=True)
+
+
+def test_a_memory_group_built_from_many_threads_at_once_loses_nothing():
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # threads switch often: an unguarded check-then-create loses groups (about 1 in 200 here)
+    try:
+        for _ in range(3):
+            g = memory_group.MemoryGroup()
+            start = threading.Barrier(8)
+
+            def write(k):
+                start.wait(timeout=20)
+                for j in range(300):  # every thread makes the same new groups on the way
+                    g.create_array(f"parts/{j:03d}/x/t{k}", shape=(1,), dtype="int64")[...] = k * 1000 + j
+                    g.require_group(f"tiles/{j:03d}/y").attrs.update({f"t{k}": j})
+
+            with ThreadPoolExecutor(8) as ex:
+                list(ex.map(write, range(8)))
+            assert all(int(g[f"parts/{j:03d}/x/t{k}"][0]) == k * 1000 + j for j in range(300) for k in range(8))
+            assert all(dict(g[f"tiles/{j:03d}/y"].attrs) == {f"t{k}": j for k in range(8)} for j in range(300))
+    finally:
+        sys.setswitchinterval(interval)

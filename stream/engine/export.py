@@ -241,7 +241,7 @@ def export_columns(
     headers = [las_output.prepare_header(output_header(src, dims, provenance), c) for src, c in zip(cat.sources, compressed)]
     parts = catalog_parts(cat, int(store.attrs["part_points"]))
     first_part = np.searchsorted([f for f, _, _ in parts], np.arange(len(cat.sources) + 1))  # a file's parts are consecutive
-    laz_parallel = runner.numba_threads > 1
+    laz_parallel = runner.laz_parallel  # tasks in this process: lazrs may use the cores
     tmps = [str(o.with_name(o.name + ".partial")) for o in outs]
     try:
         renumbered = [col for col in columns if col.renumber]

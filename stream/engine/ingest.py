@@ -250,7 +250,7 @@ def _scatter(store: Store, runner: Runner, field: str, label: str) -> None:
     """Run :func:`scatter_part` on every part not yet done."""
     parts = catalog_parts(store.catalog, int(store.attrs["part_points"]))
     todo = [p for p in range(len(parts)) if not store.group_attrs(part_path(p)).get(f"done_{field}")]
-    laz_parallel = runner.numba_threads > 1  # one task at a time: lazrs may use the cores
+    laz_parallel = runner.laz_parallel  # tasks in this process: lazrs may use the cores
     runner.map(scatter_part, [((store.url, p, *parts[p]), {"field": field, "laz_parallel": laz_parallel}) for p in todo], label)
 
 

@@ -166,8 +166,10 @@ class RunOptions:
         geographic CRS is an error naming this option.
     in_memory : bool, optional
         Run in this process, the tiles held in memory: no dask cluster, no
-        store on disk, the kernels on ``workers`` threads (default: every
-        core); the same tiles and the
+        store on disk; a step's tasks side by side on ``workers`` threads
+        (default: every core), each task's kernels sequential and GIL-free,
+        or, for a step of fewer tasks than threads, one task at a time with
+        its kernels on every thread; the same tiles and the
         same results, byte for byte, as a run on a store.  Default (None):
         for inputs of at most :func:`in_memory_points` (2 million points;
         10 million on a machine of at most 2 cores) when neither
@@ -630,7 +632,7 @@ def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep
     started = time.time()
     windows: dict[str, list[tuple[float, float]]] = {}  # each step's wall-clock spans
     with CompileClock(announce=None if run.quiet else announce_on_stderr) as clock, \
-            Runner(run.scheduler, run.workers, quiet=run.quiet, points=catalog.point_count) as runner:
+            Runner(run.scheduler, run.workers, quiet=run.quiet, points=catalog.point_count, pool=memory_group.is_memory_url(url)) as runner:
         w0 = time.time()
         store, tile_seconds = None, None
         if job.tiled:

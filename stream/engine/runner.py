@@ -131,8 +131,8 @@ class Runner:
         :data:`AUTO_PROCESSES_POINTS` points or more, else "threads"),
         "threads" (an in-process dask.distributed cluster, one thread per
         worker), "processes" (a local cluster of single-threaded worker
-        processes), "synchronous" (inline, ``workers`` threads, default every core, in each task, for
-        debugging), or the address of a running dask.distributed scheduler
+        processes), "synchronous" (inline: one task at a time, the kernels on ``workers`` threads, default
+        every core, for debugging; with ``pool``, what runs in memory), or the address of a running dask.distributed scheduler
         such as ``tcp://host:8786``.
     workers : int, optional
         Threads or processes of a local cluster (default: the cores).
@@ -140,10 +140,22 @@ class Runner:
         No progress bars.
     points : int, optional
         Points of the file to process (what "auto" decides on).
+    pool : bool
+        With the synchronous scheduler: run a step's tasks side by side on
+        ``workers`` threads of this process, each with the kernels'
+        sequential, GIL-free versions (what an in-memory run does), when the
+        step has at least as many tasks as threads; fewer run one at a time
+        with every thread in each (:meth:`task_threads`).  The results are
+        the same either way.
     """
 
-    def __init__(self, scheduler: str = "auto", workers: int | None = None, quiet: bool = False, points: int | None = None) -> None:
+    def __init__(self, scheduler: str = "auto", workers: int | None = None, quiet: bool = False, points: int | None = None,
+                 pool: bool = False) -> None:
         self.scheduler = resolve_scheduler(check_scheduler(scheduler or "auto"), points)
+        if pool and self.scheduler != "synchronous":
+            raise PatchcloudValueError(f"pool runs tasks in this process: it goes with the synchronous scheduler, not {self.scheduler!r}")
+        #: Whether the synchronous scheduler runs a step's tasks on a pool of ``workers`` threads (see :meth:`task_threads`).
+        self.pool = bool(pool)
         #: Every task run: (label, start, end, host:process:thread), times in seconds since the epoch.
         self.tasks: list[tuple[str, float, float, str]] = []
         #: When the tasks' numba compiled kernels, wherever they ran: (start, end), seconds since the epoch.
@@ -162,7 +174,7 @@ class Runner:
         self.slots = n
         self._threads = n
         if self.scheduler == "synchronous":
-            self.slots = 1
+            self.slots = n if self.pool else 1
             return
         if self.scheduler not in SCHEDULERS:  # an address (check_scheduler took it)
             from dask.distributed import Client
@@ -212,6 +224,29 @@ class Runner:
         """
         return self._threads if self.scheduler == "synchronous" else 1
 
+    @property
+    def laz_parallel(self) -> bool:
+        """Whether tasks decode and encode LAZ with lazrs' threads: when they run in this process (synchronous).
+
+        lazrs holds the GIL for a whole call, so tasks on threads of one
+        process code LAZ one at a time however many run: each call then
+        had better use every core.  Worker processes use the sequential
+        codec, so that N workers use N cores, no more.
+        """
+        return self.scheduler == "synchronous" and self._threads > 1
+
+    def task_threads(self, tasks: int) -> int:
+        """Threads each of a step's ``tasks`` tasks computes on (:attr:`numba_threads`, but one where a pool runs them side by side).
+
+        >>> r = Runner("synchronous", workers=2, pool=True)
+        >>> r.task_threads(12), r.task_threads(1), Runner("synchronous", workers=2).task_threads(12)
+        (1, 2, 2)
+        """
+        return 1 if self._pooled(tasks) else self.numba_threads
+
+    def _pooled(self, tasks: int) -> bool:
+        return self.pool and self._threads > 1 and tasks >= self._threads
+
     def map(self, func: Callable, calls: Sequence[tuple[tuple, dict]], label: str,
             on_result: Callable[[int, Any], None] | None = None) -> list:
         """``[func(*args, **kwargs) for args, kwargs in calls]``, run in parallel, results in call order.
@@ -222,7 +257,22 @@ class Runner:
         """
         bar = Progress(label, len(calls), quiet=self.quiet, unit=" tasks")
         results: list = [None] * len(calls)
-        if self.client is None:
+        if self.client is None and self._pooled(len(calls)):
+            from concurrent.futures import ThreadPoolExecutor
+
+            pool = ThreadPoolExecutor(self._threads, thread_name_prefix="patchcloud-task")
+            try:  # every task starts in call order; each result is taken in that order too
+                futures = [pool.submit(_call, func, 1, args, kwargs) for args, kwargs in calls]
+                for k, f in enumerate(futures):
+                    results[k], when, compiling = f.result()
+                    self.tasks.append((label, *when))
+                    self.compile_intervals += compiling
+                    bar.update()
+                    if on_result is not None:
+                        on_result(k, results[k])
+            finally:  # a failed task: the others not yet started are not started, those running finish
+                pool.shutdown(wait=True, cancel_futures=True)
+        elif self.client is None:
             for k, (args, kwargs) in enumerate(calls):
                 results[k], when, compiling = _call(func, self.numba_threads, args, kwargs)
                 self.tasks.append((label, *when))

@@ -442,8 +442,9 @@ def laz_point_range(path: str | os.PathLike, start: int, record: int, point_form
 def read_range(src: LasSource, first: int, count: int, parallel: bool = False) -> laspy.ScaleAwarePointRecord:
     """Points ``first`` to ``first + count`` of the file (what one ingest or export task reads).
 
-    ``parallel``: decode LAZ with lazrs' multi-threaded decoder (for a
-    process that runs one task at a time); tasks that run side by side
+    ``parallel``: decode LAZ with lazrs' multi-threaded decoder (for tasks run
+    inline, in the client's process: lazrs holds the GIL for the whole
+    call, so there they decode one at a time anyway); worker processes
     use the sequential one, so that no process starts a thread per core.
 
     Raises

@@ -224,8 +224,9 @@ def write_laz_part(tmp: str | os.PathLike, part: int, header: laspy.LasHeader, p
                    parallel: bool = False) -> list:
     """Compress ``points`` as whole LAZ chunks into fragment ``part`` of ``tmp``; return their chunk-table entries.
 
-    ``parallel``: compress the chunks on lazrs' threads (for a process that
-    runs one task at a time); the bytes are the same either way.
+    ``parallel``: compress the chunks on lazrs' threads (for tasks that
+    run inline, in the client's process, which hold the GIL for the call); the
+    bytes are the same either way.
     """
     vlr = lazrs.LazVlr(header.vlrs.get("LasZipVlr")[0].record_data)
     data = bytes(lazrs.compress_points(vlr, np.frombuffer(points.array, np.uint8), bool(parallel)))

@@ -7,7 +7,8 @@ rows), over numpy arrays, so a job runs the same code, with the same
 results, whether its store is on disk or here; without zarr's encoding,
 files and event loop.  Groups are named by a URL ``memory://NAME`` and
 live in this process only: only the inline (synchronous) scheduler can
-use them.
+use them, whose tasks may run side by side on threads: what changes the
+tree of groups and arrays, and appends, hold a lock.
 
 >>> g = create("memory://doctest")
 >>> g.create_array("tiles/t+0+0+0/xyz", shape=(0, 3), dtype="int32", chunks=(4, 3))
@@ -35,6 +36,8 @@ PREFIX = "memory://"
 
 _GROUPS: dict[str, "MemoryGroup"] = {}
 _LOCK = threading.Lock()
+#: Held while a group's tree of children changes or an array grows (tasks on threads write side by side).
+_TREE = threading.RLock()
 
 
 def is_memory_url(url) -> bool:
@@ -99,6 +102,10 @@ class MemoryArray:
         if axis != 0:
             raise ValueError("in-memory arrays append rows only (axis=0)")
         values = np.asarray(values, dtype=self.dtype)
+        with _TREE:
+            self._append(values)
+
+    def _append(self, values: np.ndarray) -> None:
         n = self._n + values.shape[0]
         if n > self._data.shape[0]:
             grown = np.zeros((max(n, 2 * self._data.shape[0]),) + self._data.shape[1:], dtype=self.dtype)
@@ -118,6 +125,12 @@ class MemoryGroup:
 
     def _walk(self, path: str, make: bool) -> tuple["MemoryGroup", str]:
         """The group holding the last part of ``path`` (made on the way when ``make``), and that part."""
+        if make:
+            with _TREE:
+                return self._walk_unlocked(path, make)
+        return self._walk_unlocked(path, make)
+
+    def _walk_unlocked(self, path: str, make: bool) -> tuple["MemoryGroup", str]:
         parts = [p for p in path.split("/") if p]
         if not parts:
             raise KeyError(path)
@@ -147,32 +160,36 @@ class MemoryGroup:
         return True
 
     def __delitem__(self, path: str) -> None:
-        g, name = self._walk(path, make=False)
-        del g._children[name]
+        with _TREE:
+            g, name = self._walk(path, make=False)
+            del g._children[name]
 
     def require_group(self, path: str) -> "MemoryGroup":
-        g, name = self._walk(path, make=True)
-        child = g._children.get(name)
-        if child is None:
-            child = g._children[name] = MemoryGroup()
+        with _TREE:
+            g, name = self._walk(path, make=True)
+            child = g._children.get(name)
+            if child is None:
+                child = g._children[name] = MemoryGroup()
         if not isinstance(child, MemoryGroup):
             raise TypeError(f"{path} is an array, not a group")
         return child
 
     def create_array(self, path: str, *, shape: tuple, dtype, chunks=None, overwrite: bool = False) -> MemoryArray:
         """A new array of zeros at ``path`` (``chunks`` is accepted for zarr's signature and unused)."""
-        g, name = self._walk(path, make=True)
-        if name in g._children and not overwrite:
-            raise FileExistsError(f"{path} exists")
-        a = g._children[name] = MemoryArray(tuple(shape), dtype)
+        with _TREE:
+            g, name = self._walk(path, make=True)
+            if name in g._children and not overwrite:
+                raise FileExistsError(f"{path} exists")
+            a = g._children[name] = MemoryArray(tuple(shape), dtype)
         return a
 
     def delete_prefix(self, prefix: str) -> None:
         """Remove the blobs under ``prefix/`` (and a group or array there)."""
-        for key in [k for k in self.blobs if k.startswith(prefix.rstrip("/") + "/")]:
-            del self.blobs[key]
-        if prefix in self:
-            del self[prefix]
+        with _TREE:
+            for key in [k for k in self.blobs if k.startswith(prefix.rstrip("/") + "/")]:
+                del self.blobs[key]
+            if prefix in self:
+                del self[prefix]
 
 
 def create(url: str, overwrite: bool = False) -> MemoryGroup:

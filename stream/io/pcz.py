@@ -763,8 +763,8 @@ def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: 
 
     Records of formats 0-3 are stored as their layered twins, 6 or 7
     (:mod:`~patchcloud.stream.io.layered`); reading turns them back.
-    ``parallel``: compress with lazrs' multi-threaded coder (for a process
-    that runs one task at a time; the same bytes as the sequential one).
+    ``parallel``: compress with lazrs' multi-threaded coder (for tasks
+    run inline, in the client's process; the same bytes as the sequential one).
     """
     twin = layered_format(point_format)
     if twin is not None:  # formats 0-3 as 6 or 7: LAZ's layered compressor takes fewer bytes

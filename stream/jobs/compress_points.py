@@ -94,7 +94,7 @@ class PointsJob(Job):
         shutil.rmtree(folder, ignore_errors=True)  # a killed run's
         folder.mkdir()
         parts = part_ranges(src.point_count, part_size(src.point_count, runner.slots, ctx.run.chunk))
-        laz_parallel = runner.numba_threads > 1  # one task at a time: lazrs may use the cores
+        laz_parallel = runner.laz_parallel  # tasks in this process: lazrs may use the cores
         calls = [((src, first, count, self.steps_, self.dropped, str(folder), b), {"laz_parallel": laz_parallel})
                  for b, (first, count) in enumerate(parts)]
         self.blocks = runner.map(encode_block, calls, label="encode")
