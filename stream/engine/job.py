@@ -76,12 +76,13 @@ __all__ = [
     "time_and_memory_lines", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines",
 ]
 
-#: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.61 GB
-#: (city LAZ, 2-core machine; about 0.45 GB plus 90 bytes per point: 0.77 GB at 4M points, 1.35 GB at 10M).
+#: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.97 GiB
+#: (city LAZ, 2-core machine, two tiles at a time; 1.14 GiB at 4M points, 2.01 GiB at 10M:
+#: tools/results/bench_small_modes-2026-11-25b.txt).
 IN_MEMORY_POINTS = 2_000_000
 #: The same on a machine of at most :data:`FEW_CORES` cores: there worker processes do not win (2 cores, city LAZ,
-#: tools/results/bench_small_modes-2026-11-25.txt: in memory 9.56 s against 14.01 s on disk at 4M points, 22.60 s
-#: against 29.56 s at 10M, peak 1.49 GB).
+#: tools/results/bench_small_modes-2026-11-25b.txt: in memory 11.76 s against 23.87 s on disk at 4M points, 27.26 s
+#: against 58.16 s at 10M, peak 2.01 GiB).
 IN_MEMORY_POINTS_FEW_CORES = 10_000_000
 FEW_CORES = 2
 
@@ -94,9 +95,11 @@ def in_memory_points(cores: int | None = None) -> int:
     """
     cores = (os.cpu_count() or 1) if cores is None else int(cores)
     return IN_MEMORY_POINTS_FEW_CORES if cores <= FEW_CORES else IN_MEMORY_POINTS
-#: Peak memory of a run in memory: this much, plus :data:`IN_MEMORY_POINT_BYTES` per point (measured on the city, 2M to 10M points).
-IN_MEMORY_BASE = 450 << 20
-IN_MEMORY_POINT_BYTES = 90
+#: Peak memory of a run in memory: at most this much, plus :data:`IN_MEMORY_POINT_BYTES` per point (measured on the city,
+#: 2M to 10M points, a step's tiles two at a time: 0.97, 1.14 and 2.01 GiB; the line 0.73 GiB + 140 B per point lies
+#: above each).
+IN_MEMORY_BASE = 750 << 20
+IN_MEMORY_POINT_BYTES = 140
 
 
 @dataclass(frozen=True)
@@ -176,7 +179,7 @@ class RunOptions:
         ``store``, ``keep_store``, ``workers`` nor a ``scheduler`` other
         than "auto" is given, and its peak fits the memory budget.  True:
         whatever the size within the budget (memory grows with it: about
-        0.45 GB plus 90 bytes per point at the peak); False: never.
+        0.73 GiB plus 140 bytes per point at the peak); False: never.
     """
 
     tile_size: float | None = None
