@@ -142,6 +142,16 @@ def test_points_mode_on_the_files_grid_is_no_larger_than_the_input_laz(tmp_path,
     assert (tmp_path / "a.pcz").stat().st_size <= src.stat().st_size
 
 
+def test_points_mode_is_the_same_bytes_whatever_the_workers_and_the_scheduler(tmp_path):
+    # 900,000 points: eight parts for one worker would be 150,000 points each, for two 100,000; the blocks must not follow
+    rng = np.random.default_rng(4)
+    src = write_las(tmp_path / "a.las", noisy_scene(rng, 900000), extra=False)
+    runs = [dict(in_memory=True, workers=1), dict(in_memory=True, workers=2), dict(scheduler="threads", workers=2)]
+    for k, run in enumerate(runs):
+        compress(src, tmp_path / f"{k}.pcz", max_error=0.05, keep_points=True, quiet=True, **run)
+    assert (tmp_path / "0.pcz").read_bytes() == (tmp_path / "1.pcz").read_bytes() == (tmp_path / "2.pcz").read_bytes()
+
+
 def test_points_mode_does_not_depend_on_the_part_size_or_the_scheduler_and_reads_a_box(tmp_path):
     rng = np.random.default_rng(2)
     src = write_las(tmp_path / "a.las", noisy_scene(rng, 120000))
