@@ -774,19 +774,8 @@ def box_cell_stats(points, weighted, rows, starts, ckeys, edge, lo, span, cmom, 
         cx = (np.float64(key // s12 + lo[0]) + 0.5) * edge
         cy = (np.float64((key // span[2]) % span[1] + lo[1]) + 0.5) * edge
         cz = (np.float64(key % span[2] + lo[2]) + 0.5) * edge
-        a0 = 0.0
-        a1 = 0.0
-        a2 = 0.0
-        a3 = 0.0
-        a4 = 0.0
-        a5 = 0.0
-        a6 = 0.0
-        a7 = 0.0
-        a8 = 0.0
-        a9 = 0.0
-        v0 = 0.0
-        v1 = 0.0
-        v2 = 0.0
+        a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = a9 = 0.0  # count, first moments, second moments
+        v0 = v1 = v2 = 0.0
         for i in range(starts[c], hi):
             r = rows[i]
             x = points[r, 0] - cx

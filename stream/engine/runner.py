@@ -257,6 +257,15 @@ class Runner:
         """
         bar = Progress(label, len(calls), quiet=self.quiet, unit=" tasks")
         results: list = [None] * len(calls)
+
+        def took(k: int, out: tuple) -> None:  # call k's output from _call: its result, when it ran, when numba compiled
+            results[k], when, compiling = out
+            self.tasks.append((label, *when))
+            self.compile_intervals += compiling
+            bar.update()
+            if on_result is not None:
+                on_result(k, results[k])
+
         if self.client is None and self._pooled(len(calls)):
             from concurrent.futures import ThreadPoolExecutor
 
@@ -264,22 +273,12 @@ class Runner:
             try:  # every task starts in call order; each result is taken in that order too
                 futures = [pool.submit(_call, func, 1, args, kwargs) for args, kwargs in calls]
                 for k, f in enumerate(futures):
-                    results[k], when, compiling = f.result()
-                    self.tasks.append((label, *when))
-                    self.compile_intervals += compiling
-                    bar.update()
-                    if on_result is not None:
-                        on_result(k, results[k])
+                    took(k, f.result())
             finally:  # a failed task: the others not yet started are not started, those running finish
                 pool.shutdown(wait=True, cancel_futures=True)
         elif self.client is None:
             for k, (args, kwargs) in enumerate(calls):
-                results[k], when, compiling = _call(func, self.numba_threads, args, kwargs)
-                self.tasks.append((label, *when))
-                self.compile_intervals += compiling
-                bar.update()
-                if on_result is not None:
-                    on_result(k, results[k])
+                took(k, _call(func, self.numba_threads, args, kwargs))
         else:
             from dask.distributed import as_completed
 
@@ -291,13 +290,7 @@ class Runner:
             ]
             index = {f.key: k for k, f in enumerate(futures)}
             for f in as_completed(futures):
-                k = index[f.key]
-                results[k], when, compiling = f.result()
-                self.tasks.append((label, *when))
-                self.compile_intervals += compiling
-                bar.update()
-                if on_result is not None:
-                    on_result(k, results[k])
+                took(index[f.key], f.result())
         bar.close()
         return results
 
