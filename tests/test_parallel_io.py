@@ -29,6 +29,7 @@ def scene(tmp_path_factory):
     return las, laz
 
 
+@pytest.mark.slow  # about 30 s a file format (2 cores): with the cluster tests
 @pytest.mark.parametrize("suffix", [".las", ".laz"])
 def test_output_bytes_do_not_depend_on_workers_scheduler_or_parts(scene, tmp_path, suffix):
     src = scene[1] if suffix == ".laz" else scene[0]

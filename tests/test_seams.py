@@ -42,6 +42,7 @@ def kept_store(tmp_path_factory):
     return url
 
 
+@pytest.mark.slow  # about 60 s with its store (2 cores)
 @pytest.mark.parametrize("orient", ["up", "none"])  # with "none", no component is turned over by its score
 def test_blocks_of_tiles_orient_as_the_whole_cloud_forest(kept_store, orient):
     store = Store.open(kept_store)

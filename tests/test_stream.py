@@ -79,6 +79,7 @@ def test_multi_tile_run_keeps_every_point_and_dimension(scene_las, tmp_path):
     assert not (tmp_path / "out.laz.store").exists() and not (tmp_path / "out.laz.partial").exists()
 
 
+@pytest.mark.slow  # about 30 s (2 cores)
 def test_tile_size_does_not_change_the_result(scene_las, reference, tmp_path):
     path, _, _ = scene_las
     _, ref = reference
@@ -91,6 +92,7 @@ def test_tile_size_does_not_change_the_result(scene_las, reference, tmp_path):
         assert np.median(angles_deg(nrm, ref)) < 0.05, T
 
 
+@pytest.mark.slow  # a local dask cluster, about 30 s (2 cores)
 def test_local_cluster_gives_identical_output(scene_las, tmp_path):
     path, _, _ = scene_las
     laz = tmp_path / "scene.laz"

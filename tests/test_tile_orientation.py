@@ -53,6 +53,7 @@ def run(src, out, tile_size):
     return nrm, np.asarray(las.NormalMethod), np.column_stack([las.x, las.y, las.z])
 
 
+@pytest.mark.slow  # about 50 s (2 cores)
 def test_fallback_points_at_tile_faces_are_oriented_as_in_one_tile(blob_las, tmp_path):
     # fallback points: those of no patch, with moment normals (most) or k-NN normals
     ref, ref_method, xyz = run(blob_las, tmp_path / "one.las", 64.0)
