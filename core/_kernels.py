@@ -672,19 +672,6 @@ def hashed_cell_picks(points, origin, edge, hash3, stride, out):
 
 
 @parallel_kernel
-def gathered_run_sums(values, rows, starts, out):
-    """``out[c]``: the sum of ``values[rows[i]]`` for ``i`` in run ``c`` (``starts[c]`` to the next start), in order of ``i``."""
-    n = rows.shape[0]
-    for c in prange(starts.shape[0]):
-        hi = starts[c + 1] if c + 1 < starts.shape[0] else n
-        for a in range(values.shape[1]):
-            t = 0.0
-            for i in range(starts[c], hi):
-                t += values[rows[i], a]
-            out[c, a] = t
-
-
-@parallel_kernel
 def summed_votes(votes, idx, total):
     """``total[m]``: the sum of ``votes[idx[m, j]]`` over the ``j`` where ``idx[m, j] >= 0``, in order of ``j``."""
     for m in prange(idx.shape[0]):
@@ -762,8 +749,7 @@ def box_cell_stats(points, weighted, rows, starts, ckeys, edge, lo, span, cmom, 
     ``ckeys[c]``; ``cmom[c]`` gets the count, first and second moments
     about the cell's centre (the first 10 columns of :func:`cell_moments`,
     the same sums in the same order), ``cvotes[c]`` the sum of
-    ``weighted`` over the same rows in the same order
-    (:func:`gathered_run_sums`).
+    ``weighted`` over the same rows in the same order.
     """
     C = starts.shape[0]
     n = rows.shape[0]

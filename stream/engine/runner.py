@@ -145,7 +145,7 @@ class Runner:
         ``workers`` threads of this process, each with the kernels'
         sequential, GIL-free versions (what an in-memory run does), when the
         step has at least as many tasks as threads; fewer run one at a time
-        with every thread in each (:meth:`task_threads`).  The results are
+        with every thread in each.  The results are
         the same either way.
     """
 
@@ -154,7 +154,7 @@ class Runner:
         self.scheduler = resolve_scheduler(check_scheduler(scheduler or "auto"), points)
         if pool and self.scheduler != "synchronous":
             raise PatchcloudValueError(f"pool runs tasks in this process: it goes with the synchronous scheduler, not {self.scheduler!r}")
-        #: Whether the synchronous scheduler runs a step's tasks on a pool of ``workers`` threads (see :meth:`task_threads`).
+        #: Whether the synchronous scheduler runs a step's tasks on a pool of ``workers`` threads (see ``pool`` above).
         self.pool = bool(pool)
         #: Every task run: (label, start, end, host:process:thread), times in seconds since the epoch.
         self.tasks: list[tuple[str, float, float, str]] = []
@@ -235,16 +235,8 @@ class Runner:
         """
         return self.scheduler == "synchronous" and self._threads > 1
 
-    def task_threads(self, tasks: int) -> int:
-        """Threads each of a step's ``tasks`` tasks computes on (:attr:`numba_threads`, but one where a pool runs them side by side).
-
-        >>> r = Runner("synchronous", workers=2, pool=True)
-        >>> r.task_threads(12), r.task_threads(1), Runner("synchronous", workers=2).task_threads(12)
-        (1, 2, 2)
-        """
-        return 1 if self._pooled(tasks) else self.numba_threads
-
     def _pooled(self, tasks: int) -> bool:
+        """Whether a step of ``tasks`` tasks runs them on the pool (one thread each), not one at a time on every thread."""
         return self.pool and self._threads > 1 and tasks >= self._threads
 
     def map(self, func: Callable, calls: Sequence[tuple[tuple, dict]], label: str,

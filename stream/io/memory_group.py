@@ -103,16 +103,13 @@ class MemoryArray:
             raise ValueError("in-memory arrays append rows only (axis=0)")
         values = np.asarray(values, dtype=self.dtype)
         with _TREE:
-            self._append(values)
-
-    def _append(self, values: np.ndarray) -> None:
-        n = self._n + values.shape[0]
-        if n > self._data.shape[0]:
-            grown = np.zeros((max(n, 2 * self._data.shape[0]),) + self._data.shape[1:], dtype=self.dtype)
-            grown[: self._n] = self._data[: self._n]
-            self._data = grown
-        self._data[self._n : n] = values
-        self._n = n
+            n = self._n + values.shape[0]
+            if n > self._data.shape[0]:
+                grown = np.zeros((max(n, 2 * self._data.shape[0]),) + self._data.shape[1:], dtype=self.dtype)
+                grown[: self._n] = self._data[: self._n]
+                self._data = grown
+            self._data[self._n : n] = values
+            self._n = n
 
 
 class MemoryGroup:
@@ -124,13 +121,7 @@ class MemoryGroup:
         self.blobs: dict[str, bytes] = {}
 
     def _walk(self, path: str, make: bool) -> tuple["MemoryGroup", str]:
-        """The group holding the last part of ``path`` (made on the way when ``make``), and that part."""
-        if make:
-            with _TREE:
-                return self._walk_unlocked(path, make)
-        return self._walk_unlocked(path, make)
-
-    def _walk_unlocked(self, path: str, make: bool) -> tuple["MemoryGroup", str]:
+        """The group holding the last part of ``path`` (made on the way when ``make``: callers hold the lock), and that part."""
         parts = [p for p in path.split("/") if p]
         if not parts:
             raise KeyError(path)
