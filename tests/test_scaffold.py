@@ -165,3 +165,23 @@ def test_a_new_job_is_a_job_subclass_and_its_output_is_the_input_plus_its_column
     assert np.all((local >= corner) & (local < corner + grid.tile_size))
     assert len(tiles) == 4 and np.bincount(las.TileNumber).sum() == len(src.points)
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_the_console_script_sets_the_collector_for_a_process_of_its_own():
+    """``patchcloud`` (``run``) collects young objects less often and untracks everything at its end; ``main``
+    (what CliRunner and other programs call) leaves the collector as it was."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import gc, sys\n"
+        "from patchcloud.stream.cli import main, run\n"
+        "sys.argv = ['patchcloud', '--version']\n"
+        "for name, f in (('main', main), ('run', run)):\n"
+        "    try:\n"
+        "        f()\n"
+        "    except SystemExit as exc:\n"
+        "        print(name, exc.code, gc.get_threshold()[0], gc.get_freeze_count() > 0)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.splitlines()
+    assert [line for line in out if not line.startswith("patchcloud")] == ["main 0 700 False", "run 0 100000 True"]

@@ -1,6 +1,6 @@
 """``python -m patchcloud.stream.cli``: the ``patchcloud`` command."""
 
-from patchcloud.stream.cli import main
+from patchcloud.stream.cli import run
 
 if __name__ == "__main__":
-    main()
+    run()
