@@ -59,10 +59,10 @@ class PointGrid:
     levels: int
 
 
-def _cell_numbers(points: np.ndarray, corner: np.ndarray, edge: float) -> np.ndarray:
-    """One number per cell of edge ``edge`` from ``corner``, for the points (N, 3) >= ``corner``."""
+def _cell_numbers(points: np.ndarray, corner: np.ndarray, span: np.ndarray, edge: float) -> np.ndarray:
+    """One number per cell of edge ``edge`` from ``corner``, for the points (N, 3) in ``[corner, corner + span]``."""
     ijk = np.floor((points - corner) / edge).astype(np.int64)
-    dims = ijk.max(axis=0) + 1
+    dims = np.floor(span / edge).astype(np.int64) + 1
     return (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
 
 
@@ -70,7 +70,7 @@ def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> Poi
     """Bucket ``points`` ((N, 3) float64) into cells holding about ``k`` points each.
 
     The edge is found from the occupancy (points per occupied cell) of a
-    strided sample of at most 65,536 points: a few secant steps in log-log
+    strided sample of at most 32,767 points: a few secant steps in log-log
     find the edge where the sample holds about max(k / stride, 8) points per
     cell (enough to measure it), and the growth of the occupancy there (the
     edge squared on surfaces, cubed in volumes) takes it down to ``k``
@@ -84,19 +84,19 @@ def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> Poi
     pts = np.ascontiguousarray(points, dtype=np.float64)
     n = len(pts)
     ids = np.arange(n, dtype=np.int64) if ids is None else np.asarray(ids, dtype=np.int64)
-    corner = pts.min(axis=0) if n else np.zeros(3)
-    extent = float(np.max(pts.max(axis=0) - corner)) if n else 0.0
+    corner, top = _kernels.bounds(pts)[:2] if n else (np.zeros(3), np.zeros(3))
+    extent = float(np.max(top - corner)) if n else 0.0
     if n == 0 or extent == 0.0:
         edge = 1.0
     else:
-        span = np.maximum(pts.max(axis=0) - corner, extent * 1e-6)
+        span = np.maximum(top - corner, extent * 1e-6)
         want = float(max(k, 1))
-        step = max(1, n // 65536)
+        step = max(1, n // 16384)
         sample = pts[::step]
         goal = max(want / step, 8.0)  # sample points per cell where the sample still measures the occupancy
 
         def per_cell(e: float) -> float:  # sample points per occupied cell at edge e
-            return len(sample) / np.unique(_cell_numbers(sample, corner, e)).size
+            return len(sample) / np.unique(_cell_numbers(sample, corner, span, e)).size
 
         edge = float(np.cbrt(np.prod(span) * goal * step / n))
         got, growth = per_cell(edge), 2.0  # as for points on surfaces
@@ -298,11 +298,41 @@ def _rings(points, ids, cells, starts, corner, edge, level, levels, qx, qy, qz, 
     return False
 
 
+@njit(cache=True, nogil=True)
+def _any_near(cells, corner, edge, level, levels, qx, qy, qz):
+    """Whether any point lies in the 27 cells of ``level`` (edge ``edge``) around the query's; its own cell first."""
+    n = np.int64(1) << np.int64(level)
+    shift = np.uint64(3 * (levels - level))
+    cx = np.int64(np.floor((qx - corner[0]) / edge))
+    cy = np.int64(np.floor((qy - corner[1]) / edge))
+    cz = np.int64(np.floor((qz - corner[2]) / edge))
+    for t in range(27):
+        u = (t + 13) % 27  # 13: the query's own cell, (0, 0, 0)
+        i, j, z = cx + u // 9 - 1, cy + (u // 3) % 3 - 1, cz + u % 3 - 1
+        if i < 0 or j < 0 or z < 0 or i >= n or j >= n or z >= n:
+            continue
+        key = _kernels.morton_key(i, j, z) << shift
+        a = _lower_bound(cells, key)
+        if a < cells.size and cells[a] < key + (np.uint64(1) << shift):
+            return True
+    return False
+
+
 @parallel_kernel
 def _search(points, ids, cells, starts, corner, edge, levels, queries, limit, dist, idx):
+    # with a finite limit: the level whose cells are the smallest at least sqrt(limit) wide, where the 27 cells
+    # around a query hold every point within the limit, so a query with none there is done at once
+    coarse = -1
+    if limit < np.inf:
+        coarse = levels
+        while coarse > 0 and (edge * 2.0 ** (levels - coarse)) ** 2 < limit:
+            coarse -= 1
     for m in prange(queries.shape[0]):
         bd = dist[m]
         bi = idx[m]
+        if coarse >= 0 and not _any_near(cells, corner, edge * 2.0 ** (levels - coarse), coarse, levels,
+                                         queries[m, 0], queries[m, 1], queries[m, 2]):
+            continue
         level = levels
         e = edge
         while True:

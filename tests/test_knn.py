@@ -51,6 +51,21 @@ def test_max_distance_leaves_empty_places_and_ids_are_the_callers():
     assert np.allclose(d[bi >= 0], bd[bi >= 0])
 
 
+@pytest.mark.parametrize("name,points", list(clouds()), ids=[c[0] for c in clouds()])
+@pytest.mark.parametrize("max_distance", [0.15, 0.9, 4.0])
+def test_a_limit_finds_every_neighbour_within_it_from_queries_near_and_far(name, points, max_distance):
+    """Queries all over the box and beyond (most with nothing within the limit: the search skips them from the cells
+    around at the level of the limit): the brute-force answer, ties included."""
+    rng = np.random.default_rng(5)
+    lo, hi = points.min(axis=0) - 2 * max_distance, points.max(axis=0) + 2 * max_distance
+    queries = np.concatenate([rng.uniform(lo, hi, (400, 3)), points[::41] + rng.normal(0, max_distance, (len(points[::41]), 3))])
+    for k in (1, 8):
+        d, i = nearest_neighbours(point_grid(points, 8), queries, k, max_distance=max_distance)
+        bd, bi = brute(points, queries, k, max_distance=max_distance)
+        assert np.array_equal(i, bi)
+        assert np.array_equal(np.isinf(d), bi < 0) and np.allclose(d[bi >= 0], bd[bi >= 0], rtol=0, atol=1e-9)
+
+
 def test_more_neighbours_than_points_and_degenerate_clouds():
     one = np.array([[1.0, 2.0, 3.0]])
     d, i = nearest_neighbours(point_grid(one, 4), np.array([[1.0, 2.0, 4.0]]), 4)
