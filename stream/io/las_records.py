@@ -24,6 +24,7 @@ A record of ``patchcloud`` (:func:`provenance_vlr`) says what made the file.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import struct
@@ -141,8 +142,9 @@ def as_vlr(r: RawRecord) -> laspy.VLR:
     return laspy.VLR(ascii_text(r.user_id.split(b"\0", 1)[0]), r.record_id, ascii_text(r.description.split(b"\0", 1)[0]), r.data)
 
 
+@functools.lru_cache(maxsize=1)
 def software_version() -> str:
-    """patchcloud's installed version."""
+    """patchcloud's installed version (read once: reading a package's metadata takes milliseconds)."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:

@@ -76,8 +76,13 @@ class MemoryAttrs:
 class MemoryArray:
     """A numpy array read and written by rows; appending grows it geometrically (amortised copies)."""
 
-    def __init__(self, shape: tuple, dtype) -> None:
-        self._data = np.zeros(shape, dtype=dtype)
+    def __init__(self, shape: tuple, dtype, data: np.ndarray | None = None) -> None:
+        if data is None:
+            self._data = np.zeros(shape, dtype=dtype)
+        else:  # a copy: the caller keeps its array (and may change it)
+            self._data = np.array(data, dtype=dtype, copy=True)
+            if self._data.shape != tuple(shape):
+                raise ValueError(f"data of shape {self._data.shape} for an array of shape {tuple(shape)}")
         self._n = int(shape[0]) if len(shape) else 0
 
     @property
@@ -165,13 +170,17 @@ class MemoryGroup:
             raise TypeError(f"{path} is an array, not a group")
         return child
 
-    def create_array(self, path: str, *, shape: tuple, dtype, chunks=None, overwrite: bool = False) -> MemoryArray:
-        """A new array of zeros at ``path`` (``chunks`` is accepted for zarr's signature and unused)."""
+    def create_array(self, path: str, *, shape: tuple, dtype, chunks=None, overwrite: bool = False, data=None) -> MemoryArray:
+        """A new array at ``path``: of zeros, or a copy of ``data`` (of that shape and dtype) made in one pass.
+
+        ``chunks`` is accepted for zarr's signature and unused.
+        """
+        a = MemoryArray(tuple(shape), dtype, data)
         with _TREE:
             g, name = self._walk(path, make=True)
             if name in g._children and not overwrite:
                 raise FileExistsError(f"{path} exists")
-            a = g._children[name] = MemoryArray(tuple(shape), dtype)
+            g._children[name] = a
         return a
 
     def delete_prefix(self, prefix: str) -> None:

@@ -442,12 +442,12 @@ class Store:
         values = np.ascontiguousarray(values)
         rows = max(1, min(chunk or self.CHUNK, values.shape[0]))
         chunks = (rows,) + values.shape[1:]
-        if self.in_memory:
-            a = group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True)
-        else:
-            sums = chunk_checksums(values, rows)
-            a = group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True,
-                                   attributes={"crc32": sums, "store": self.uid, "path": a_path(group, name)})
+        if self.in_memory:  # filled as it is made: no pass writing zeros first
+            group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True, data=values)
+            return
+        sums = chunk_checksums(values, rows)
+        a = group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks, overwrite=True,
+                               attributes={"crc32": sums, "store": self.uid, "path": a_path(group, name)})
         if values.size:
             a[...] = values
 
