@@ -59,8 +59,8 @@ def run() -> None:
     objects) and once more at exit; here it collects the young objects
     less often (every 100,000 allocations, not 700) and, at the end, stops
     tracking everything so the exit does not walk it.  Measured on the
-    embedded 60,000-point tile, whole process: 0.82x the time (median of
-    10 pairs).  Memory is held by arrays, which reference counting frees
+    embedded 60,000-point tile, whole process: 0.87x the time (median of
+    12 interleaved pairs).  Memory is held by arrays, which reference counting frees
     as before.  Only the console script does this: in another program
     (or CliRunner) :func:`main` leaves the collector alone.
     """
