@@ -62,6 +62,20 @@ def test_import_patchcloud_is_cheap():
     assert out[0] == patchcloud.__version__ and out[1] == "[]", out
 
 
+def test_the_command_line_s_help_imports_no_heavy_package():
+    """``patchcloud --help`` (its import and every subcommand's) loads neither laspy (0.2 s with requests and pyproj)
+    nor numba, dask, zarr or matplotlib: a subcommand imports what it needs when it runs."""
+    code = (
+        "import sys\n"
+        "from patchcloud.stream.cli import main\n"
+        "try:\n    main(['--help'])\n"
+        "except SystemExit as e:\n    assert not e.code, e.code\n"
+        "print(sorted(m for m in ('laspy', 'numba', 'dask', 'distributed', 'zarr', 'matplotlib') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == "[]", out
+
+
 def test_every_name_is_core_s_or_the_stream_s_own():
     names = [n for n in patchcloud.__all__ if n != "__version__"]
     assert len(set(names)) == len(names)

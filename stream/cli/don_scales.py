@@ -8,7 +8,6 @@ import click
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.io.las import atomic_output
 from . import options
 
 __all__ = ["don_scales_command", "parse_list"]
@@ -43,6 +42,8 @@ def _class_value(text: str):
 
 
 def _write_text(path: str, text: str) -> None:
+    from patchcloud.stream.io.las import atomic_output  # here, not at the top: laspy is slow to import, and --help needs none
+
     try:
         with atomic_output(path, overwrite=True) as f:
             f.write((text + "\n").encode("utf-8"))
