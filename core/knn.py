@@ -323,15 +323,16 @@ def _search(points, ids, cells, starts, corner, edge, levels, queries, limit, di
     # with a finite limit: the level whose cells are the smallest at least sqrt(limit) wide, where the 27 cells
     # around a query hold every point within the limit, so a query with none there is done at once
     coarse = -1
+    coarse_edge = edge
     if limit < np.inf:
         coarse = levels
-        while coarse > 0 and (edge * 2.0 ** (levels - coarse)) ** 2 < limit:
+        while coarse > 0 and coarse_edge * coarse_edge < limit:
             coarse -= 1
+            coarse_edge *= 2.0
     for m in prange(queries.shape[0]):
         bd = dist[m]
         bi = idx[m]
-        if coarse >= 0 and not _any_near(cells, corner, edge * 2.0 ** (levels - coarse), coarse, levels,
-                                         queries[m, 0], queries[m, 1], queries[m, 2]):
+        if coarse >= 0 and not _any_near(cells, corner, coarse_edge, coarse, levels, queries[m, 0], queries[m, 1], queries[m, 2]):
             continue
         level = levels
         e = edge
