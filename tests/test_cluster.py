@@ -47,7 +47,7 @@ def test_killed_worker_leaves_the_output_byte_identical(tmp_path):
             wenv = dict(env, PATCHCLOUD_KILL_STEP="finish", PATCHCLOUD_KILL_AFTER="2", PATCHCLOUD_KILL_MARK=str(mark)) if k == 0 else env
             procs.append(subprocess.Popen(
                 [str(dask), "worker", address, "--nthreads", "1", "--nworkers", "1", "--preload", "cluster_killer",
-                 "--host", "127.0.0.1", "--dashboard-address", ":0", "--name", f"w{k}"],
+                 "--preload", "patchcloud.stream.engine.allocator", "--host", "127.0.0.1", "--dashboard-address", ":0", "--name", f"w{k}"],
                 env=wenv, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
             ))
         _wait_for_workers(address, 2)
