@@ -31,7 +31,15 @@ __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
+    "POSITION_AND_CLASS",
 ]
+
+#: The fields of a LAS 1.4 layered LAZ record (point formats 6 to 10) that say where a point is and whether it takes
+#: part: coordinates, return numbers and channel, classification and its flags (withheld).  What the ingest decodes.
+POSITION_AND_CLASS = (
+    laspy.DecompressionSelection.XY_RETURNS_CHANNEL | laspy.DecompressionSelection.Z
+    | laspy.DecompressionSelection.CLASSIFICATION | laspy.DecompressionSelection.FLAGS
+)
 
 
 @dataclass(frozen=True)
@@ -439,13 +447,19 @@ def laz_point_range(path: str | os.PathLike, start: int, record: int, point_form
         return n, n
 
 
-def read_range(src: LasSource, first: int, count: int, parallel: bool = False) -> laspy.ScaleAwarePointRecord:
+def read_range(src: LasSource, first: int, count: int, parallel: bool = False,
+               selection: laspy.DecompressionSelection | None = None) -> laspy.ScaleAwarePointRecord:
     """Points ``first`` to ``first + count`` of the file (what one ingest or export task reads).
 
     ``parallel``: decode LAZ with lazrs' multi-threaded decoder (for tasks run
     inline, in the client's process: lazrs holds the GIL for the whole
     call, so there they decode one at a time anyway); worker processes
     use the sequential one, so that no process starts a thread per core.
+
+    ``selection``: decode only these fields of a LAZ file whose records are
+    layered (point formats 6 to 10, e.g. :data:`POSITION_AND_CLASS`): the
+    other fields of the records returned hold meaningless values.  LAS
+    files and the older LAZ formats are read whole.  Default: every field.
 
     Raises
     ------
@@ -454,7 +468,8 @@ def read_range(src: LasSource, first: int, count: int, parallel: bool = False) -
     """
     p = src.path
     try:
-        with laspy.open(p, laz_backend=laz_backend(parallel)) as reader:
+        extra = {} if selection is None else {"decompression_selection": selection}
+        with laspy.open(p, laz_backend=laz_backend(parallel), **extra) as reader:
             if first:
                 reader.seek(first)
             try:
