@@ -15,12 +15,17 @@ worker count, it runs ``patchcloud normals IN OUT --workers W --scheduler S
   back as the same format; the job's time as a multiple of it;
 - peak memory: the sum of the resident sizes of the job's processes (the
   command and every worker it starts), sampled together every 0.1 s;
+- CPU time in user and system mode and minor page faults, summed over the
+  job's processes (``getrusage(RUSAGE_CHILDREN)`` around the run: the
+  command waits for its workers, so theirs are counted);
 - from the task stream (``--profile``): ``idle`` the share of the wall
   time during which fewer tasks run than there are workers (start-up and
   the client's own work included), ``client`` the share during which no
   task runs, the longest task, and the Amdahl bound: with ``c`` the time
   no task runs and ``w`` the summed task time, ``(c + w) / (c + w / N)`` is
-  the most N workers can speed the run up (tasks assumed to split evenly).
+  the most N workers can speed the run up (tasks assumed to split evenly);
+  and the list bound (:func:`list_bound`): the same, with the tiles' tasks
+  as they are (a step lasts at least as long as its longest task).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import json
 import multiprocessing as mp
 import os
 import platform
+import resource
 import subprocess
 import sys
 import threading
@@ -71,8 +77,10 @@ def _tree_rss(root: int) -> int:
     return sum(rss.get(p, 0) for p in keep)
 
 
-def run_measured(cmd: list[str]) -> tuple[float, int, str]:
-    """Run ``cmd``; return its wall time (s), the peak of its process tree's summed RSS (bytes), its stderr."""
+def run_measured(cmd: list[str]) -> tuple[float, int, str, dict]:
+    """Run ``cmd``; return its wall time (s), the peak of its process tree's summed RSS (bytes), its output, and its
+    process tree's user and system CPU seconds and minor page faults (``user``, ``sys``, ``faults``)."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     peak = [0]
@@ -89,7 +97,9 @@ def run_measured(cmd: list[str]) -> tuple[float, int, str]:
     th.join()
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{err[-2000:]}")
-    return wall, peak[0], out + err
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = dict(user=r1.ru_utime - r0.ru_utime, sys=r1.ru_stime - r0.ru_stime, faults=r1.ru_minflt - r0.ru_minflt)
+    return wall, peak[0], out + err, cpu
 
 
 def _copy_share(path: str, out: str, first: int, count: int) -> None:
@@ -142,6 +152,50 @@ def occupancy(profile: dict) -> dict:
     )
 
 
+#: Steps whose tasks are parts of the input (cut finer for more workers: ``part_size``), not tiles.
+PART_STEPS = ("tile: read", "records: read", "export", "export: ids")
+
+
+def _makespan(durations: list[float], n: int) -> float:
+    """When the last of ``durations`` ends on ``n`` workers each taking the next task as it frees (in the given order)."""
+    free = np.zeros(n)
+    for d in durations:
+        k = int(np.argmin(free))
+        free[k] += d
+    return float(free.max(initial=0.0))
+
+
+def list_bound(profile: dict, points: int, n: int) -> float:
+    """The speed-up over one worker that ``n`` workers could give, step by step, from a run's task stream.
+
+    Unlike Amdahl's bound, tasks do not split: each step's recorded tasks
+    (a tile's, whatever the worker count) are dealt in their order to the
+    first free of ``n`` workers, and the next step starts when the last
+    ends, so a step of few or uneven tasks is as long as its longest.  The
+    steps over parts of the input (:data:`PART_STEPS`) are cut as ``n``
+    workers would cut them (``part_size(points, n)``), their work split
+    evenly over those parts.  The client's time (no task running) stays as
+    it was.  Tasks run no slower on more workers here: memory bandwidth
+    and the file system shared by the workers are left out, so this is a
+    bound, not a forecast.
+    """
+    from patchcloud.stream.engine.ingest import part_size
+
+    t0, t1 = float(profile["started"]), float(profile["ended"])
+    steps: dict[str, list[float]] = {}
+    for label, s, e, _ in sorted(profile["tasks"], key=lambda t: t[1]):
+        steps.setdefault(label, []).append(max(0.0, min(e, t1) - max(s, t0)))
+    occ = occupancy(profile)
+    work = sum(sum(d) for d in steps.values())
+    span = 0.0
+    for label, durations in steps.items():
+        if label in PART_STEPS:
+            parts = -(-points // part_size(points, n))
+            durations = [sum(durations) / parts] * parts
+        span += _makespan(durations, n)
+    return (occ["client_s"] + work) / (occ["client_s"] + span)
+
+
 def amdahl(client_s: float, work: float, n: int) -> float:
     """The speed-up bound for ``n`` workers over one: (c + w) / (c + w / n)."""
     return (client_s + work) / (client_s + work / n)
@@ -176,7 +230,7 @@ def main(argv=None) -> int:
         f"--workers {' '.join(map(str, a.workers))} --scheduler {a.scheduler}",
         "",
         f"{'file':<22} {'workers':>7} {'wall s':>8} {'Mpts/s':>7} {'speed-up':>8} {'floor s':>8} {'x floor':>7} {'peak MiB':>9} "
-        f"{'idle':>6} {'client':>7} {'longest s':>9} {'Amdahl 16':>9} {'Amdahl 64':>9}",
+        f"{'user s':>7} {'sys s':>6} {'faults M':>8} {'idle':>6} {'client':>7} {'longest s':>9} {'Amdahl 16':>9} {'Amdahl 64':>9}",
     ]
     print("\n".join(lines), flush=True)
     for path, n in files:
@@ -185,15 +239,17 @@ def main(argv=None) -> int:
             floor = io_floor(path, w, work)
             out = work / f"out{path.suffix}"
             prof = work / "profile.json"
-            wall, peak, _ = run_measured(exe + ["normals", str(path), str(out), "--overwrite", "-q", "--workers", str(w),
+            wall, peak, _, cpu = run_measured(exe + ["normals", str(path), str(out), "--overwrite", "-q", "--workers", str(w),
                                                 "--scheduler", a.scheduler, "--profile", str(prof)])
-            occ = occupancy(json.loads(prof.read_text()))
+            profile = json.loads(prof.read_text())
+            occ = occupancy(profile)
             if w == a.workers[0]:
                 base = wall
             line = (
                 f"{path.name:<22} {w:>7} {wall:>8.1f} {n / wall / 1e6:>7.2f} {base / wall:>7.2f}x {floor:>8.1f} {wall / floor:>6.1f}x "
-                f"{peak / 2**20:>9,.0f} {occ['idle']:>6.1%} {occ['client']:>7.1%} {occ['longest']:>9.2f} "
-                f"{amdahl(occ['client_s'], occ['work'], 16):>8.1f}x {amdahl(occ['client_s'], occ['work'], 64):>8.1f}x"
+                f"{peak / 2**20:>9,.0f} {cpu['user']:>7.1f} {cpu['sys']:>6.1f} {cpu['faults'] / 1e6:>8.2f} {occ['idle']:>6.1%} {occ['client']:>7.1%} {occ['longest']:>9.2f} "
+                f"{amdahl(occ['client_s'], occ['work'], 16):>8.1f}x {amdahl(occ['client_s'], occ['work'], 64):>8.1f}x "
+                f"{list_bound(profile, n, 16):>6.1f}x {list_bound(profile, n, 64):>6.1f}x"
             )
             print(line, flush=True)
             lines.append(line)
@@ -201,8 +257,10 @@ def main(argv=None) -> int:
         "",
         "# wall: the whole `patchcloud normals` process (start-up and export included); floor: W processes reading and writing",
         "# their shares of the file with laspy + lazrs' sequential codec; peak: RSS summed over the job's processes, sampled",
-        "# together every 0.1 s; idle: share of the wall time with fewer tasks running than workers; client: with none;",
-        "# Amdahl N: (c + w) / (c + w / N), c the time no task runs, w the summed task time (speed-up bound over one worker).",
+        "# together every 0.1 s; user, sys: CPU seconds of the job's processes; faults: their minor page faults (millions);",
+        "# idle: share of the wall time with fewer tasks running than workers; client: with none;",
+        "# Amdahl N: (c + w) / (c + w / N), c the time no task runs, w the summed task time (speed-up bound over one worker);",
+        "# list N: (c + w) / (c + sum of the steps' makespans on N workers), tiles' tasks as recorded, parts recut for N.",
     ]
     if a.out:
         Path(a.out).write_text("\n".join(lines) + "\n")

@@ -281,8 +281,10 @@ class Runner:
                 for k, (args, kwargs) in enumerate(calls)
             ]
             index = {f.key: k for k, f in enumerate(futures)}
-            for f in as_completed(futures):
-                took(index[f.key], f.result())
+            # each result is fetched by the client's event loop as its task ends (not one round trip at a time here);
+            # a failed task raises its error, with its traceback, when its turn comes
+            for f, out in as_completed(futures, with_results=True):
+                took(index[f.key], out)
         bar.close()
         return results
 
