@@ -10,14 +10,16 @@ freed.  A task of a patchcloud job makes and frees such arrays by the
 hundred; on the 10-million-point city that was 4.7 million page faults and
 15 s of system time in 28 s of wall time (2 workers).
 
-:func:`tune_allocator` sets both thresholds with ``mallopt`` to the values
-glibc's adaptive rule reaches by itself when nothing is set (32 MiB, and
-twice that for the trim): arrays of up to :data:`MMAP_THRESHOLD` come from
-the heap and their memory is reused by the next task's, and the heap gives
-memory back once more than :data:`TRIM_THRESHOLD` of it is free at its top.
-Measured on that city (2 workers): 0.42-0.49 million page faults, the
-processes' summed peak 1.86-1.89 GiB against 1.71 GiB untuned (256 and
-512 MiB gave no faster run and 2.0-2.1 GiB).  What a worker holds stays
+:func:`tune_allocator` sets both thresholds with ``mallopt``: arrays of up
+to :data:`MMAP_THRESHOLD` (64 MiB: a part's records, half a million points
+of up to 134 bytes, fit under it) come from the heap and their memory is
+reused by the next task's, and the heap gives memory back once more than
+:data:`TRIM_THRESHOLD` of it is free at its top.  Measured with 2 workers:
+on the 10M city LAZ 0.5 million page faults, the processes' summed peak
+1.86 GiB against 1.71 GiB untuned (256 and 512 MiB: no faster, 2.0-2.1
+GiB); on the 30M city LAS (67-byte output records: 33 MB a part) 0.68
+million faults and 38.4 s against 1.2 million and 40.9 s with glibc's own
+adaptive ceiling (32 and 64 MiB).  What a worker holds stays
 bounded by its largest task (a part or a tile, not the file), plus that
 margin.  Every local cluster's worker runs it as it starts
 (:mod:`.worker_setup`); the workers of a cluster of your own run it with
@@ -35,9 +37,9 @@ import sys
 __all__ = ["tune_allocator", "dask_setup", "MMAP_THRESHOLD", "TRIM_THRESHOLD"]
 
 #: Allocations up to this size (bytes) come from the heap, whose memory is reused; larger ones are mapped.
-MMAP_THRESHOLD = 32 * 2**20
+MMAP_THRESHOLD = 64 * 2**20
 #: The heap gives memory back to the system once this much (bytes) is free at its top.
-TRIM_THRESHOLD = 64 * 2**20
+TRIM_THRESHOLD = 128 * 2**20
 
 _M_TRIM_THRESHOLD = -1  # glibc's <malloc.h>
 _M_MMAP_THRESHOLD = -3
