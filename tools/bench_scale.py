@@ -1,7 +1,8 @@
 """Scaling of ``patchcloud normals``: workers, the I/O floor, worker occupancy and the Amdahl bound; one table.
 
     python tools/bench_scale.py [--laz-points 10000000] [--las-points 30000000] [--workers 1 2]
-                                [--scheduler processes] [--workdir DIR] [--out tools/results/bench_scale-DATE.txt]
+                                [--repeats 1] [--scheduler processes] [--tile-size METRES] [--workdir DIR]
+                                [--out tools/results/bench_scale-DATE.txt]
 
 For each file (a synthetic city, ``tools/city_las.py`` seed 0: a LAZ of
 ``--laz-points`` and a LAS of ``--las-points``; 0 skips one) and each
@@ -207,6 +208,8 @@ def main(argv=None) -> int:
     ap.add_argument("--las-points", type=int, default=30_000_000)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--scheduler", default="processes")
+    ap.add_argument("--repeats", type=int, default=1, help="runs of each case: the table shows the median run and the range")
+    ap.add_argument("--tile-size", type=float, default=None, help="passed to patchcloud normals (default: its own)")
     ap.add_argument("--workdir", default="/tmp/bench_scale")
     ap.add_argument("--out", default=None, help="also write the table there")
     a = ap.parse_args(argv)
@@ -227,26 +230,33 @@ def main(argv=None) -> int:
         f"# bench_scale {date.today()} on {platform.node()}: {os.cpu_count()} cores, {platform.processor() or platform.machine()}; "
         f"scheduler {a.scheduler}; python {platform.python_version()}",
         f"# command: python tools/bench_scale.py --laz-points {a.laz_points} --las-points {a.las_points} "
-        f"--workers {' '.join(map(str, a.workers))} --scheduler {a.scheduler}",
+        f"--workers {' '.join(map(str, a.workers))} --scheduler {a.scheduler}" + (f" --tile-size {a.tile_size:g}" if a.tile_size else "")
+        + (f" --repeats {a.repeats}" if a.repeats > 1 else ""),
         "",
-        f"{'file':<22} {'workers':>7} {'wall s':>8} {'Mpts/s':>7} {'speed-up':>8} {'floor s':>8} {'x floor':>7} {'peak MiB':>9} "
+        f"{'file':<22} {'tiles':>5} {'workers':>7} {'wall s':>8} {'range s':>11} {'Mpts/s':>7} {'speed-up':>8} {'floor s':>8} {'x floor':>7} {'peak MiB':>9} "
         f"{'user s':>7} {'sys s':>6} {'faults M':>8} {'idle':>6} {'client':>7} {'longest s':>9} {'Amdahl 16':>9} {'Amdahl 64':>9}",
     ]
     print("\n".join(lines), flush=True)
     for path, n in files:
         base = None
         for w in a.workers:
-            floor = io_floor(path, w, work)
-            out = work / f"out{path.suffix}"
-            prof = work / "profile.json"
-            wall, peak, _, cpu = run_measured(exe + ["normals", str(path), str(out), "--overwrite", "-q", "--workers", str(w),
-                                                "--scheduler", a.scheduler, "--profile", str(prof)])
-            profile = json.loads(prof.read_text())
+            runs = []  # each: wall, peak, cpu, profile, floor (the I/O floor measured just before that run)
+            for _ in range(a.repeats):
+                floor = io_floor(path, w, work)
+                out = work / f"out{path.suffix}"
+                prof = work / "profile.json"
+                wall, peak, _, cpu = run_measured(exe + ["normals", str(path), str(out), "--overwrite", "-q", "--workers", str(w),
+                                                    "--scheduler", a.scheduler, "--profile", str(prof)]
+                                                  + (["--tile-size", f"{a.tile_size:g}"] if a.tile_size else []))
+                runs.append((wall, peak, cpu, json.loads(prof.read_text()), floor))
+            runs.sort(key=lambda r: r[0])
+            wall, peak, cpu, profile, floor = runs[(len(runs) - 1) // 2]  # the median run (the lower one of an even count)
+            spread = f"{runs[0][0]:.1f}-{runs[-1][0]:.1f}"
             occ = occupancy(profile)
             if w == a.workers[0]:
                 base = wall
             line = (
-                f"{path.name:<22} {w:>7} {wall:>8.1f} {n / wall / 1e6:>7.2f} {base / wall:>7.2f}x {floor:>8.1f} {wall / floor:>6.1f}x "
+                f"{path.name:<22} {sum(1 for t in profile['tasks'] if t[0] == 'fit'):>5} {w:>7} {wall:>8.1f} {spread:>11} {n / wall / 1e6:>7.2f} {base / wall:>7.2f}x {floor:>8.1f} {wall / floor:>6.1f}x "
                 f"{peak / 2**20:>9,.0f} {cpu['user']:>7.1f} {cpu['sys']:>6.1f} {cpu['faults'] / 1e6:>8.2f} {occ['idle']:>6.1%} {occ['client']:>7.1%} {occ['longest']:>9.2f} "
                 f"{amdahl(occ['client_s'], occ['work'], 16):>8.1f}x {amdahl(occ['client_s'], occ['work'], 64):>8.1f}x "
                 f"{list_bound(profile, n, 16):>6.1f}x {list_bound(profile, n, 64):>6.1f}x"
@@ -255,7 +265,8 @@ def main(argv=None) -> int:
             lines.append(line)
     lines += [
         "",
-        "# wall: the whole `patchcloud normals` process (start-up and export included); floor: W processes reading and writing",
+        "# tiles: the store's tiles (fit tasks); wall: the whole `patchcloud normals` process (start-up and export included), the",
+        "# median of --repeats runs (range: all of them; the other columns are the median run's); floor: W processes reading and writing",
         "# their shares of the file with laspy + lazrs' sequential codec; peak: RSS summed over the job's processes, sampled",
         "# together every 0.1 s; user, sys: CPU seconds of the job's processes; faults: their minor page faults (millions);",
         "# idle: share of the wall time with fewer tasks running than workers; client: with none;",

@@ -77,12 +77,12 @@ __all__ = [
 ]
 
 #: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.97 GiB
-#: (city LAZ, 2-core machine, two tiles at a time; 1.14 GiB at 4M points, 2.01 GiB at 10M:
-#: tools/results/bench_small_modes-2026-11-25b.txt).
+#: (city LAZ, 2-core machine, two tiles at a time; 1.05 GiB at 4M points, 2.02 GiB at 10M:
+#: tools/results/bench_small_modes-2026-11-26.txt).
 IN_MEMORY_POINTS = 2_000_000
 #: The same on a machine of at most :data:`FEW_CORES` cores: there worker processes do not win (2 cores, city LAZ,
-#: tools/results/bench_small_modes-2026-11-25b.txt: in memory 11.76 s against 23.87 s on disk at 4M points, 27.26 s
-#: against 58.16 s at 10M, peak 2.01 GiB).
+#: tools/results/bench_small_modes-2026-11-26.txt: in memory 6.29 s against 10.18 s on disk at 4M points, 13.43 s
+#: against 20.05 s at 10M, peak 2.02 GiB).
 IN_MEMORY_POINTS_FEW_CORES = 10_000_000
 FEW_CORES = 2
 
