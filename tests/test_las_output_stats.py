@@ -45,3 +45,36 @@ def test_ranges_from_the_columns_as_set_equal_ranges_from_the_records():
         assert np.array_equal(st.mins, ref.mins) and np.array_equal(st.maxs, ref.maxs)
     wrong = dict(cols, Plain=cols["Plain"] + 1)  # the ranges do come from the columns given
     assert las_output.point_stats(h, pts, wrong).eb_max[2] != ref.eb_max[2]
+
+
+def _laz_parts(tmp_path, name, n_parts=4, per=2 * las_output.LAZ_CHUNK):
+    """A LAZ written in ``n_parts`` parts of whole LAZ chunks by write_laz_part: (header, tmp path, start, stats, tables,
+    all points)."""
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = np.array([0.01, 0.01, 0.01]), np.zeros(3)
+    header = las_output.prepare_header(h, compressed=True)
+    rng = np.random.default_rng(9)
+    pts = laspy.PackedPointRecord.zeros(n_parts * per, header.point_format)
+    pts["X"], pts["Y"], pts["Z"] = (rng.integers(0, 10**6, n_parts * per) for _ in range(3))
+    pts["intensity"] = rng.integers(0, 2**16, n_parts * per)
+    tmp = tmp_path / name
+    start = las_output.begin(header, tmp, len(pts))
+    stats, tables = [], []
+    for k in range(n_parts):
+        part = laspy.PackedPointRecord(pts.array[k * per:(k + 1) * per].copy(), header.point_format)
+        stats.append(las_output.point_stats(header, part))
+        tables.append(las_output.write_laz_part(tmp, k, header, part))
+    return header, tmp, start, stats, tables, pts
+
+
+def test_laz_parts_stitched_as_they_come_give_the_bytes_of_parts_stitched_at_the_end(tmp_path):
+    header, at_end, start, stats, tables, pts = _laz_parts(tmp_path, "end.laz.partial")
+    las_output.finish(header, at_end, start, stats, tables)
+    header, early, start, stats, tables, _ = _laz_parts(tmp_path, "early.laz.partial")
+    las_output.stitch(early, range(0, 1))
+    las_output.stitch(early, range(1, 3))  # the first three parts in, the last one left to finish
+    assert not (las_output.fragments_dir(early) / "000001").exists()
+    las_output.finish(header, early, start, stats, tables)
+    assert early.read_bytes() == at_end.read_bytes()
+    back = laspy.read(str(early))
+    assert np.array_equal(back.points.array, pts.array)

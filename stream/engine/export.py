@@ -265,11 +265,19 @@ def export_columns(
                 owner.append((f, local))
         results: dict[int, list] = {f: [None] * int(first_part[f + 1] - first_part[f]) for f in todo}
         left = {f: len(r) for f, r in results.items()}
+        stitched = {f: 0 for f in todo}  # LAZ: the parts of each file already appended to its output, a prefix
 
         def finish(k: int, result) -> None:  # the part's file is complete once its last part is in: stitch, rename, record
             f, local = owner[k]
             results[f][local] = result
             left[f] -= 1
+            if compressed[f] and left[f]:  # append the parts now in order while the others are still being written
+                ready = stitched[f]
+                while ready < len(results[f]) and results[f][ready] is not None:
+                    ready += 1
+                if ready > stitched[f]:
+                    las_output.stitch(tmps[f], range(stitched[f], ready))
+                    stitched[f] = ready
             if left[f] == 0:
                 mine = results.pop(f)
                 las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None,

@@ -33,7 +33,7 @@ import lazrs
 import numpy as np
 from laspy.vlrs.known import LasZipVlr
 
-__all__ = ["LAZ_CHUNK", "PointStats", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "finish",
+__all__ = ["LAZ_CHUNK", "PointStats", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
            "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
@@ -192,7 +192,9 @@ def begin(header: laspy.LasHeader, tmp: str | os.PathLike, point_count: int) -> 
     """Create ``tmp`` for ``point_count`` points; return the offset of the point data.
 
     LAS: the file is sized for every record (tasks write into it); LAZ: an
-    empty directory of fragments is made beside it.
+    empty directory of fragments is made beside it, and the point data
+    begins with the chunk table's offset (0 until :func:`finish`), after
+    which the fragments are appended (:func:`stitch`).
     """
     buf = io.BytesIO()
     header.write_to(buf)
@@ -201,6 +203,8 @@ def begin(header: laspy.LasHeader, tmp: str | os.PathLike, point_count: int) -> 
         f.write(buf.getvalue())
         if not header.are_points_compressed:
             f.truncate(start + point_count * header.point_format.size)
+        else:
+            f.write(struct.pack("<q", 0))
     if header.are_points_compressed:
         d = fragments_dir(tmp)
         shutil.rmtree(d, ignore_errors=True)
@@ -285,12 +289,30 @@ def legacy_counts(f, h: laspy.LasHeader) -> None:
 LEGACY_COUNT_AT = 107
 
 
+def stitch(tmp: str | os.PathLike, parts: range) -> None:
+    """Append the LAZ fragments ``parts`` (the next ones, in order) to ``tmp``'s point data and remove them.
+
+    The writer calls it as the parts come in, each as soon as every part
+    before it is in, so that :func:`finish` has only the last ones left to
+    copy: the copy of the compressed points is not a serial step at the end.
+    """
+    d = fragments_dir(tmp)
+    with open(tmp, "r+b") as f:
+        f.seek(0, os.SEEK_END)
+        for part in parts:
+            name = d / f"{part:06d}"
+            with open(name, "rb") as src:
+                _append(src, f)
+            name.unlink()
+
+
 def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: list[PointStats], tables: list | None = None,
            source: str | None = None) -> None:
-    """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments in part order and the chunk table;
-    then the header's EVLRs (LAS 1.4: a CRS WKT is often one), after the point data.
+    """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments not yet stitched (in part order)
+    and the chunk table; then the header's EVLRs (LAS 1.4: a CRS WKT is often one), after the point data.
 
-    ``tables``: each LAZ part's chunk-table entries, in part order.
+    ``tables``: each LAZ part's chunk-table entries, in part order (the
+    parts :func:`stitch` appended first, then those whose fragments remain).
     ``source``: the input file, whose internal waveform data packet record
     follows the points of the output too, the header pointing at it: a
     LAS 1.4 input's is one of its EVLRs, kept with the others; a LAS 1.3
@@ -305,13 +327,13 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
     h.start_of_waveform_data_packet_record = 0
     with open(tmp, "r+b") as f:
         if h.are_points_compressed:
-            f.seek(start)
-            f.write(struct.pack("<q", 0))
             d = fragments_dir(tmp)
-            f.flush()
+            f.seek(0, os.SEEK_END)
             for part in range(len(tables)):
-                with open(d / f"{part:06d}", "rb") as src:
-                    _append(src, f)
+                name = d / f"{part:06d}"
+                if name.exists():  # not stitched yet (those stitched are gone, and came first)
+                    with open(name, "rb") as src:
+                        _append(src, f)
             table_at = f.tell()
             vlr = lazrs.LazVlr(h.vlrs.get("LasZipVlr")[0].record_data)
             lazrs.write_chunk_table(f, [e for t in tables for e in t], vlr)
