@@ -187,14 +187,13 @@ def list_bound(profile: dict, points: int, n: int) -> float:
     for label, s, e, _ in sorted(profile["tasks"], key=lambda t: t[1]):
         steps.setdefault(label, []).append(max(0.0, min(e, t1) - max(s, t0)))
     occ = occupancy(profile)
-    work = sum(sum(d) for d in steps.values())
     span = 0.0
     for label, durations in steps.items():
         if label in PART_STEPS:
             parts = -(-points // part_size(points, n))
             durations = [sum(durations) / parts] * parts
         span += _makespan(durations, n)
-    return (occ["client_s"] + work) / (occ["client_s"] + span)
+    return (occ["client_s"] + occ["work"]) / (occ["client_s"] + span)
 
 
 def amdahl(client_s: float, work: float, n: int) -> float:

@@ -24,6 +24,7 @@ import io
 import os
 import shutil
 import struct
+from collections.abc import Iterable
 from copy import deepcopy
 from dataclasses import dataclass
 from pathlib import Path
@@ -289,7 +290,7 @@ def legacy_counts(f, h: laspy.LasHeader) -> None:
 LEGACY_COUNT_AT = 107
 
 
-def stitch(tmp: str | os.PathLike, parts: range) -> None:
+def stitch(tmp: str | os.PathLike, parts: Iterable[int]) -> None:
     """Append the LAZ fragments ``parts`` (the next ones, in order) to ``tmp``'s point data and remove them.
 
     The writer calls it as the parts come in, each as soon as every part
@@ -325,16 +326,12 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
     evlrs = list(header.evlrs) if header.version.minor >= 4 and header.evlrs else []
     waves = h.global_encoding.waveform_data_packets_internal
     h.start_of_waveform_data_packet_record = 0
+    if h.are_points_compressed:  # the fragments not stitched yet (those stitched are gone, and came first)
+        d = fragments_dir(tmp)
+        stitch(tmp, [part for part in range(len(tables)) if (d / f"{part:06d}").exists()])
     with open(tmp, "r+b") as f:
         if h.are_points_compressed:
-            d = fragments_dir(tmp)
-            f.seek(0, os.SEEK_END)
-            for part in range(len(tables)):
-                name = d / f"{part:06d}"
-                if name.exists():  # not stitched yet (those stitched are gone, and came first)
-                    with open(name, "rb") as src:
-                        _append(src, f)
-            table_at = f.tell()
+            table_at = f.seek(0, os.SEEK_END)
             vlr = lazrs.LazVlr(h.vlrs.get("LasZipVlr")[0].record_data)
             lazrs.write_chunk_table(f, [e for t in tables for e in t], vlr)
             f.truncate()
