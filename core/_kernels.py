@@ -742,14 +742,16 @@ def run_starts(keys):
 
 
 @parallel_kernel
-def box_cell_stats(points, weighted, rows, starts, ckeys, edge, lo, span, cmom, cvotes):
+def box_cell_stats(points, votes, voters, rows, starts, ckeys, edge, lo, span, cmom, cvotes):
     """Second-order moments and summed vectors of the cells of :func:`box_cell_keys`, points gathered by ``rows``.
 
     Cell ``c`` holds ``points[rows[starts[c]:starts[c + 1]]]`` and has key
     ``ckeys[c]``; ``cmom[c]`` gets the count, first and second moments
     about the cell's centre (the first 10 columns of :func:`cell_moments`,
     the same sums in the same order), ``cvotes[c]`` the sum of
-    ``weighted`` over the same rows in the same order.
+    ``votes`` over the same rows where ``voters``, in the same order (the
+    sum of ``where(voters, votes, 0)`` bit for bit: a zero added changes
+    no sum).
     """
     C = starts.shape[0]
     n = rows.shape[0]
@@ -777,9 +779,10 @@ def box_cell_stats(points, weighted, rows, starts, ckeys, edge, lo, span, cmom, 
             a7 += y * y
             a8 += y * z
             a9 += z * z
-            v0 += weighted[r, 0]
-            v1 += weighted[r, 1]
-            v2 += weighted[r, 2]
+            if voters[r]:
+                v0 += votes[r, 0]
+                v1 += votes[r, 1]
+                v2 += votes[r, 2]
         cmom[c, 0] = a0
         cmom[c, 1] = a1
         cmom[c, 2] = a2

@@ -137,9 +137,9 @@ def moment_normals(
     if m and 8 * m < n:  # few queries: only the points that may lie in their cells (each such cell whole, so the same sums)
         near = near_queries(points, where, 2.0 * h)  # a query's cells lie within 1.5 h of it along each axis, at both scales
         points, votes, voters = points[near], votes[near], voters[near]
-    weighted = np.where(voters[:, None], votes, 0.0)
+    votes = np.ascontiguousarray(votes)
     for edge in (0.5 * h, h):  # the flatter of the two scales, the finer on a tie
-        nrm, s2, s3, d1, v, count = _at_points(points, weighted, where, float(edge))
+        nrm, s2, s3, d1, v, count = _at_points(points, votes, voters, where, float(edge))
         ok = (count >= MIN_POINTS) & (s2 >= min_sigma2) & (s3 < best)
         best[ok] = s3[ok]
         defined |= ok
@@ -148,8 +148,8 @@ def moment_normals(
     return MomentNormals(defined, normal, sigma3, dir1, vote, coarse)
 
 
-def _at_points(points, weighted, where, edge):
-    """The kernel's outputs at ``where`` (M, 3) for cells of ``edge``."""
+def _at_points(points, votes, voters, where, edge):
+    """The kernel's outputs at ``where`` (M, 3) for cells of ``edge`` (``votes`` summed where ``voters``)."""
     m = where.shape[0]
     base = np.floor(where / edge - 0.5).astype(np.int64)
     lo = base.min(axis=0)
@@ -161,7 +161,7 @@ def _at_points(points, weighted, where, edge):
             left = base[:, axis] < base[:, axis].max()
         out = [np.empty(shape) for shape in ((m, 3), m, m, (m, 3), (m, 3), m)]
         for part in (left, ~left):
-            for o, values in zip(out, _at_points(points, weighted, where[part], edge)):
+            for o, values in zip(out, _at_points(points, votes, voters, where[part], edge)):
                 o[part] = values
         return tuple(out)
     keys = np.empty(points.shape[0], dtype=np.int64)
@@ -169,11 +169,13 @@ def _at_points(points, weighted, where, edge):
     inside = np.flatnonzero(keys >= 0)
     keys = keys[inside]
     order = np.argsort(keys, kind="stable")
-    rows, keys = inside[order], keys[order]
+    keys = keys[order]  # one (N,) array at a time freed as the next is made: this runs on whole tiles
+    rows = inside[order]
+    del inside, order
     starts = _kernels.run_starts(keys)
     ckeys = keys[starts]
     cmom, cvotes = np.empty((starts.size, 10)), np.empty((starts.size, 3))
-    _kernels.box_cell_stats(points, weighted, rows, starts, ckeys, float(edge), lo, span, cmom, cvotes)
+    _kernels.box_cell_stats(points, votes, voters, rows, starts, ckeys, float(edge), lo, span, cmom, cvotes)
     normals, dir1, votes = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
     sigma2, sigma3, count = np.empty(m), np.empty(m), np.empty(m)
     _kernels.interpolated_pca(

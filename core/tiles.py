@@ -350,22 +350,24 @@ def finish_tile(
         tree.local, tree.start, tree.count, surface, tree.centroid, frames, coeffs, tree.fit.sigma3, normals, scalars, dir1
     )
     method = np.repeat(np.where(surface, Method.QUADRIC, 0).astype(np.uint8), tree.count)
-    patch_normals = normals.copy() if not surface.all() else normals  # what orients the k-NN normals
+    voters = method != 0  # surface points: their patch normals (before blending) orient the others
+    if skin is not None and skin.points.shape[0]:
+        skin = Skin(skin.points - corner, skin.normals, skin.oriented)
+    else:
+        skin = None
+    # the points the fallbacks see: the tile's, then the skin's; their votes, written once (no copy of the tile's first)
+    if skin is None:
+        points, votes_all, voters_all = tree.local, (normals.copy() if not surface.all() else normals), voters
+    else:
+        points = np.concatenate([tree.local, skin.points])
+        votes_all = np.empty_like(points)
+        votes_all[:n], votes_all[n:] = normals, skin.normals
+        voters_all = np.concatenate([voters, skin.oriented])
     if blend:
         was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1, outside=outside, corner=corner)
         method[was] = Method.BLENDED
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64) - corner
     ctr = None if centre is None else np.asarray(centre, dtype=np.float64) - corner
-    if skin is not None and skin.points.shape[0]:
-        skin = Skin(skin.points - corner, skin.normals, skin.oriented)
-    else:
-        skin = None
-    voters = method != 0  # surface points: their patch normals orient the others
-    if skin is None:  # the points the fallbacks see: the tile's, then the skin's
-        points, votes_all, voters_all = tree.local, patch_normals, voters
-    else:
-        points = np.concatenate([tree.local, skin.points])
-        votes_all, voters_all = np.concatenate([patch_normals, skin.normals]), np.concatenate([voters, skin.oriented])
     orienting = _Orienting(points, votes_all, voters_all, SIGN_REACH * d_min, orient, tree.local, vp, ctr)
     _moment_fallback(tree, normals, scalars, dir1, method, points, min_sigma2, orienting)
     _fallback(tree, normals, scalars, dir1, method, points, k_fallback, orienting, grid=skin is None)

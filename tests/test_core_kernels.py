@@ -37,14 +37,15 @@ def test_box_cell_stats_equal_the_cell_moments_and_run_sums_bit_for_bit(rng):
     cxyz = np.stack([ckeys // (span[1] * span[2]), (ckeys // span[2]) % span[1], ckeys % span[2]], axis=1) + lo
     assert np.array_equal(np.floor(p[rows[starts]] / edge).astype(np.int64), cxyz)  # each run is its cell
     cmom, cvotes = np.empty((starts.size, 10)), np.empty((starts.size, 3))
-    _kernels.box_cell_stats(p, w, rows, starts, ckeys, edge, lo, span, cmom, cvotes)
+    voters = rng.random(4000) < 0.7  # votes counted where voters only
+    _kernels.box_cell_stats(p, w, voters, rows, starts, ckeys, edge, lo, span, cmom, cvotes)
     ref = np.empty((starts.size, len(EXPONENTS)))
     _kernels.cell_moments(p[rows], starts, (cxyz + 0.5) * edge, ref)
     ref = ref[:, :10]
     ref_votes = np.zeros((starts.size, 3))
     for c, (lo_, hi_) in enumerate(zip(starts, np.r_[starts[1:], rows.size])):
         for i in rows[lo_:hi_]:  # in order, one addition at a time, as the kernel sums
-            ref_votes[c] += w[i]
+            ref_votes[c] += w[i] if voters[i] else 0.0
     assert np.array_equal(cmom, ref) and np.array_equal(cvotes, ref_votes)
     assert _kernels.run_starts(np.zeros(0, dtype=np.int64)).size == 0
 

@@ -125,8 +125,8 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
     grid = store.grid
     T = grid.tile_size
     corner = grid.corner(ijk)
-    xyz = store.read(ijk, "xyz")
-    local = grid.local(xyz) - corner
+    local = grid.local(store.read(ijk, "xyz"))
+    local -= corner  # in place: one (N, 3) array, not two
     table = store.patch_table(ijk)
     sign = store.read(ijk, "sign").astype(np.float64)
     present = {tuple(n) for n in neighbours}
