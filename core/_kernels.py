@@ -149,9 +149,10 @@ def eval_surface_points(local, start, count, surface, centroid, frames, coeffs, 
 def blend_points(
     local, q, start, count, level, ijk, lo_key, hi_key, lower, edge, kind, centroid, frames, coeffs, sigma3,
     nb_off, nb_lo_key, nb_hi_key, nb_edge, nb_kind, nb_centroid, nb_frames, nb_coeffs, nb_sigma3,
-    normals, scalars, dir1, blended,
+    normals, scalars, dir1, blended, todo,
 ):
-    """Blend normals and (sigma3, k1, k2) of surface points across leaf faces, in place.
+    """Blend normals and (sigma3, k1, k2) of surface points across leaf faces, in place, for the points where ``todo``
+    (every leaf still a neighbour).
 
     Mirrors :func:`patchcloud.core.blend.blend_across_faces`: within
     ``r = min(d1, d2) / 3`` of a face, the neighbour's surface value at the
@@ -171,6 +172,8 @@ def blend_points(
         h = edge[l]
         shift = _MAX_DEPTH - level[l]
         for i in range(start[l], start[l] + count[l]):
+            if not todo[i]:
+                continue
             px, py, pz = local[i, 0], local[i, 1], local[i, 2]
             nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
             s0, s1, s2 = scalars[i, 0], scalars[i, 1], scalars[i, 2]

@@ -49,6 +49,7 @@ def blend_across_faces(
     dir1: np.ndarray,
     outside: Sequence[PatchTable | None] | None = None,
     corner: np.ndarray | None = None,
+    only: np.ndarray | None = None,
 ) -> np.ndarray:
     """Blend the values of the points of surface leaves, in place.
 
@@ -68,6 +69,9 @@ def blend_across_faces(
     corner : (3,) float64
         The root cube's minimum corner in the tables' coordinates (needed
         with ``outside``).
+    only : (N,) bool, optional
+        Blend only the points where True, sorted order (default: every
+        point); each point's value is the same either way.
 
     Returns
     -------
@@ -76,10 +80,11 @@ def blend_across_faces(
     lo_key, hi_key = key_range(tree.cell, tree.level)
     nb = _pack_outside(outside, corner)
     blended = np.zeros(tree.local.shape[0], dtype=np.bool_)
+    todo = np.ones(tree.local.shape[0], dtype=np.bool_) if only is None else np.ascontiguousarray(only, dtype=np.bool_)
     _kernels.blend_points(
         tree.local, tree.q, tree.start, tree.count, tree.level, tree.ijk, lo_key, hi_key, tree.lower,
         tree.leaf_edge, tree.kind, tree.centroid, frames, coeffs, tree.fit.sigma3, *nb,
-        normals, scalars, dir1, blended,
+        normals, scalars, dir1, blended, todo,
     )
     return blended
 

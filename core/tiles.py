@@ -293,8 +293,9 @@ def finish_tile(
     blend: bool = True,
     outside: list[PatchTable | None] | None = None,
     skin: Skin | None = None,
+    only: np.ndarray | None = None,
 ) -> TileNormals:
-    """Normals, curvatures and methods of every point of one tile, sorted order.
+    """Normals, curvatures and methods of every point of one tile (or of some of them), sorted order.
 
     Parameters
     ----------
@@ -314,10 +315,16 @@ def finish_tile(
     skin : Skin, optional
         Neighbouring tiles' points within ``SKIN_HALO * d_min`` of this
         tile's faces, for the normals of edge and sparse points.
+    only : (N,) bool, optional
+        Only the points where True (sorted order).  Each of them gets the
+        same values as in a call on the whole tile, so a big tile can be
+        finished in pieces side by side (default: every point).
 
     Returns
     -------
     TileNormals
+        Of the points asked for, in sorted order (the patch table is the
+        tile's, whole).
 
     Notes
     -----
@@ -342,6 +349,11 @@ def finish_tile(
     frames, coeffs = turn_over(patches.frame, patches.coeffs, np.asarray(sign) < 0)
     oriented = PatchTable(**{**patches.__dict__, "frame": frames, "coeffs": coeffs})
     n = local.shape[0]
+    if only is not None:
+        only = np.asarray(only)
+        if only.dtype != np.bool_ or only.shape != (n,):
+            raise ValueError(f"only must be a ({n},) bool array (one per point), got {only.dtype} {only.shape}")
+    todo = np.ones(n, dtype=np.bool_) if only is None else np.ascontiguousarray(only)
     surface = tree.kind == PatchKind.SURFACE
     normals = np.zeros((n, 3))
     scalars = np.zeros((n, 3))
@@ -364,14 +376,16 @@ def finish_tile(
         votes_all[:n], votes_all[n:] = normals, skin.normals
         voters_all = np.concatenate([voters, skin.oriented])
     if blend:
-        was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1, outside=outside, corner=corner)
+        was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1, outside=outside, corner=corner, only=only)
         method[was] = Method.BLENDED
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64) - corner
     ctr = None if centre is None else np.asarray(centre, dtype=np.float64) - corner
     orienting = _Orienting(points, votes_all, voters_all, SIGN_REACH * d_min, orient, tree.local, vp, ctr)
-    _moment_fallback(tree, normals, scalars, dir1, method, points, min_sigma2, orienting)
-    _fallback(tree, normals, scalars, dir1, method, points, k_fallback, orienting, grid=skin is None)
-    return TileNormals(normals, scalars, dir1, method, tree.point_leaf(), oriented)
+    _moment_fallback(tree, normals, scalars, dir1, method, points, min_sigma2, orienting, todo)
+    _fallback(tree, normals, scalars, dir1, method, points, k_fallback, orienting, todo, grid=skin is None)
+    if only is None:
+        return TileNormals(normals, scalars, dir1, method, tree.point_leaf(), oriented)
+    return TileNormals(normals[only], scalars[only], dir1[only], method[only], tree.point_leaf()[only], oriented)
 
 
 @dataclass(frozen=True)
@@ -405,9 +419,9 @@ class _Orienting:
             _turn(normals, scalars, dir1, rest, point_rule_signs(self.orient, normals[rest], self.local[rest], self.viewpoint, self.centre))
 
 
-def _moment_fallback(tree: Octree, normals, scalars, dir1, method, points, min_sigma2, orienting: _Orienting) -> None:
-    """Moment normals for the points of edge and sparse leaves where defined, oriented, in place."""
-    query = np.flatnonzero(method == 0)
+def _moment_fallback(tree: Octree, normals, scalars, dir1, method, points, min_sigma2, orienting: _Orienting, todo) -> None:
+    """Moment normals for the points of edge and sparse leaves where ``todo``, where defined, oriented, in place."""
+    query = np.flatnonzero((method == 0) & todo)
     if query.size == 0:
         return
     mn = moment_normals(points, query, tree.edge / 2.0**tree.max_level, min_sigma2=min_sigma2, votes=orienting.votes,
@@ -426,14 +440,14 @@ def _moment_fallback(tree: Octree, normals, scalars, dir1, method, points, min_s
     orienting.finish(normals, scalars, dir1, rows, nrm, sign, SIGN_VOTERS, SIGN_MIN_COS)
 
 
-def _fallback(tree: Octree, normals, scalars, dir1, method, points, k, orienting: _Orienting, grid: bool) -> None:
-    """k-NN PCA normals for the points still without one, oriented by patch normals near them, in place.
+def _fallback(tree: Octree, normals, scalars, dir1, method, points, k, orienting: _Orienting, todo, grid: bool) -> None:
+    """k-NN PCA normals for the points where ``todo`` still without one, oriented by patch normals near them, in place.
 
     With ``grid`` (``points`` are the tile's only) the search runs in the
     octree's cells around the queries; else (the skin takes part) over all
     of ``points``.
     """
-    query = np.flatnonzero(method == 0)
+    query = np.flatnonzero((method == 0) & todo)
     if query.size == 0:
         return
     cells = (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level) if grid else None

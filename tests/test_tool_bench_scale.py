@@ -24,7 +24,7 @@ def test_the_list_bound_keeps_a_step_as_long_as_its_longest_task():
     # 2 workers: fit {4} | {1, 1} -> 4 s, finish {2} | {2} -> 2 s: (0.5 + 10) / (0.5 + 6)
     assert bench_scale.list_bound(ONE_WORKER, points=1000, n=2) == pytest.approx(10.5 / 6.5)
     # more workers cannot shorten a step below its longest task; Amdahl's bound, splitting everything, keeps rising
-    assert bench_scale.list_bound(ONE_WORKER, points=1000, n=16) == pytest.approx(10.5 / 6.5)
+    assert bench_scale.list_bound(ONE_WORKER, points=1000, n=16, pieces=False) == pytest.approx(10.5 / 6.5)
     assert bench_scale.amdahl(0.5, 10.0, 2) == pytest.approx(10.5 / 5.5)
     assert bench_scale.amdahl(0.5, 10.0, 16) == pytest.approx(10.5 / (0.5 + 10 / 16))
 
@@ -34,3 +34,14 @@ def test_the_list_bound_recuts_the_parts_of_the_input_for_the_workers():
     # 20 parts of 0.2 s, dealt 16 then 4: 0.4 s
     profile = _profile([("export", k, k + 1) for k in range(4)], ended=4.0)
     assert bench_scale.list_bound(profile, points=2_000_000, n=16) == pytest.approx(4.0 / 0.4)
+
+
+def test_the_list_bound_models_the_finish_pieces_of_big_tiles():
+    # finish 6 + 1 + 1 s on 4 workers: share 2 s, so the 6 s tile is cut in 3 pieces of 6 (f + (1 - f) / 3) s
+    f = bench_scale.PIECE_OVERHEAD
+    assert bench_scale.cut_into_pieces([6.0, 1.0, 1.0], 4) == pytest.approx([6 * (f + (1 - f) / 3)] * 3 + [1.0, 1.0])
+    assert bench_scale.cut_into_pieces([1.0, 1.0], 2) == [1.0, 1.0]  # nothing over a worker's share: nothing cut
+    profile = _profile([("finish", 0, 6), ("finish", 6, 7), ("finish", 7, 8)], ended=8.0)
+    # 4 workers: pieces 3.0, 3.0, 3.0 | 1 then 1 on the fourth: the longest piece
+    assert bench_scale.list_bound(profile, points=1000, n=4) == pytest.approx(8.0 / (6 * (f + (1 - f) / 3)))
+    assert bench_scale.list_bound(profile, points=1000, n=4, pieces=False) == pytest.approx(8.0 / 6.0)

@@ -26,7 +26,9 @@ worker count, it runs ``patchcloud normals IN OUT --workers W --scheduler S
   no task runs and ``w`` the summed task time, ``(c + w) / (c + w / N)`` is
   the most N workers can speed the run up (tasks assumed to split evenly);
   and the list bound (:func:`list_bound`): the same, with the tiles' tasks
-  as they are (a step lasts at least as long as its longest task).
+  as they are (a step lasts at least as long as its longest task), except
+  the big tiles' ``finish``, which N workers cut into pieces (modelled:
+  :func:`cut_into_pieces`); ``whole 16`` is that bound with no piece cut.
 """
 
 from __future__ import annotations
@@ -157,6 +159,30 @@ def occupancy(profile: dict) -> dict:
 PART_STEPS = ("tile: read", "records: read", "export", "export: ids")
 
 
+#: Steps whose tiles a run on more workers cuts into pieces (:func:`patchcloud.stream.engine.tasks.pieces_for`).
+PIECE_STEPS = ("finish",)
+#: The share of a tile's finish time that each of its pieces repeats (reading the tile, its octree, the patch normals
+#: of all its points): ``python tools/bench_finish_pieces.py STORE`` on the 10M city's largest tile, 0.31 and 0.29 at
+#: 3 and 5 pieces (tools/results/bench_finish_pieces-2026-11-26.txt).
+PIECE_OVERHEAD = 0.3
+
+
+def cut_into_pieces(durations: list[float], n: int, overhead: float = PIECE_OVERHEAD) -> list[float]:
+    """The tasks of a piece step on ``n`` workers, from its tasks' times as recorded whole.
+
+    As :func:`patchcloud.stream.engine.tasks.pieces_for` cuts by points,
+    with time for points: a task longer than the step's time over ``n`` is
+    cut into ``k = ceil(d / share)`` pieces of ``d (f + (1 - f) / k)``
+    each (``f`` the ``overhead``).  Largest first, as the step submits them.
+    """
+    share = sum(durations) / max(n, 1)
+    pieces = []
+    for d in durations:
+        k = int(np.ceil(d / share)) if share > 0 and d > share else 1
+        pieces += [d] if k == 1 else [d * (overhead + (1.0 - overhead) / k)] * k
+    return sorted(pieces, reverse=True)
+
+
 def _makespan(durations: list[float], n: int) -> float:
     """When the last of ``durations`` ends on ``n`` workers each taking the next task as it frees (in the given order)."""
     free = np.zeros(n)
@@ -166,7 +192,7 @@ def _makespan(durations: list[float], n: int) -> float:
     return float(free.max(initial=0.0))
 
 
-def list_bound(profile: dict, points: int, n: int) -> float:
+def list_bound(profile: dict, points: int, n: int, pieces: bool = True) -> float:
     """The speed-up over one worker that ``n`` workers could give, step by step, from a run's task stream.
 
     Unlike Amdahl's bound, tasks do not split: each step's recorded tasks
@@ -175,8 +201,10 @@ def list_bound(profile: dict, points: int, n: int) -> float:
     ends, so a step of few or uneven tasks is as long as its longest.  The
     steps over parts of the input (:data:`PART_STEPS`) are cut as ``n``
     workers would cut them (``part_size(points, n)``), their work split
-    evenly over those parts.  The client's time (no task running) stays as
-    it was.  Tasks run no slower on more workers here: memory bandwidth
+    evenly over those parts; with ``pieces``, the tiles of the steps that
+    cut big tiles (:data:`PIECE_STEPS`) are cut as N workers would cut
+    them (:func:`cut_into_pieces`: a model, from a run that may have cut
+    none).  The client's time (no task running) stays as it was.  Tasks run no slower on more workers here: memory bandwidth
     and the file system shared by the workers are left out, so this is a
     bound, not a forecast.
     """
@@ -192,6 +220,8 @@ def list_bound(profile: dict, points: int, n: int) -> float:
         if label in PART_STEPS:
             parts = -(-points // part_size(points, n))
             durations = [sum(durations) / parts] * parts
+        if label in PIECE_STEPS and pieces:
+            durations = cut_into_pieces(durations, n)
         span += _makespan(durations, n)
     return (occ["client_s"] + occ["work"]) / (occ["client_s"] + span)
 
@@ -233,7 +263,8 @@ def main(argv=None) -> int:
         + (f" --repeats {a.repeats}" if a.repeats > 1 else ""),
         "",
         f"{'file':<22} {'tiles':>5} {'workers':>7} {'wall s':>8} {'range s':>11} {'Mpts/s':>7} {'speed-up':>8} {'floor s':>8} {'x floor':>7} {'peak MiB':>9} "
-        f"{'user s':>7} {'sys s':>6} {'faults M':>8} {'idle':>6} {'client':>7} {'longest s':>9} {'Amdahl 16':>9} {'Amdahl 64':>9}",
+        f"{'user s':>7} {'sys s':>6} {'faults M':>8} {'idle':>6} {'client':>7} {'longest s':>9} {'Amdahl 16':>9} {'Amdahl 64':>9} "
+        f"{'list 16':>7} {'list 64':>7} {'whole 16':>8}",
     ]
     print("\n".join(lines), flush=True)
     for path, n in files:
@@ -258,7 +289,7 @@ def main(argv=None) -> int:
                 f"{path.name:<22} {sum(1 for t in profile['tasks'] if t[0] == 'fit'):>5} {w:>7} {wall:>8.1f} {spread:>11} {n / wall / 1e6:>7.2f} {base / wall:>7.2f}x {floor:>8.1f} {wall / floor:>6.1f}x "
                 f"{peak / 2**20:>9,.0f} {cpu['user']:>7.1f} {cpu['sys']:>6.1f} {cpu['faults'] / 1e6:>8.2f} {occ['idle']:>6.1%} {occ['client']:>7.1%} {occ['longest']:>9.2f} "
                 f"{amdahl(occ['client_s'], occ['work'], 16):>8.1f}x {amdahl(occ['client_s'], occ['work'], 64):>8.1f}x "
-                f"{list_bound(profile, n, 16):>6.1f}x {list_bound(profile, n, 64):>6.1f}x"
+                f"{list_bound(profile, n, 16):>6.1f}x {list_bound(profile, n, 64):>6.1f}x {list_bound(profile, n, 16, pieces=False):>7.1f}x"
             )
             print(line, flush=True)
             lines.append(line)
@@ -270,7 +301,8 @@ def main(argv=None) -> int:
         "# together every 0.1 s; user, sys: CPU seconds of the job's processes; faults: their minor page faults (millions);",
         "# idle: share of the wall time with fewer tasks running than workers; client: with none;",
         "# Amdahl N: (c + w) / (c + w / N), c the time no task runs, w the summed task time (speed-up bound over one worker);",
-        "# list N: (c + w) / (c + sum of the steps' makespans on N workers), tiles' tasks as recorded, parts recut for N.",
+        "# list N: (c + w) / (c + sum of the steps' makespans on N workers), tiles' tasks as recorded, parts recut for N, the big",
+        "# tiles' finish cut in pieces as N workers would cut them (a model: PIECE_OVERHEAD); whole 16: no piece cut.",
     ]
     if a.out:
         Path(a.out).write_text("\n".join(lines) + "\n")

@@ -10,14 +10,14 @@ when the tile later succeeds.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from itertools import product
 from typing import Any
 
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io.store import Store
 
-__all__ = ["map_tiles", "tile_task"]
+__all__ = ["map_tiles", "tile_task", "pieces_for", "PIECE_MIN_POINTS"]
 
 
 def tile_task(func: Callable, url: str, ijk: tuple, **kwargs) -> Any:
@@ -45,6 +45,7 @@ def map_tiles(
     halo: int = 0,
     runner: Runner | None = None,
     label: str | None = None,
+    pieces: Mapping[tuple, int] | None = None,
     **kwargs,
 ) -> dict[tuple, Any]:
     """Run ``func(store.url, ijk, **kwargs)`` for every tile, in parallel.
@@ -61,13 +62,17 @@ def map_tiles(
         tiles within ``halo`` tiles of ``ijk`` (per axis, ``ijk`` excluded).
     runner : Runner, optional
         Default: a synchronous runner.
+    pieces : mapping from tile index to int, optional
+        Tiles cut into several tasks (:func:`pieces_for`): tile ``ijk`` gets
+        ``pieces[ijk]`` calls, each with ``piece=(j, pieces[ijk])``, and its
+        result is the list of theirs.
     kwargs :
         Passed to every call.
 
     Returns
     -------
     dict from tile index to ``func``'s result, in the order of ``tiles``
-    (the tasks are submitted largest tile first, so a step does not end
+    (the tasks are submitted largest first, so a step does not end
     waiting on one big tile).
 
     Examples
@@ -89,7 +94,9 @@ def map_tiles(
     all_tiles = store.tiles
     todo = list(tiles) if tiles is not None else all_tiles
     present = set(all_tiles)
-    calls = []
+    pieces = dict(pieces or {})
+    counts = dict(zip(all_tiles, store.tile_counts.tolist()))
+    calls, owner, size = [], [], []
     for ijk in todo:
         kw = dict(kwargs)
         if halo:
@@ -98,10 +105,42 @@ def map_tiles(
                 (ijk[0] + a, ijk[1] + b, ijk[2] + c) for a, b, c in product(r, r, r)
                 if (a, b, c) != (0, 0, 0) and (ijk[0] + a, ijk[1] + b, ijk[2] + c) in present
             ]
-        calls.append(((func, store.url, ijk), kw))
-    # largest tiles first, so the last tasks of the step are small ones and no worker waits long for them
-    counts = dict(zip(all_tiles, store.tile_counts.tolist()))
-    order = sorted(range(len(todo)), key=lambda k: (-counts.get(todo[k], 0), k))
-    results = runner.map(tile_task, [calls[k] for k in order], label or getattr(func, "__name__", "tiles"))
-    by_tile = dict(zip([todo[k] for k in order], results))
-    return {ijk: by_tile[ijk] for ijk in todo}
+        k = int(pieces.get(ijk, 1))
+        for j in range(k):
+            calls.append(((func, store.url, ijk), dict(kw, piece=(j, k)) if ijk in pieces else kw))
+            owner.append(ijk)
+            size.append(counts.get(ijk, 0) / k)
+    # largest first, so the last tasks of the step are small ones and no worker waits long for them
+    order = sorted(range(len(calls)), key=lambda c: (-size[c], c))
+    results = runner.map(tile_task, [calls[c] for c in order], label or getattr(func, "__name__", "tiles"))
+    by_call = dict(zip(order, results))
+    out: dict[tuple, Any] = {}
+    for c, ijk in enumerate(owner):
+        if ijk in pieces:
+            out.setdefault(ijk, []).append(by_call[c])
+        else:
+            out[ijk] = by_call[c]
+    return out
+
+
+def pieces_for(counts: Mapping[tuple, int], slots: int, min_points: int | None = None) -> dict[tuple, int]:
+    """How many tasks to cut each big tile into, for a step whose tasks can work on part of a tile.
+
+    A tile of more than a worker's share of the points (their sum over
+    ``slots`` workers) would keep one worker busy after the others are done:
+    it is cut into pieces of about that share, but none smaller than
+    ``min_points`` (default :data:`PIECE_MIN_POINTS`: each piece repeats the
+    tile's reading and set-up).  Tiles not cut are left out.
+
+    >>> pieces_for({(0, 0, 0): 4_000_000, (1, 0, 0): 1_000_000, (2, 0, 0): 3_000_000}, slots=4)
+    {(0, 0, 0): 2, (2, 0, 0): 2}
+    >>> pieces_for({(0, 0, 0): 4_000_000, (1, 0, 0): 1_000_000}, slots=1), pieces_for({(0, 0, 0): 400_000}, slots=16)
+    ({}, {(0, 0, 0): 2})
+    """
+    total = sum(int(c) for c in counts.values())
+    share = max(total / max(int(slots), 1), PIECE_MIN_POINTS if min_points is None else min_points)
+    return {ijk: -(-int(c) // int(share)) for ijk, c in counts.items() if c > share}
+
+
+#: The fewest points :func:`pieces_for` gives a piece of a tile.
+PIECE_MIN_POINTS = 250_000

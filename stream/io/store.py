@@ -59,7 +59,7 @@ from .catalog import Catalog
 
 __all__ = [
     "Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name", "PatchcloudStoreError",
-    "chunk_checksums", "codec_for", "REMOVING_SUFFIX", "removing_path", "remove_store_dir",
+    "chunk_checksums", "codec_for", "REMOVING_SUFFIX", "removing_path", "remove_store_dir", "piece_name", "piece_rows",
 ]
 
 FORMAT = "patchcloud-store"
@@ -164,6 +164,26 @@ def array_to_table(a: np.ndarray, corner: np.ndarray, edge: float) -> PatchTable
         rmse=np.ascontiguousarray(out["rmse"][:, 0]),
         kind=out["kind"][:, 0].astype(np.uint8),
     )
+
+
+def piece_name(name: str, j: int, k: int) -> str:
+    """The array holding piece ``j`` of ``k`` of a tile's array ``name`` (its rows ``piece_rows(n, j, k)``).
+
+    >>> piece_name("normal", 1, 3)
+    'normal@1of3'
+    """
+    return f"{name}@{int(j)}of{int(k)}"
+
+
+def piece_rows(n: int, j: int, k: int) -> tuple[int, int]:
+    """Rows ``(start, stop)`` of piece ``j`` of ``k`` of ``n`` rows: ``j n // k`` to ``(j + 1) n // k``.
+
+    >>> [piece_rows(10, j, 3) for j in range(3)]
+    [(0, 3), (3, 6), (6, 10)]
+    """
+    if not 0 <= j < k:
+        raise ValueError(f"piece must be j of k with 0 <= j < k, got {j} of {k}")
+    return int(j) * int(n) // int(k), (int(j) + 1) * int(n) // int(k)
 
 
 def _set_attrs(group, attrs: dict) -> None:
@@ -444,6 +464,8 @@ class Store:
     def read(self, ijk, name: str, rows: slice | None = None) -> np.ndarray:
         """Array ``name`` of tile ``ijk`` (rows ``rows`` of it, a slice of step 1), its chunks checked.
 
+        An array written in pieces (:meth:`mark_pieces`) is read as one.
+
         Raises
         ------
         PatchcloudStoreError
@@ -453,8 +475,46 @@ class Store:
         try:
             a = self.tile(ijk)[name]
         except KeyError:
+            k = self.tile_attrs(ijk).get("pieces", {}).get(name)
+            if k:
+                return self._read_pieces(ijk, name, int(k), rows)
             raise self._damaged(where, f"array {name!r} is missing") from None
         return self._checked(a, rows, f"{where}, array {name!r}")
+
+    def _read_pieces(self, ijk, name: str, k: int, rows: slice | None) -> np.ndarray:
+        """Rows ``rows`` of array ``name`` of tile ``ijk`` from its ``k`` pieces (:func:`piece_name`), each checked."""
+        where = f"tile {tile_name(ijk)}"
+        arrays = []
+        for j in range(k):
+            try:
+                arrays.append(self.tile(ijk)[piece_name(name, j, k)])
+            except KeyError:
+                raise self._damaged(where, f"array {piece_name(name, j, k)!r} is missing") from None
+        ends = np.cumsum([a.shape[0] for a in arrays])
+        starts = ends - [a.shape[0] for a in arrays]
+        n = int(ends[-1])
+        lo, hi, step = (0, n, 1) if rows is None else rows.indices(n)
+        if step != 1:
+            raise PatchcloudValueError(f"{self.url}: {where}: rows must be a slice of step 1, got {rows}")
+        out = [self._checked(a, slice(max(lo, s) - s, min(hi, e) - s), f"{where}, array {piece_name(name, j, k)!r}")
+               for j, (a, s, e) in enumerate(zip(arrays, starts.tolist(), ends.tolist())) if s < hi and e > lo]
+        return np.concatenate(out) if out else self._checked(arrays[0], slice(0, 0), where)
+
+    def mark_pieces(self, ijk, names, k: int | None) -> None:
+        """Record that tile ``ijk``'s arrays ``names`` are written in ``k`` pieces of consecutive rows
+        (:func:`piece_name`), so :meth:`read` reads each as one array; an array of one of those names written whole
+        before is removed.  ``k`` None: they are written whole again (the record goes; the pieces are left)."""
+        pieces = dict(self.tile_attrs(ijk).get("pieces", {}))
+        if k is None:
+            if not any(name in pieces for name in names):
+                return
+            for name in names:
+                pieces.pop(name, None)
+        else:
+            for name in names:
+                self.delete(ijk, name)
+                pieces[name] = int(k)
+        _set_attrs(self.tile(ijk), dict(pieces=pieces))
 
     def _damaged(self, where: str, what: str) -> PatchcloudStoreError:
         return PatchcloudStoreError(f"{self.url}: {where}: the store is damaged ({what}); {START_OVER}")

@@ -10,7 +10,10 @@ The job's steps (each resumable: a rerun skips what is done):
 4. seams: links between the leaves on either side of every tile face,
    then one orientation for all patches (:mod:`.seams`);
 5. finish: normals per tile, blended across tile faces with the
-   neighbours' patch models (:func:`.normals_tiles.finish_one_tile`);
+   neighbours' patch models (:func:`.normals_tiles.finish_one_tile`); a
+   tile of more than a worker's share of the points is cut into pieces
+   (ranges of its input order) that run side by side, each writing its
+   rows (:func:`.normals_tiles.mark_finished_pieces`);
 6. export: the input plus :data:`NORMALS_DIMS`.
 """
 
@@ -28,7 +31,7 @@ from patchcloud.stream.engine.job import (
     Job, JobContext, RunOptions, file_lines, left_out_lines, params_key, run_job, split_options, time_and_memory_lines, units_line,
 )
 from patchcloud.stream.engine.ingest import occupancy_spacing
-from patchcloud.stream.engine.tasks import map_tiles
+from patchcloud.stream.engine.tasks import map_tiles, pieces_for
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import normals_tiles
 from patchcloud.stream.jobs.seams import orient_tiles
@@ -196,8 +199,15 @@ class NormalsJob(Job):
             ctx.store.mark_step("seams", self.key)
 
     def finish(self, ctx: JobContext) -> None:
-        todo = [t for t in ctx.store.tiles if not ctx.store.tile_done(t, "finish")]
-        ctx.map_tiles(normals_tiles.finish_one_tile, tiles=todo, halo=1, label="finish", params=self.params)
+        """One task per tile, a big tile cut into pieces side by side (:func:`pieces_for`): with many workers, the
+        biggest tile's task would otherwise be the step's length."""
+        st = ctx.store
+        todo = [t for t in st.tiles if not st.tile_done(t, "finish")]
+        counts = dict(zip(st.tiles, st.tile_counts.tolist()))
+        pieces = pieces_for({t: counts[t] for t in todo}, ctx.runner.slots)
+        ctx.map_tiles(normals_tiles.finish_one_tile, tiles=todo, halo=1, label="finish", params=self.params, pieces=pieces)
+        for t, k in pieces.items():  # every piece is written: the tile is done (a few small reads and one write each)
+            normals_tiles.mark_finished_pieces(st, t, self.params, k)
 
     def columns(self, ctx: JobContext):
         columns = [

@@ -16,9 +16,11 @@ from patchcloud.core import (
     surface_normals,
 )
 
-from patchcloud.stream.io.store import Store, table_to_array
+from patchcloud.stream.engine.job import params_key
+from patchcloud.stream.io.store import Store, piece_name, piece_rows, table_to_array
 
-__all__ = ["calibrate_tile", "fit_one_tile", "seam_links", "finish_one_tile", "turn_up"]
+__all__ = ["calibrate_tile", "fit_one_tile", "seam_links", "finish_one_tile", "finish_values", "finish_names", "mark_finished_pieces",
+           "turn_up", "FINISH_ARRAYS", "PRINCIPAL_ARRAYS"]
 
 
 def turn_up(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -117,11 +119,17 @@ def seam_links(url: str, a: tuple, b: tuple, axis: int) -> tuple[np.ndarray, np.
 _FACES = [(-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0), (0, 0, -1), (0, 0, 1)]
 
 
-def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple]) -> dict:
-    """Final normals and curvature of a tile's points, blended and oriented across tile faces."""
+#: The per-point arrays the finish step writes, in the order :func:`finish_values` returns them.
+FINISH_ARRAYS = ("normal", "curvature", "method", "patch")
+#: With the principal curvatures, these follow.
+PRINCIPAL_ARRAYS = ("principal", "direction")
+
+
+def finish_values(url: str, ijk: tuple, params: dict, neighbours: list[tuple], only: np.ndarray | None = None) -> list:
+    """The finish step's per-point arrays (:data:`FINISH_ARRAYS`, then :data:`PRINCIPAL_ARRAYS` when asked for) of a
+    tile's points in sorted order, all of them or those where ``only`` ((N,) bool, sorted order:
+    :func:`patchcloud.core.finish_tile`), with the types they are written with."""
     store = Store.open(url)
-    if store.tile_done(ijk, "finish"):
-        return store.tile_attrs(ijk)["finish"]
     grid = store.grid
     T = grid.tile_size
     corner = grid.corner(ijk)
@@ -169,32 +177,81 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple])
         local, table, sign, d_min=params["d_min"], min_sigma2=params["min_sigma2"],
         k_fallback=params["k_fallback"], orient=params["orient"],
         viewpoint=None if vp is None else np.asarray(vp), centre=np.asarray(params["centre_local"]), blend=params["blend"],
-        outside=outside, skin=skin,
+        outside=outside, skin=skin, only=only,
     )
     normals, scalars, dir1 = res.normals, res.scalars, res.dir1
     if params.get("always_up"):  # PDAL's always_up: point by point, after the orientation
         normals, scalars, dir1 = turn_up(normals, scalars, dir1)
-    rank = store.read(ijk, "rank").astype(np.int64)
-    n = rank.shape[0]
-    out_n = np.empty((n, 3), np.float32)
-    out_c = np.empty(n, np.float32)
-    out_m = np.empty(n, np.uint8)
-    out_p = np.empty(n, np.uint32)
-    out_n[rank] = normals
-    out_c[rank] = scalars[:, 0]
-    out_m[rank] = res.method
-    out_p[rank] = res.patch
-    store.write(ijk, "normal", out_n)
-    store.write(ijk, "curvature", out_c)
-    store.write(ijk, "method", out_m)
-    store.write(ijk, "patch", out_p)
+    out = [normals.astype(np.float32), scalars[:, 0].astype(np.float32), res.method.astype(np.uint8), res.patch.astype(np.uint32)]
     if params.get("principal_curvatures"):  # k1, k2 and k1's direction; 0 where a point has none (NaN-free output)
-        out_k = np.empty((n, 2), np.float32)
-        out_d = np.empty((n, 3), np.float32)
-        out_k[rank] = np.nan_to_num(scalars[:, 1:3], nan=0.0, posinf=0.0, neginf=0.0)
-        out_d[rank] = np.nan_to_num(dir1, nan=0.0, posinf=0.0, neginf=0.0)
-        store.write(ijk, "principal", out_k)
-        store.write(ijk, "direction", out_d)
-    info = dict(methods=np.bincount(res.method, minlength=len(Method) + 1).tolist())
+        out += [np.nan_to_num(scalars[:, 1:3], nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32),
+                np.nan_to_num(dir1, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)]
+    return out
+
+
+def _write_finished(store: Store, ijk: tuple, params: dict, values: list) -> dict:
+    """Write the finish step's arrays (sorted order, :func:`finish_values`) in the tile's input order; mark it done."""
+    rank = store.read(ijk, "rank").astype(np.int64)
+    for name, v in zip(finish_names(params), values):
+        out = np.empty_like(v)
+        out[rank] = v
+        store.write(ijk, name, out)
+    store.mark_pieces(ijk, finish_names(params), None)  # written whole, whatever an earlier run wrote in pieces
+    info = dict(methods=np.bincount(values[2], minlength=len(Method) + 1).tolist())
     store.mark_tile(ijk, "finish", finish=info)
+    return info
+
+
+def finish_names(params: dict) -> tuple[str, ...]:
+    """The arrays the finish step writes with these parameters."""
+    return FINISH_ARRAYS + (PRINCIPAL_ARRAYS if params.get("principal_curvatures") else ())
+
+
+def _piece_done_name(params: dict, j: int, k: int) -> str:
+    """The array that says piece ``j`` of ``k`` is written with these parameters: its method counts."""
+    return piece_name(f"finish-{params_key(params)}", j, k)
+
+
+def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple], piece: tuple[int, int] | None = None) -> dict:
+    """Final normals and curvature of a tile's points, blended and oriented across tile faces.
+
+    With ``piece=(j, k)``, only piece ``j`` of ``k``: the points of rows
+    ``piece_rows(n, j, k)`` of the tile's input order, written as pieces of
+    the arrays (:func:`patchcloud.stream.io.store.piece_name`) that
+    :func:`mark_finished_pieces` then records as the tile's.  A big tile's
+    pieces run side by side; each point gets the same values as from the
+    whole tile's task.  Returns the method counts (of the piece).
+    """
+    store = Store.open(url)
+    if store.tile_done(ijk, "finish"):
+        return store.tile_attrs(ijk)["finish"]
+    if piece is None:
+        return _write_finished(store, ijk, params, finish_values(url, ijk, params, neighbours))
+    j, k = piece
+    done = _piece_done_name(params, j, k)
+    if store.has(ijk, done):
+        return dict(methods=store.read(ijk, done).tolist())
+    rank = store.read(ijk, "rank").astype(np.int64)
+    lo, hi = piece_rows(rank.size, j, k)
+    only = (rank >= lo) & (rank < hi)
+    values = finish_values(url, ijk, params, neighbours, only)
+    at = rank[only] - lo
+    for name, v in zip(finish_names(params), values):
+        out = np.empty_like(v)
+        out[at] = v
+        store.write(ijk, piece_name(name, j, k), out)
+    counts = np.bincount(values[2], minlength=len(Method) + 1).astype(np.int64)
+    store.write(ijk, done, counts)  # last: the piece is complete
+    return dict(methods=counts.tolist())
+
+
+def mark_finished_pieces(store: Store, ijk: tuple, params: dict, k: int) -> dict:
+    """Once every piece of tile ``ijk`` is written (:func:`finish_one_tile` with ``piece``): record its arrays as
+    ``k`` pieces and the tile's finish step as done (one writer: the client, after the step), with the method counts."""
+    counts = sum(np.asarray(store.read(ijk, _piece_done_name(params, j, k)), dtype=np.int64) for j in range(k))
+    store.mark_pieces(ijk, finish_names(params), k)
+    info = dict(methods=counts.tolist())
+    store.mark_tile(ijk, "finish", finish=info)
+    for j in range(k):  # a later run that redoes the step redoes every piece
+        store.delete(ijk, _piece_done_name(params, j, k))
     return info
