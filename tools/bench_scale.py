@@ -274,6 +274,7 @@ def main(argv=None) -> int:
             for _ in range(a.repeats):
                 floor = io_floor(path, w, work)
                 out = work / f"out{path.suffix}"
+                out.unlink(missing_ok=True)  # the last run's output: replacing it would charge its removal to this run
                 prof = work / "profile.json"
                 wall, peak, _, cpu = run_measured(exe + ["normals", str(path), str(out), "--overwrite", "-q", "--workers", str(w),
                                                     "--scheduler", a.scheduler, "--profile", str(prof)]

@@ -10,19 +10,41 @@ Each worker also sets its C allocator to reuse large arrays
 (:func:`~patchcloud.stream.engine.allocator.tune_allocator`: dask's nanny
 starts workers with a setting that maps and zeroes every array over
 128 KiB afresh).
+
+And each worker, once closed, leaves without tearing its interpreter
+down (:func:`exit_now`): finalising numba's and LLVM's objects module by
+module took 0.3-0.5 s at the end of every run, during which the command
+waits for its workers (10M city, 2 workers: closing the cluster 0.54 s,
+then 0.04 s).
 """
 
 from __future__ import annotations
 
+import atexit
+import os
 import signal
+import sys
 
 from patchcloud.stream.engine.allocator import tune_allocator
 
-__all__ = ["dask_setup"]
+__all__ = ["dask_setup", "exit_now"]
+
+
+def exit_now() -> None:
+    """Flush stdout and stderr, then end the process at once (``os._exit(0)``): registered to run first at exit, when
+    dask has closed the worker (its files, directory and connections already closed), it skips the rest of the
+    interpreter's teardown."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # a closed stream: nothing to flush
+            pass
+    os._exit(0)
 
 
 def dask_setup(worker) -> None:
-    """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT, tune the allocator (see the
-    module's notes)."""
+    """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT, tune the allocator, leave
+    at once at exit (see the module's notes)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tune_allocator()
+    atexit.register(exit_now)

@@ -235,10 +235,22 @@ def removing_path(url: str) -> str:
 
 
 def remove_store_dir(path: str | os.PathLike) -> None:
-    """Remove a store's directory: its tiles and working arrays first, its record of the outputs and root metadata last."""
+    """Remove a store's directory: its tiles and working arrays first, its record of the outputs and root metadata last.
+
+    The tiles' directories are removed by a few threads side by side (the
+    kernel frees each file's blocks as it unlinks it: 0.31 s for the 10M
+    city's store of 239 MB, one thread).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
     p = Path(path)
     if not p.is_dir():
         return
+    tiles = p / "tiles"
+    if tiles.is_dir() and not tiles.is_symlink():
+        dirs = [c for c in tiles.iterdir() if c.is_dir() and not c.is_symlink()]
+        with ThreadPoolExecutor(max(1, min(REMOVE_THREADS, len(dirs)))) as pool:
+            list(pool.map(lambda d: shutil.rmtree(d, ignore_errors=True), dirs))
     last = ("outputs", "zarr.json")
     for child in sorted(p.iterdir(), key=lambda c: (c.name in last, c.name == "zarr.json", c.name)):
         if child.is_dir() and not child.is_symlink():
@@ -246,6 +258,10 @@ def remove_store_dir(path: str | os.PathLike) -> None:
         else:
             child.unlink(missing_ok=True)
     shutil.rmtree(p, ignore_errors=True)
+
+
+#: Threads that remove a store's tiles (:func:`remove_store_dir`).
+REMOVE_THREADS = 4
 
 
 def codec_for(dtype) -> "BloscCodec":
