@@ -104,7 +104,7 @@ def test_a_run_with_tiles_in_pieces_writes_the_same_bytes(tmp_path, monkeypatch,
 def test_a_store_finished_in_pieces_then_whole_then_in_pieces_reads_the_last(tmp_path, monkeypatch):
     # one kept store, the finish step redone each time (always_up asked, then not): in pieces, whole, in pieces
     src = tmp_path / "scene.las"
-    write_scene(src, n=40_000, seed=6)
+    write_scene(src, n=20_000, seed=6)
     store = tmp_path / "kept.zarr"
     real = tasks.pieces_for
     cut = lambda counts, slots, min_points=None: real(counts, 20, min_points=2_000)  # noqa: E731
