@@ -6,6 +6,8 @@ import gc
 
 import click
 
+from patchcloud.stream.engine.numba_start import skip_numba_blas_probe
+
 from .compress import compress_command, decompress_command
 from .don import don_command
 from .don_scales import don_scales_command
@@ -62,9 +64,12 @@ def run() -> None:
     embedded 60,000-point tile, whole process: 0.87x the time (median of
     12 interleaved pairs).  Memory is held by arrays, which reference counting frees
     as before.  Only the console script does this: in another program
-    (or CliRunner) :func:`main` leaves the collector alone.
+    (or CliRunner) :func:`main` leaves the collector alone.  So too numba's
+    BLAS probe, which the console script skips
+    (:func:`~patchcloud.stream.engine.numba_start.skip_numba_blas_probe`).
     """
     gc.set_threshold(100_000, 50, 50)
+    skip_numba_blas_probe()  # 0.14 s of scipy that numba would import for nothing (stream.engine.numba_start)
     try:
         main()
     finally:

@@ -26,6 +26,7 @@ import signal
 import sys
 
 from patchcloud.stream.engine.allocator import tune_allocator
+from patchcloud.stream.engine.numba_start import skip_numba_blas_probe
 
 __all__ = ["dask_setup", "exit_now"]
 
@@ -43,8 +44,9 @@ def exit_now() -> None:
 
 
 def dask_setup(worker) -> None:
-    """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT, tune the allocator, leave
-    at once at exit (see the module's notes)."""
+    """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT, tune the allocator, skip
+    numba's BLAS probe (:mod:`~patchcloud.stream.engine.numba_start`), leave at once at exit (see the module's notes)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tune_allocator()
+    skip_numba_blas_probe()
     atexit.register(exit_now)

@@ -1,0 +1,43 @@
+"""stream.engine.numba_start: the console script's numba skips its BLAS probe, and the kernels give the same results."""
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+
+RUN = textwrap.dedent("""
+    import sys
+    import numpy as np
+    skip = sys.argv[1] == "skip"
+    if skip:
+        from patchcloud.stream.engine.numba_start import skip_numba_blas_probe
+        assert skip_numba_blas_probe()
+    from patchcloud.core import estimate_normals
+    xy = np.random.default_rng(0).uniform(0, 10, (20000, 2))
+    pts = np.column_stack([xy, 0.3 * np.sin(xy[:, 0]) + 0.1 * xy[:, 1]])
+    res = estimate_normals(pts)
+    import numba.np.arraymath
+    heavy = "scipy.linalg" in sys.modules
+    blas = numba.np.arraymath._HAVE_BLAS
+    import scipy.linalg.cython_blas  # another import of it works as before
+    from patchcloud.stream.engine.numba_start import skip_numba_blas_probe
+    again = skip_numba_blas_probe()  # numba has probed already: too late, says so
+    sys.stdout.buffer.write(repr((heavy, blas, again)).encode() + b"\\n" + res.normals.tobytes() + res.curvature.tobytes())
+""")
+
+
+def _run(mode):
+    out = subprocess.run([sys.executable, "-c", RUN, mode], capture_output=True, timeout=600)
+    assert out.returncode == 0, out.stderr.decode()[-2000:]
+    head, _, data = out.stdout.partition(b"\n")
+    return eval(head.decode()), data
+
+
+def test_the_probe_is_skipped_and_the_kernels_give_the_same_bits():
+    (heavy, blas, again), skipped = _run("skip")
+    assert (heavy, blas, again) == (False, False, False)  # scipy.linalg not imported by numba; numba found no BLAS
+    (heavy, blas, again), plain = _run("plain")
+    assert heavy and blas  # without the skip numba imports scipy.linalg and finds its BLAS
+    assert len(skipped) == len(plain) > 0 and skipped == plain
+    assert np.isfinite(np.frombuffer(plain[: 20000 * 12], dtype=np.float32)).all()
