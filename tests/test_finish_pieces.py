@@ -12,6 +12,7 @@ from patchcloud.core.points import root_cube
 from patchcloud.stream import Store, normals
 from patchcloud.stream.engine import tasks
 from patchcloud.stream.jobs import normals as normals_job
+from patchcloud.stream.jobs import normals_tiles
 from patchcloud.stream.io.store import piece_name, piece_rows
 
 
@@ -69,13 +70,13 @@ def test_the_store_reads_an_array_written_in_pieces_as_one(tmp_path):
     store.write(t, "normal", -values)  # written whole first: the pieces replace it
     for j in range(3):
         lo, hi = piece_rows(10, j, 3)
-        store.write(t, piece_name("normal", j, 3), values[lo:hi])
-    store.mark_pieces(t, ["normal"], 3)
+        store.write(t, piece_name("normal-run2", j, 3), values[lo:hi])
+    store.mark_pieces(t, {"normal": "normal-run2"}, 3)
     assert np.array_equal(store.read(t, "normal"), values)
     for rows in (slice(0, 10), slice(2, 7), slice(3, 6), slice(5, 5), slice(9, 20)):
         assert np.array_equal(store.read(t, "normal", rows), values[rows]), rows
     store.write(t, "normal", values * 2)  # then whole again
-    store.mark_pieces(t, ["normal"], None)
+    store.unmark_pieces(t, ["normal"])
     assert np.array_equal(store.read(t, "normal"), values * 2)
 
 
@@ -119,3 +120,50 @@ def test_a_store_finished_in_pieces_then_whole_then_in_pieces_reads_the_last(tmp
     fresh = {up: (tmp_path / f"fresh_{up}.las").read_bytes() for up in (False, True)}
     assert fresh[False] != fresh[True]  # always_up turns some normals: the runs can be told apart
     assert [(tmp_path / f"kept{k}.las").read_bytes() == fresh[up] for k, (_, up) in enumerate(runs)] == [True, True, True]
+
+
+def _cut_for_20_workers(monkeypatch):
+    real = tasks.pieces_for
+    monkeypatch.setattr(normals_job, "pieces_for", lambda counts, slots, min_points=None: real(counts, 20, min_points=2_000))
+
+
+def test_pieces_left_by_a_killed_run_are_not_taken_for_those_of_other_parameters(tmp_path, monkeypatch):
+    # killed once the pieces are written (before the tile is recorded), then run with always_up, then without again:
+    # the third run may reuse the first run's pieces, never the second's
+    src = tmp_path / "scene.las"
+    write_scene(src, n=20_000, seed=6)
+    kw = dict(tile_size=16, scheduler="threads", workers=4, store=str(tmp_path / "kept.zarr"), quiet=True)
+    _cut_for_20_workers(monkeypatch)
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt("killed after the pieces were written")
+
+    real_mark = normals_tiles.mark_finished_pieces
+    monkeypatch.setattr(normals_tiles, "mark_finished_pieces", killed)
+    with pytest.raises(KeyboardInterrupt):
+        normals(src, tmp_path / "a1.las", **kw)
+    monkeypatch.setattr(normals_tiles, "mark_finished_pieces", real_mark)
+    normals(src, tmp_path / "b.las", always_up=True, **kw)
+    normals(src, tmp_path / "a3.las", **kw)
+    monkeypatch.setattr(normals_job, "pieces_for", lambda counts, slots, min_points=None: {})
+    for up in (False, True):
+        normals(src, tmp_path / f"fresh_{up}.las", tile_size=16, scheduler="synchronous", quiet=True, always_up=up)
+    assert (tmp_path / "b.las").read_bytes() == (tmp_path / "fresh_True.las").read_bytes()
+    assert (tmp_path / "a3.las").read_bytes() == (tmp_path / "fresh_False.las").read_bytes()
+
+
+def test_recording_the_pieces_keeps_what_the_tasks_recorded_of_the_fit(tmp_path, monkeypatch):
+    # a kept store run again with another fit parameter: the client records the tiles in pieces after the workers
+    # recorded their new fit; the fit's record and its counts must survive
+    src = tmp_path / "scene.las"
+    write_scene(src, n=20_000, seed=6)
+    kw = dict(tile_size=16, scheduler="threads", workers=4, quiet=True)
+    _cut_for_20_workers(monkeypatch)
+    normals(src, tmp_path / "r1.las", store=str(tmp_path / "kept.zarr"), **kw)
+    again = normals(src, tmp_path / "r2.las", store=str(tmp_path / "kept.zarr"), threshold=0.05, **kw)
+    st = Store.open(str(tmp_path / "kept.zarr"))
+    assert [t for t in st.tiles if "fit" not in st.tile_attrs(t)["done"]] == []
+    monkeypatch.setattr(normals_job, "pieces_for", lambda counts, slots, min_points=None: {})
+    fresh = normals(src, tmp_path / "fresh.las", threshold=0.05, **kw)
+    assert again.patches_by_kind == fresh.patches_by_kind
+    assert (tmp_path / "r2.las").read_bytes() == (tmp_path / "fresh.las").read_bytes()

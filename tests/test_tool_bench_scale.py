@@ -43,5 +43,10 @@ def test_the_list_bound_models_the_finish_pieces_of_big_tiles():
     assert bench_scale.cut_into_pieces([1.0, 1.0], 2) == [1.0, 1.0]  # nothing over a worker's share: nothing cut
     profile = _profile([("finish", 0, 6), ("finish", 6, 7), ("finish", 7, 8)], ended=8.0)
     # 4 workers: pieces 3.0, 3.0, 3.0 | 1 then 1 on the fourth: the longest piece
-    assert bench_scale.list_bound(profile, points=1000, n=4) == pytest.approx(8.0 / (6 * (f + (1 - f) / 3)))
-    assert bench_scale.list_bound(profile, points=1000, n=4, pieces=False) == pytest.approx(8.0 / 6.0)
+    assert bench_scale.list_bound(profile, points=10**9, n=4) == pytest.approx(8.0 / (6 * (f + (1 - f) / 3)))
+    assert bench_scale.list_bound(profile, points=10**9, n=4, pieces=False) == pytest.approx(8.0 / 6.0)
+    # 1,000,000 points: no piece under 250,000 points, a quarter of the step's 8 s: the 6 s tile in 3 all the same
+    assert bench_scale.list_bound(profile, points=1_000_000, n=4) == pytest.approx(8.0 / (6 * (f + (1 - f) / 3)))
+    # 500,000 points: pieces of at least half the step (4 s): the 6 s tile in 2
+    assert bench_scale.list_bound(profile, points=500_000, n=4) == pytest.approx(8.0 / (6 * (f + (1 - f) / 2)))
+    assert bench_scale.cut_into_pieces([6.0, 1.0, 1.0], 4, min_share=7.0) == [6.0, 1.0, 1.0]

@@ -16,3 +16,9 @@ def test_a_worker_leaves_at_exit_without_the_interpreters_teardown_and_flushes_i
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     assert run.stdout == "buffered, no newline"
+
+
+def test_a_worker_that_dies_of_an_exception_still_leaves_with_status_1():
+    code = "from patchcloud.stream.engine.worker_setup import dask_setup\ndask_setup(None)\nraise RuntimeError('boom')\n"
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1 and "RuntimeError: boom" in run.stderr

@@ -14,7 +14,8 @@ longest piece, the pieces' sum, the sum over the whole tile's time, and
 repeats, from ``sum = whole * (1 + (k - 1) f)`` (reading the tile, its
 octree, the moment cells over all its points).  It checks that the pieces
 give the whole tile's values, bit for bit.  Each time is the median of
-``--repeats`` runs.  ``tools/bench_scale.py``'s list bound takes ``f`` to
+``--repeats`` runs.  The parameters are the store's as the fit resolved
+them: without principal curvatures or always_up.  ``tools/bench_scale.py``'s list bound takes ``f`` to
 model the pieces a run on more workers would cut.
 """
 

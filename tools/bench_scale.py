@@ -167,15 +167,17 @@ PIECE_STEPS = ("finish",)
 PIECE_OVERHEAD = 0.3
 
 
-def cut_into_pieces(durations: list[float], n: int, overhead: float = PIECE_OVERHEAD) -> list[float]:
+def cut_into_pieces(durations: list[float], n: int, overhead: float = PIECE_OVERHEAD, min_share: float = 0.0) -> list[float]:
     """The tasks of a piece step on ``n`` workers, from its tasks' times as recorded whole.
 
     As :func:`patchcloud.stream.engine.tasks.pieces_for` cuts by points,
-    with time for points: a task longer than the step's time over ``n`` is
-    cut into ``k = ceil(d / share)`` pieces of ``d (f + (1 - f) / k)``
-    each (``f`` the ``overhead``).  Largest first, as the step submits them.
+    with time for points: a task longer than the step's time over ``n``
+    (but at least ``min_share``, the time of the fewest points a piece
+    gets) is cut into ``k = ceil(d / share)`` pieces of
+    ``d (f + (1 - f) / k)`` each (``f`` the ``overhead``).  Largest first,
+    as the step submits them.
     """
-    share = sum(durations) / max(n, 1)
+    share = max(sum(durations) / max(n, 1), min_share)
     pieces = []
     for d in durations:
         k = int(np.ceil(d / share)) if share > 0 and d > share else 1
@@ -209,6 +211,7 @@ def list_bound(profile: dict, points: int, n: int, pieces: bool = True) -> float
     bound, not a forecast.
     """
     from patchcloud.stream.engine.ingest import part_size
+    from patchcloud.stream.engine.tasks import PIECE_MIN_POINTS
 
     t0, t1 = float(profile["started"]), float(profile["ended"])
     steps: dict[str, list[float]] = {}
@@ -220,8 +223,8 @@ def list_bound(profile: dict, points: int, n: int, pieces: bool = True) -> float
         if label in PART_STEPS:
             parts = -(-points // part_size(points, n))
             durations = [sum(durations) / parts] * parts
-        if label in PIECE_STEPS and pieces:
-            durations = cut_into_pieces(durations, n)
+        if label in PIECE_STEPS and pieces:  # no piece under PIECE_MIN_POINTS points: their share of the step's time
+            durations = cut_into_pieces(durations, n, min_share=sum(durations) * PIECE_MIN_POINTS / max(points, 1))
         span += _makespan(durations, n)
     return (occ["client_s"] + occ["work"]) / (occ["client_s"] + span)
 

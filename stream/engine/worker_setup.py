@@ -32,15 +32,20 @@ __all__ = ["dask_setup", "exit_now"]
 
 
 def exit_now() -> None:
-    """Flush stdout and stderr, then end the process at once (``os._exit(0)``): registered to run first at exit, when
+    """Flush stdout and stderr, then end the process at once (``os._exit``): registered to run first at exit, when
     dask has closed the worker (its files, directory and connections already closed), it skips the rest of the
-    interpreter's teardown."""
+    interpreter's teardown.
+
+    The status is 1 after an uncaught exception (its traceback already
+    printed), else 0: the status ``sys.exit`` asked for is not known at
+    exit, and dask's nanny only logs it.
+    """
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except Exception:  # a closed stream: nothing to flush
             pass
-    os._exit(0)
+    os._exit(1 if getattr(sys, "last_value", None) is not None else 0)
 
 
 def dask_setup(worker) -> None:

@@ -436,6 +436,19 @@ class Store:
             self._groups[name] = g
         return g
 
+    def tile_group_now(self, ijk):
+        """Tile ``ijk``'s group opened afresh (created if missing), for a write of its attributes.
+
+        zarr merges new attributes into those the group object loaded when
+        it was opened and writes them all back, so a group kept from earlier
+        (:meth:`tile`) would put back what it read then over what other
+        processes wrote since (a step's record, its results).
+        """
+        try:
+            return self.group[f"tiles/{tile_name(ijk)}"]
+        except KeyError:
+            return self.tile(ijk)
+
     def tile_attrs(self, ijk) -> dict:
         """The tile's attributes as stored now (another process may have changed them); {} for no tile."""
         try:
@@ -454,7 +467,7 @@ class Store:
         """Mark ``step`` done on tile ``ijk``, storing ``attrs`` with it in one write."""
         done = self.tile_attrs(ijk).get("done", {})
         done[step] = value
-        _set_attrs(self.tile(ijk), dict(json.loads(json.dumps(attrs)), done=done))
+        _set_attrs(self.tile_group_now(ijk), dict(json.loads(json.dumps(attrs)), done=done))
 
     def mark_failed(self, ijk, task: str, message: str | None) -> None:
         """Record that ``task`` raised on tile ``ijk`` (``message``), or clear that record (None)."""
@@ -465,13 +478,13 @@ class Store:
             failed.pop(task)
         else:
             failed[task] = str(message)[:2000]
-        _set_attrs(self.tile(ijk), dict(failed=failed))
+        _set_attrs(self.tile_group_now(ijk), dict(failed=failed))
 
     def clear_tile_steps(self, steps: list[str]) -> None:
         for ijk in self.tiles:
             done = self.tile_attrs(ijk).get("done", {})
             if any(s in done for s in steps):
-                _set_attrs(self.tile(ijk), dict(done={k: v for k, v in done.items() if k not in steps}))
+                _set_attrs(self.tile_group_now(ijk), dict(done={k: v for k, v in done.items() if k not in steps}))
 
     def write(self, ijk, name: str, values: np.ndarray, chunk: int | None = None) -> None:
         """Write (replace) array ``name`` of tile ``ijk``."""
@@ -491,14 +504,15 @@ class Store:
         try:
             a = self.tile(ijk)[name]
         except KeyError:
-            k = self.tile_attrs(ijk).get("pieces", {}).get(name)
-            if k:
-                return self._read_pieces(ijk, name, int(k), rows)
+            entry = self.tile_attrs(ijk).get("pieces", {}).get(name)
+            if entry:
+                stem, k = entry
+                return self._read_pieces(ijk, str(stem), int(k), rows)
             raise self._damaged(where, f"array {name!r} is missing") from None
         return self._checked(a, rows, f"{where}, array {name!r}")
 
     def _read_pieces(self, ijk, name: str, k: int, rows: slice | None) -> np.ndarray:
-        """Rows ``rows`` of array ``name`` of tile ``ijk`` from its ``k`` pieces (:func:`piece_name`), each checked."""
+        """Rows ``rows`` of tile ``ijk``'s array held in the ``k`` pieces ``piece_name(name, j, k)``, each checked."""
         where = f"tile {tile_name(ijk)}"
         arrays = []
         for j in range(k):
@@ -516,21 +530,22 @@ class Store:
                for j, (a, s, e) in enumerate(zip(arrays, starts.tolist(), ends.tolist())) if s < hi and e > lo]
         return np.concatenate(out) if out else self._checked(arrays[0], slice(0, 0), where)
 
-    def mark_pieces(self, ijk, names, k: int | None) -> None:
-        """Record that tile ``ijk``'s arrays ``names`` are written in ``k`` pieces of consecutive rows
-        (:func:`piece_name`), so :meth:`read` reads each as one array; an array of one of those names written whole
-        before is removed.  ``k`` None: they are written whole again (the record goes; the pieces are left)."""
+    def mark_pieces(self, ijk, stems: dict, k: int) -> None:
+        """Record that tile ``ijk``'s array ``name`` is written in ``k`` pieces of consecutive rows, the arrays
+        ``piece_name(stems[name], j, k)``, for each name of ``stems``, so :meth:`read` reads each as one array; an
+        array of one of those names written whole before is removed."""
         pieces = dict(self.tile_attrs(ijk).get("pieces", {}))
-        if k is None:
-            if not any(name in pieces for name in names):
-                return
-            for name in names:
-                pieces.pop(name, None)
-        else:
-            for name in names:
-                self.delete(ijk, name)
-                pieces[name] = int(k)
-        _set_attrs(self.tile(ijk), dict(pieces=pieces))
+        for name, stem in stems.items():
+            self.delete(ijk, name)
+            pieces[name] = [str(stem), int(k)]
+        _set_attrs(self.tile_group_now(ijk), dict(pieces=pieces))
+
+    def unmark_pieces(self, ijk, names) -> None:
+        """Forget that tile ``ijk``'s arrays ``names`` were written in pieces (they are written whole again; the pieces
+        are left)."""
+        pieces = dict(self.tile_attrs(ijk).get("pieces", {}))
+        if any(name in pieces for name in names):
+            _set_attrs(self.tile_group_now(ijk), dict(pieces={n: v for n, v in pieces.items() if n not in names}))
 
     def _damaged(self, where: str, what: str) -> PatchcloudStoreError:
         return PatchcloudStoreError(f"{self.url}: {where}: the store is damaged ({what}); {START_OVER}")

@@ -196,7 +196,7 @@ def _write_finished(store: Store, ijk: tuple, params: dict, values: list) -> dic
         out = np.empty_like(v)
         out[rank] = v
         store.write(ijk, name, out)
-    store.mark_pieces(ijk, finish_names(params), None)  # written whole, whatever an earlier run wrote in pieces
+    store.unmark_pieces(ijk, finish_names(params))  # written whole, whatever an earlier run wrote in pieces
     info = dict(methods=np.bincount(values[2], minlength=len(Method) + 1).tolist())
     store.mark_tile(ijk, "finish", finish=info)
     return info
@@ -207,9 +207,15 @@ def finish_names(params: dict) -> tuple[str, ...]:
     return FINISH_ARRAYS + (PRINCIPAL_ARRAYS if params.get("principal_curvatures") else ())
 
 
+def _piece_stem(name: str, params: dict) -> str:
+    """The stem of the pieces of array ``name`` written with these parameters (:func:`piece_name`): a run with other
+    parameters writes other arrays, so a piece recorded as done is one of this run's parameters."""
+    return f"{name}-{params_key(params)}"
+
+
 def _piece_done_name(params: dict, j: int, k: int) -> str:
     """The array that says piece ``j`` of ``k`` is written with these parameters: its method counts."""
-    return piece_name(f"finish-{params_key(params)}", j, k)
+    return piece_name(_piece_stem("finish", params), j, k)
 
 
 def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple], piece: tuple[int, int] | None = None) -> dict:
@@ -239,7 +245,7 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple],
     for name, v in zip(finish_names(params), values):
         out = np.empty_like(v)
         out[at] = v
-        store.write(ijk, piece_name(name, j, k), out)
+        store.write(ijk, piece_name(_piece_stem(name, params), j, k), out)
     counts = np.bincount(values[2], minlength=len(Method) + 1).astype(np.int64)
     store.write(ijk, done, counts)  # last: the piece is complete
     return dict(methods=counts.tolist())
@@ -249,7 +255,7 @@ def mark_finished_pieces(store: Store, ijk: tuple, params: dict, k: int) -> dict
     """Once every piece of tile ``ijk`` is written (:func:`finish_one_tile` with ``piece``): record its arrays as
     ``k`` pieces and the tile's finish step as done (one writer: the client, after the step), with the method counts."""
     counts = sum(np.asarray(store.read(ijk, _piece_done_name(params, j, k)), dtype=np.int64) for j in range(k))
-    store.mark_pieces(ijk, finish_names(params), k)
+    store.mark_pieces(ijk, {name: _piece_stem(name, params) for name in finish_names(params)}, k)
     info = dict(methods=counts.tolist())
     store.mark_tile(ijk, "finish", finish=info)
     for j in range(k):  # a later run that redoes the step redoes every piece
