@@ -436,27 +436,33 @@ class Store:
             self._groups[name] = g
         return g
 
-    def tile_group_now(self, ijk):
-        """Tile ``ijk``'s group opened afresh (created if missing), for a write of its attributes.
+    def _tile_now(self, ijk) -> tuple:
+        """Tile ``ijk``'s group opened afresh and its attributes as stored now (another process may have changed
+        them); ``(None, {})`` for no tile."""
+        where = f"tile {tile_name(ijk)}"
+        try:
+            g = self.group[f"tiles/{tile_name(ijk)}"]
+            return g, dict(g.attrs)
+        except KeyError:
+            return None, {}
+        except Exception as exc:
+            raise self._damaged(where, f"unreadable attributes: {exc}") from exc
+
+    def _tile_for_attrs(self, ijk) -> tuple:
+        """The group and attributes of :meth:`_tile_now`, the group created if missing, for a write of its attributes.
 
         zarr merges new attributes into those the group object loaded when
         it was opened and writes them all back, so a group kept from earlier
         (:meth:`tile`) would put back what it read then over what other
-        processes wrote since (a step's record, its results).
+        processes wrote since (a step's record, its results): each write
+        goes through the group opened with the attributes it changes.
         """
-        try:
-            return self.group[f"tiles/{tile_name(ijk)}"]
-        except KeyError:
-            return self.tile(ijk)
+        g, attrs = self._tile_now(ijk)
+        return (self.tile(ijk) if g is None else g), attrs
 
     def tile_attrs(self, ijk) -> dict:
         """The tile's attributes as stored now (another process may have changed them); {} for no tile."""
-        try:
-            return dict(self.group[f"tiles/{tile_name(ijk)}"].attrs)
-        except KeyError:
-            return {}
-        except Exception as exc:
-            raise self._damaged(f"tile {tile_name(ijk)}", f"unreadable attributes: {exc}") from exc
+        return self._tile_now(ijk)[1]
 
     def tile_done(self, ijk, step: str, key=None) -> bool:
         """Step ``step`` is done on tile ``ijk`` (with ``key``, the parameters it was marked with, when given)."""
@@ -465,26 +471,29 @@ class Store:
 
     def mark_tile(self, ijk, step: str, value=True, **attrs) -> None:
         """Mark ``step`` done on tile ``ijk``, storing ``attrs`` with it in one write."""
-        done = self.tile_attrs(ijk).get("done", {})
+        g, now = self._tile_for_attrs(ijk)
+        done = now.get("done", {})
         done[step] = value
-        _set_attrs(self.tile_group_now(ijk), dict(json.loads(json.dumps(attrs)), done=done))
+        _set_attrs(g, dict(json.loads(json.dumps(attrs)), done=done))
 
     def mark_failed(self, ijk, task: str, message: str | None) -> None:
         """Record that ``task`` raised on tile ``ijk`` (``message``), or clear that record (None)."""
-        failed = dict(self.tile_attrs(ijk).get("failed", {}))
+        g, now = self._tile_for_attrs(ijk)
+        failed = dict(now.get("failed", {}))
         if message is None:
             if task not in failed:
                 return
             failed.pop(task)
         else:
             failed[task] = str(message)[:2000]
-        _set_attrs(self.tile_group_now(ijk), dict(failed=failed))
+        _set_attrs(g, dict(failed=failed))
 
     def clear_tile_steps(self, steps: list[str]) -> None:
         for ijk in self.tiles:
-            done = self.tile_attrs(ijk).get("done", {})
+            g, now = self._tile_for_attrs(ijk)
+            done = now.get("done", {})
             if any(s in done for s in steps):
-                _set_attrs(self.tile_group_now(ijk), dict(done={k: v for k, v in done.items() if k not in steps}))
+                _set_attrs(g, dict(done={k: v for k, v in done.items() if k not in steps}))
 
     def write(self, ijk, name: str, values: np.ndarray, chunk: int | None = None) -> None:
         """Write (replace) array ``name`` of tile ``ijk``."""
@@ -520,8 +529,9 @@ class Store:
                 arrays.append(self.tile(ijk)[piece_name(name, j, k)])
             except KeyError:
                 raise self._damaged(where, f"array {piece_name(name, j, k)!r} is missing") from None
-        ends = np.cumsum([a.shape[0] for a in arrays])
-        starts = ends - [a.shape[0] for a in arrays]
+        sizes = [a.shape[0] for a in arrays]
+        ends = np.cumsum(sizes)
+        starts = ends - sizes
         n = int(ends[-1])
         lo, hi, step = (0, n, 1) if rows is None else rows.indices(n)
         if step != 1:
@@ -534,18 +544,20 @@ class Store:
         """Record that tile ``ijk``'s array ``name`` is written in ``k`` pieces of consecutive rows, the arrays
         ``piece_name(stems[name], j, k)``, for each name of ``stems``, so :meth:`read` reads each as one array; an
         array of one of those names written whole before is removed."""
-        pieces = dict(self.tile_attrs(ijk).get("pieces", {}))
+        g, now = self._tile_for_attrs(ijk)
+        pieces = dict(now.get("pieces", {}))
         for name, stem in stems.items():
             self.delete(ijk, name)
             pieces[name] = [str(stem), int(k)]
-        _set_attrs(self.tile_group_now(ijk), dict(pieces=pieces))
+        _set_attrs(g, dict(pieces=pieces))
 
     def unmark_pieces(self, ijk, names) -> None:
         """Forget that tile ``ijk``'s arrays ``names`` were written in pieces (they are written whole again; the pieces
         are left)."""
-        pieces = dict(self.tile_attrs(ijk).get("pieces", {}))
+        g, now = self._tile_for_attrs(ijk)
+        pieces = dict(now.get("pieces", {}))
         if any(name in pieces for name in names):
-            _set_attrs(self.tile_group_now(ijk), dict(pieces={n: v for n, v in pieces.items() if n not in names}))
+            _set_attrs(g, dict(pieces={n: v for n, v in pieces.items() if n not in names}))
 
     def _damaged(self, where: str, what: str) -> PatchcloudStoreError:
         return PatchcloudStoreError(f"{self.url}: {where}: the store is damaged ({what}); {START_OVER}")

@@ -191,15 +191,25 @@ def finish_values(url: str, ijk: tuple, params: dict, neighbours: list[tuple], o
 
 def _write_finished(store: Store, ijk: tuple, params: dict, values: list) -> dict:
     """Write the finish step's arrays (sorted order, :func:`finish_values`) in the tile's input order; mark it done."""
-    rank = store.read(ijk, "rank").astype(np.int64)
-    for name, v in zip(finish_names(params), values):
-        out = np.empty_like(v)
-        out[rank] = v
-        store.write(ijk, name, out)
-    store.unmark_pieces(ijk, finish_names(params))  # written whole, whatever an earlier run wrote in pieces
-    info = dict(methods=np.bincount(values[2], minlength=len(Method) + 1).tolist())
+    names = finish_names(params)
+    _write_rows(store, ijk, names, values, store.read(ijk, "rank").astype(np.int64))
+    store.unmark_pieces(ijk, names)  # written whole, whatever an earlier run wrote in pieces
+    info = dict(methods=_method_counts(values).tolist())
     store.mark_tile(ijk, "finish", finish=info)
     return info
+
+
+def _write_rows(store: Store, ijk: tuple, names, values: list, at: np.ndarray) -> None:
+    """Write each of ``values`` (sorted order) as array ``names[i]`` of tile ``ijk``, its rows put at ``at``."""
+    for name, v in zip(names, values):
+        out = np.empty_like(v)
+        out[at] = v
+        store.write(ijk, name, out)
+
+
+def _method_counts(values: list) -> np.ndarray:
+    """Points per ``Method`` code (0 first) of the finish step's arrays (:func:`finish_values`)."""
+    return np.bincount(values[2], minlength=len(Method) + 1).astype(np.int64)
 
 
 def finish_names(params: dict) -> tuple[str, ...]:
@@ -241,12 +251,8 @@ def finish_one_tile(url: str, ijk: tuple, params: dict, neighbours: list[tuple],
     lo, hi = piece_rows(rank.size, j, k)
     only = (rank >= lo) & (rank < hi)
     values = finish_values(url, ijk, params, neighbours, only)
-    at = rank[only] - lo
-    for name, v in zip(finish_names(params), values):
-        out = np.empty_like(v)
-        out[at] = v
-        store.write(ijk, piece_name(_piece_stem(name, params), j, k), out)
-    counts = np.bincount(values[2], minlength=len(Method) + 1).astype(np.int64)
+    _write_rows(store, ijk, [piece_name(_piece_stem(name, params), j, k) for name in finish_names(params)], values, rank[only] - lo)
+    counts = _method_counts(values)
     store.write(ijk, done, counts)  # last: the piece is complete
     return dict(methods=counts.tolist())
 
