@@ -113,16 +113,17 @@ class FirstSeenIds:
         return out
 
 
-def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool):
+def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool,
+                 selection: laspy.DecompressionSelection | None = None):
     """Part ``p``'s input records (points ``first:first + count`` of file ``f`` of ``cat``, the store's catalog) and,
-    for each column, their values."""
+    for each column, their values.  ``selection``: the fields to decode of a layered LAZ (default: all)."""
     src = cat.sources[f]
     tiles = store.tiles
     index = store.get("index/part_tile")
     lo, hi = np.searchsorted(index[:, 0], [p, p + 1])
     rows = index[lo:hi]
     starts = store.get("index/tile_start", slice(int(lo), int(hi)))
-    records = read_part(store, p, src, first, count, laz_parallel)
+    records = read_part(store, p, src, first, count, laz_parallel, selection=selection)
     n = len(records)
     kept = np.flatnonzero(store_selection(store).mask(records))  # the points the tiles hold; the others get each column's empty value
     xyz = cat.common(f, records["X"][kept], records["Y"][kept], records["Z"][kept])
@@ -163,7 +164,10 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     store = Store.open(url)
     cat = store.catalog
     header = las_output.prepare_header(output_header(cat.sources[f], dims), compressed)
-    records, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel)
+    # a layered LAZ input whose records the output keeps: its chunks are copied, only the new bytes coded
+    layered = las_output.layered_source(cat.sources[f].path, header, [name for col in columns for name in col.dims])
+    selection = las_output.LAYERED_SELECTION if layered is not None else None
+    records, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel, selection)
     n = len(records)
     out = laspy.PackedPointRecord.zeros(n, header.point_format)
     las_output.copy_records(records, out.array)
@@ -177,6 +181,8 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
             stored[name] = np.ascontiguousarray((v if len(col.dims) == 1 else v[:, k]).reshape(n), dtype=out.array.dtype[name])
             out[name] = stored[name]
     stats = las_output.point_stats(header, out, stored)
+    if layered is not None:
+        return stats, las_output.write_laz_part_layered(tmp, local, layered, first, out)
     if compressed:
         return stats, las_output.write_laz_part(tmp, local, header, out, parallel=laz_parallel)
     las_output.write_las_part(tmp, start, first, out)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 
+import laspy
 import numpy as np
 
 from patchcloud.core import PatchcloudValueError, level_occupancy, sort_points
@@ -231,7 +232,7 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
 
 
 def read_part(store: Store, p: int, src: LasSource, first: int, count: int, laz_parallel: bool = False,
-              whole: bool = True) -> np.ndarray:
+              whole: bool = True, selection: laspy.DecompressionSelection | None = None) -> np.ndarray:
     """The records of part ``p`` (points ``first:first + count`` of ``src``) as laspy's structured array.
 
     A store in memory keeps each part's records from its first read (the
@@ -240,12 +241,16 @@ def read_part(store: Store, p: int, src: LasSource, first: int, count: int, laz_
     With ``whole`` False, a store on disk decodes only what the ingest
     routes points by (:data:`~patchcloud.stream.io.las.POSITION_AND_CLASS`,
     for the layered LAZ of point formats 6 to 10: about half the decoding):
-    the records' other fields are then not to be read.
+    the records' other fields are then not to be read.  ``selection``,
+    when given, is what a store on disk decodes instead (with ``whole``).
     """
     path = f"inputs/{p:06d}"
     if store.in_memory and store.has_array(path):
         return store.get(path)
-    selection = None if whole or store.in_memory else POSITION_AND_CLASS
+    if store.in_memory:
+        selection = None
+    elif not whole:
+        selection = POSITION_AND_CLASS
     records = read_range(src, first, count, parallel=laz_parallel, selection=selection).array
     if store.in_memory:
         store.put(path, records)

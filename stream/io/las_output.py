@@ -10,7 +10,12 @@ Every part is written by its own task, in any order, on any worker:
   are independent; lazrs compresses them) and writes them to a fragment
   file beside the output (:func:`write_laz_part`); the client then
   concatenates the fragments and writes the one chunk table
-  (:func:`finish`), a copy of compressed bytes.
+  (:func:`finish`), a copy of compressed bytes.  Where the input is a
+  layered LAZ whose records the output keeps as they are, with new extra
+  bytes after them (:func:`layered_source`), a task copies the input's
+  compressed chunks and codes only the new bytes
+  (:func:`write_laz_part_layered`, :mod:`.laz_layers`): the same bytes,
+  without decoding and coding the input's fields again.
 
 Each task also returns its records' :class:`PointStats` (bounds, counts by
 return, GPS time and extra-bytes ranges), which :func:`finish` merges into
@@ -34,7 +39,11 @@ import lazrs
 import numpy as np
 from laspy.vlrs.known import LasZipVlr
 
-__all__ = ["LAZ_CHUNK", "PointStats", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
+from patchcloud.core import PatchcloudIOError
+
+from . import laz_layers
+
+__all__ = ["LAZ_CHUNK", "PointStats", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
            "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
@@ -237,11 +246,113 @@ def write_laz_part(tmp: str | os.PathLike, part: int, header: laspy.LasHeader, p
     data = bytes(lazrs.compress_points(vlr, np.frombuffer(points.array, np.uint8), bool(parallel)))
     table_at = struct.unpack("<q", data[:8])[0]
     table = lazrs.read_chunk_table(io.BytesIO(data), vlr)
+    _write_fragment(tmp, part, [memoryview(data)[8:table_at]])
+    return [tuple(int(v) for v in e) for e in table]
+
+
+@dataclass(frozen=True)
+class LayeredSource:
+    """An input whose compressed chunks an output copies (:func:`layered_source`): its path, the
+    :class:`~patchcloud.stream.io.laz_layers.LayeredPlan`, and its chunk table ((C, 2) int64: each chunk's byte
+    offset in the file and byte count)."""
+
+    path: str
+    plan: laz_layers.LayeredPlan
+    chunks: np.ndarray
+
+
+#: What a task decodes of an input whose chunks it copies (:func:`write_laz_part_layered`): what places each point
+#: in its tile (coordinates, classification and its flags), what the header counts (return numbers, GPS time, the
+#: extra bytes' ranges) and the scanner channel (which the new bytes' coding follows); not intensity, scan angle,
+#: user data, point source, colours.
+LAYERED_SELECTION = (
+    laspy.DecompressionSelection.XY_RETURNS_CHANNEL | laspy.DecompressionSelection.Z
+    | laspy.DecompressionSelection.CLASSIFICATION | laspy.DecompressionSelection.FLAGS
+    | laspy.DecompressionSelection.GPS_TIME | laspy.DecompressionSelection.ALL_EXTRA_BYTES
+)
+
+
+def layered_source(path: str | os.PathLike, header: laspy.LasHeader, new_dims) -> LayeredSource | None:
+    """How the LAZ output of ``header`` (from :func:`prepare_header`) can copy the compressed chunks of the input
+    ``path``; None where it cannot, and the output's records are then coded whole (:func:`write_laz_part`).
+
+    It can when the input is a layered LAZ (point formats 6, 7 and 8) in
+    chunks of :data:`LAZ_CHUNK` points, and the output's records are the
+    input's, every field at its place, followed by the dimensions
+    ``new_dims`` (names) and nothing else.
+    """
+    if not header.are_points_compressed:
+        return None
+    with laspy.open(path) as reader:
+        h_in = reader.header
+    zips = h_in.vlrs.get("LasZipVlr") if h_in.are_points_compressed else []
+    outs = header.vlrs.get("LasZipVlr")
+    if not zips or not outs:
+        return None
+    a, b = h_in.point_format.dtype(), header.point_format.dtype()
+    if any(name not in b.fields or b.fields[name][1] != a.fields[name][1] for name in a.names):
+        return None
+    if any(name not in b.fields or b.fields[name][1] < a.itemsize for name in new_dims):
+        return None
+    lp = laz_layers.plan(zips[0].record_data, outs[0].record_data, a.itemsize, b.itemsize)
+    if lp is None or lp.chunk != LAZ_CHUNK:
+        return None
+    try:
+        table = laz_layers.chunk_table(path, h_in.offset_to_point_data, zips[0].record_data)
+    except Exception:  # no usable chunk table: the records are read and coded whole, as before
+        return None
+    n = int(h_in.point_count)
+    if len(table) != -(-n // lp.chunk):
+        return None
+    return LayeredSource(path=str(path), plan=lp, chunks=table)
+
+
+def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSource, first: int,
+                           points: laspy.PackedPointRecord) -> list:
+    """:func:`write_laz_part` for records that are the input's (``source``) points ``first, first + 1, ...`` with new
+    extra bytes: the input's chunks copied, the new bytes coded (:func:`~patchcloud.stream.io.laz_layers.extend_chunk`).
+
+    ``points``: the output's records, of which only the new bytes and the
+    scanner channel are read.  ``first`` is a multiple of the chunk size.
+
+    Raises
+    ------
+    PatchcloudIOError
+        A chunk of the input is not what its chunk table says.
+    """
+    lp = source.plan
+    n = len(points)
+    if first % lp.chunk:
+        raise ValueError(f"part starts at point {first}, not at a LAZ chunk of {lp.chunk} points")
+    c0, c1 = first // lp.chunk, -(-(first + n) // lp.chunk)
+    rows = source.chunks[c0:c1]
+    start = int(rows[0, 0])
+    with open(source.path, "rb") as f:
+        f.seek(start)
+        raw = f.read(int(rows[-1, 0] + rows[-1, 1]) - start)
+    rec = points.array.view(np.uint8).reshape(n, points.array.dtype.itemsize)
+    new = rec[:, lp.in_size:]
+    channels = np.asarray(points["scanner_channel"])
+    pieces, table = [], []
+    for c, (at, size) in zip(range(c0, c1), rows.tolist()):
+        s, e = c * lp.chunk - first, min((c + 1) * lp.chunk - first, n)
+        try:
+            data = laz_layers.extend_chunk(memoryview(raw)[at - start : at - start + size], lp, new[s:e], channels[s:e])
+        except ValueError as exc:
+            raise PatchcloudIOError(f"{source.path}: corrupt LAZ chunk {c} ({exc})") from None
+        pieces.append(data)
+        table.append((e - s, len(data)))
+    _write_fragment(tmp, part, pieces)
+    return table
+
+
+def _write_fragment(tmp: str | os.PathLike, part: int, pieces) -> None:
+    """Fragment ``part`` of ``tmp``: the bytes ``pieces``, in order, under a temporary name renamed when complete."""
     name = fragments_dir(tmp) / f"{part:06d}"
     with open(str(name) + ".tmp", "wb") as f:
-        f.write(memoryview(data)[8:table_at])
+        for piece in pieces:
+            f.write(piece)
     os.replace(str(name) + ".tmp", name)
-    return [tuple(int(v) for v in e) for e in table]
 
 
 def _append(src, dst, first: int = 0) -> None:

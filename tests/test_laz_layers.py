@@ -1,0 +1,128 @@
+"""A layered LAZ input's chunks copied into the output, only the new extra bytes coded: the bytes lazrs writes."""
+
+import io
+
+import laspy
+import lazrs
+import numpy as np
+import pytest
+from test_stream import write_scene
+
+from patchcloud.core import PatchcloudIOError
+from patchcloud.stream import normals
+from patchcloud.stream.io import las_output, laz_layers
+
+
+def _chunks(data: bytes, vlr) -> list[bytes]:
+    """The compressed chunks of what ``lazrs.compress_points`` returned."""
+    table = lazrs.read_chunk_table(io.BytesIO(data), vlr)
+    out, at = [], 8
+    for _, size in table:
+        out.append(data[at:at + size])
+        at += size
+    return out
+
+
+@pytest.mark.parametrize("pf, m, k, channels", [(6, 0, 21, 1), (6, 16, 21, 4), (7, 3, 5, 2), (8, 0, 24, 3)])
+def test_a_chunk_with_new_extra_bytes_is_the_one_lazrs_codes_from_the_whole_records(pf, m, k, channels):
+    rng = np.random.default_rng(pf * 100 + k)
+    n = 120_000  # 3 chunks, the last one short
+    size = laspy.PointFormat(pf).size + m
+    rec = rng.integers(0, 256, (n, size), dtype=np.uint8)
+    ch = np.repeat(rng.integers(0, channels, n // 97 + 1), 97)[:n].astype(np.uint8)  # runs of scanner channels
+    rec[:, 15] = (rec[:, 15] & 0xCF) | (ch << 4)
+    new = rng.integers(0, 256, (n, k), dtype=np.uint8)
+    new[:, 0] = 7  # a byte that never changes: no layer
+    new[:, 1] = (np.arange(n) // 1000).astype(np.uint8)  # one that seldom does
+    new[:, 2] = rng.choice(np.array([0, 255], np.uint8), n)  # the last symbol of the model, often
+    vin, vout = lazrs.LazVlr.new_for_compression(pf, m), lazrs.LazVlr.new_for_compression(pf, m + k)
+    lp = laz_layers.plan(vin.record_data(), vout.record_data(), size, size + k)
+    assert lp == laz_layers.LayeredPlan(in_size=size, in_layers=9 + {6: 0, 7: 1, 8: 2}[pf] + m, new_bytes=k, chunk=50_000)
+    copied = _chunks(bytes(lazrs.compress_points(vin, rec.ravel(), False)), vin)
+    whole = _chunks(bytes(lazrs.compress_points(vout, np.concatenate([rec, new], axis=1).ravel(), False)), vout)
+    assert len(copied) == len(whole) == 3
+    for c, (a, b) in enumerate(zip(copied, whole)):
+        s = slice(c * 50_000, (c + 1) * 50_000)
+        assert laz_layers.extend_chunk(a, lp, new[s], ch[s]) == b, c
+
+
+def test_the_contexts_follow_lazrs_rule_for_scanner_channels():
+    # the first point's channel, then a point's channel where it changes, 0 where it does not
+    assert laz_layers.byte_contexts(np.array([2, 2, 3, 3, 0, 1, 1], np.uint8)).tolist() == [2, 0, 3, 0, 0, 1, 0]
+
+
+def test_only_a_layered_input_whose_records_the_output_extends_is_copied():
+    v = lambda pf, m: lazrs.LazVlr.new_for_compression(pf, m).record_data()  # noqa: E731
+    assert laz_layers.plan(v(6, 0), v(6, 21), 30, 51) is not None
+    assert laz_layers.plan(v(1, 0), v(1, 21), 28, 49) is None  # point-wise LAZ (formats 0-5): no layers
+    assert laz_layers.plan(v(6, 0), v(7, 21), 30, 57) is None  # a field added in the middle
+    assert laz_layers.plan(v(6, 4), v(6, 4), 34, 34) is None  # nothing added
+    other = bytearray(v(6, 0))
+    other[12:16] = (10_000).to_bytes(4, "little")  # another chunk size
+    assert laz_layers.plan(bytes(other), v(6, 21), 30, 51) is None
+    other[12:16] = (0xFFFFFFFF).to_bytes(4, "little")  # variable chunks (COPC)
+    assert laz_layers.plan(bytes(other), v(6, 21), 30, 51) is None
+
+
+@pytest.fixture(scope="module")
+def channels_laz(tmp_path_factory):
+    """A format-7 LAZ of 120,000 points (3 chunks) with colours, GPS times, two scanner channels, noise and withheld
+    points, and 2 extra bytes of its own."""
+    d = tmp_path_factory.mktemp("layers")
+    las_path, laz_path = d / "scene.las", d / "scene.laz"
+    write_scene(las_path, n=120_000, seed=5)
+    src = laspy.read(str(las_path))
+    las = laspy.LasData(laspy.LasHeader(point_format=7, version="1.4"))
+    las.header.scales, las.header.offsets = src.header.scales, src.header.offsets
+    las.header.add_extra_dim(laspy.ExtraBytesParams("Amplitude", "u2"))
+    las.points = laspy.ScaleAwarePointRecord.zeros(len(src.points), header=las.header)
+    las.X, las.Y, las.Z = src.X, src.Y, src.Z
+    rng = np.random.default_rng(5)
+    n = len(las.points)
+    las.gps_time = np.cumsum(rng.uniform(1e-6, 1e-5, n)) + 4e8
+    las.red, las.green, las.blue = (rng.integers(0, 65535, n) for _ in range(3))
+    las.scanner_channel = (np.arange(n) // 7_000) % 2
+    las.classification = rng.choice(np.array([1, 2, 6, 7], np.uint8), n, p=[0.4, 0.3, 0.25, 0.05])
+    las.withheld = rng.random(n) < 0.02
+    las.Amplitude = rng.integers(0, 4000, n)
+    las.write(str(laz_path))
+    return laz_path
+
+
+@pytest.mark.parametrize("in_memory", [False, True])
+def test_a_run_that_copies_the_input_chunks_writes_the_bytes_of_one_that_codes_every_record(channels_laz, tmp_path, monkeypatch,
+                                                                                           in_memory):
+    copied, whole = tmp_path / "copied.laz", tmp_path / "whole.laz"
+    taken = []
+    real = las_output.layered_source
+
+    def spy(*args, **kwargs):
+        out = real(*args, **kwargs)
+        taken.append(out is not None)
+        return out
+
+    monkeypatch.setattr(las_output, "layered_source", spy)
+    normals(channels_laz, copied, tile_size=16, quiet=True, in_memory=in_memory, scheduler="synchronous")
+    assert taken and all(taken)  # every part copied its chunks
+    monkeypatch.setattr(las_output, "layered_source", lambda *a, **k: None)
+    normals(channels_laz, whole, tile_size=16, quiet=True, in_memory=in_memory, scheduler="synchronous")
+    assert copied.read_bytes() == whole.read_bytes()
+    out, src = laspy.read(str(copied)), laspy.read(str(channels_laz))
+    for name in ("X", "Y", "Z", "gps_time", "red", "scanner_channel", "classification", "withheld", "Amplitude"):
+        assert np.array_equal(out[name], src[name]), name
+    assert np.count_nonzero(out.NormalMethod) > 0.9 * len(out.points)
+
+
+def test_a_chunk_that_is_not_what_the_chunk_table_says_is_one_error_naming_the_file(channels_laz, tmp_path):
+    h = las_output.prepare_header(laspy.open(str(channels_laz)).header, True)
+    h.add_extra_dim(laspy.ExtraBytesParams("NormalX", "f4"))
+    h = las_output.prepare_header(h, True)
+    source = las_output.layered_source(channels_laz, h, ["NormalX"])
+    assert source is not None
+    bad = las_output.LayeredSource(source.path, source.plan, source.chunks + np.array([[1, 0]]))  # each chunk a byte off
+    tmp = tmp_path / "out.laz"
+    las_output.fragments_dir(tmp).mkdir()
+    pts = laspy.PackedPointRecord.zeros(50_000, h.point_format)
+    with pytest.raises(PatchcloudIOError, match="scene.laz: corrupt LAZ chunk 0"):
+        las_output.write_laz_part_layered(tmp, 0, bad, 0, pts)
+    assert not list(las_output.fragments_dir(tmp).iterdir())  # nothing half-written
