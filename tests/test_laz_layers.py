@@ -119,7 +119,7 @@ def test_a_chunk_that_is_not_what_the_chunk_table_says_is_one_error_naming_the_f
     h = las_output.prepare_header(h, True)
     source = las_output.layered_source(channels_laz, h, ["NormalX"])
     assert source is not None
-    bad = las_output.LayeredSource(source.path, source.plan, source.chunks + np.array([[1, 0]]))  # each chunk a byte off
+    bad = las_output.LayeredSource(source.path, source.plan, source.chunks + np.array([[1, 0]]), source.selection)  # each chunk a byte off
     tmp = tmp_path / "out.laz"
     las_output.fragments_dir(tmp).mkdir()
     pts = laspy.PackedPointRecord.zeros(50_000, h.point_format)

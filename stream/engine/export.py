@@ -166,7 +166,7 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     header = las_output.prepare_header(output_header(cat.sources[f], dims), compressed)
     # a layered LAZ input whose records the output keeps: its chunks are copied, only the new bytes coded
     layered = las_output.layered_source(cat.sources[f].path, header, [name for col in columns for name in col.dims])
-    selection = las_output.LAYERED_SELECTION if layered is not None else None
+    selection = layered.selection if layered is not None else None
     records, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel, selection)
     n = len(records)
     out = laspy.PackedPointRecord.zeros(n, header.point_format)

@@ -259,16 +259,19 @@ class LayeredSource:
     path: str
     plan: laz_layers.LayeredPlan
     chunks: np.ndarray
+    #: What a task decodes of the input's records (:data:`LAYERED_SELECTION`, with the GPS time for a LAS 1.5
+    #: output, whose header records its range).
+    selection: laspy.DecompressionSelection
 
 
 #: What a task decodes of an input whose chunks it copies (:func:`write_laz_part_layered`): what places each point
-#: in its tile (coordinates, classification and its flags), what the header counts (return numbers, GPS time, the
-#: extra bytes' ranges) and the scanner channel (which the new bytes' coding follows); not intensity, scan angle,
-#: user data, point source, colours.
+#: in its tile (coordinates, classification and its flags), what the header counts (return numbers, the extra
+#: bytes' ranges) and the scanner channel (which the new bytes' coding follows); not intensity, scan angle, user
+#: data, point source, colours, nor the GPS time (a LAS 1.4 header has no GPS range).
 LAYERED_SELECTION = (
     laspy.DecompressionSelection.XY_RETURNS_CHANNEL | laspy.DecompressionSelection.Z
     | laspy.DecompressionSelection.CLASSIFICATION | laspy.DecompressionSelection.FLAGS
-    | laspy.DecompressionSelection.GPS_TIME | laspy.DecompressionSelection.ALL_EXTRA_BYTES
+    | laspy.DecompressionSelection.ALL_EXTRA_BYTES
 )
 
 
@@ -304,7 +307,8 @@ def layered_source(path: str | os.PathLike, header: laspy.LasHeader, new_dims) -
     n = int(h_in.point_count)
     if len(table) != -(-n // lp.chunk):
         return None
-    return LayeredSource(path=str(path), plan=lp, chunks=table)
+    selection = LAYERED_SELECTION | (laspy.DecompressionSelection.GPS_TIME if header.version.minor >= 5 else 0)
+    return LayeredSource(path=str(path), plan=lp, chunks=table, selection=selection)
 
 
 def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSource, first: int,
