@@ -101,11 +101,13 @@ def test_a_run_that_copies_the_input_chunks_writes_the_bytes_of_one_that_codes_e
         taken.append(out is not None)
         return out
 
+    # on disk: one thread, so the sequential decoder, which decodes only the selection, as worker processes do
+    run = dict(in_memory=True, scheduler="synchronous") if in_memory else dict(in_memory=False, scheduler="threads", workers=1)
     monkeypatch.setattr(las_output, "layered_source", spy)
-    normals(channels_laz, copied, tile_size=16, quiet=True, in_memory=in_memory, scheduler="synchronous")
+    normals(channels_laz, copied, tile_size=16, quiet=True, **run)
     assert taken and all(taken)  # every part copied its chunks
     monkeypatch.setattr(las_output, "layered_source", lambda *a, **k: None)
-    normals(channels_laz, whole, tile_size=16, quiet=True, in_memory=in_memory, scheduler="synchronous")
+    normals(channels_laz, whole, tile_size=16, quiet=True, **run)
     assert copied.read_bytes() == whole.read_bytes()
     out, src = laspy.read(str(copied)), laspy.read(str(channels_laz))
     for name in ("X", "Y", "Z", "gps_time", "red", "scanner_channel", "classification", "withheld", "Amplitude"):
@@ -126,3 +128,35 @@ def test_a_chunk_that_is_not_what_the_chunk_table_says_is_one_error_naming_the_f
     with pytest.raises(PatchcloudIOError, match="scene.laz: corrupt LAZ chunk 0"):
         las_output.write_laz_part_layered(tmp, 0, bad, 0, pts)
     assert not list(las_output.fragments_dir(tmp).iterdir())  # nothing half-written
+
+
+def test_an_input_that_already_holds_some_of_the_new_dims_is_coded_whole_and_right(channels_laz, tmp_path, monkeypatch):
+    # a normal already in the input: the output overwrites it inside the input's record, so no chunk can be copied
+    las = laspy.read(str(channels_laz))
+    las.add_extra_dim(laspy.ExtraBytesParams("NormalX", "f4"))
+    las.NormalX = np.full(len(las.points), 7.0, np.float32)
+    src = tmp_path / "with_normal.laz"
+    las.write(str(src))
+    taken = []
+    real = las_output.layered_source
+    monkeypatch.setattr(las_output, "layered_source", lambda *a, **k: taken.append(real(*a, **k)) or taken[-1])
+    out = tmp_path / "out.laz"
+    normals(src, out, tile_size=16, quiet=True, scheduler="synchronous")
+    assert taken and all(t is None for t in taken)
+    got = laspy.read(str(out))
+    assert np.array_equal(got.Amplitude, las.Amplitude) and np.array_equal(got.gps_time, las.gps_time)
+    assert np.count_nonzero(got.NormalX == 7.0) < 0.1 * len(got.points)  # written over
+
+
+def test_a_header_that_counts_fewer_points_than_the_last_chunk_holds_is_read_whole(channels_laz, tmp_path):
+    raw = bytearray(channels_laz.read_bytes())
+    h = laspy.open(str(channels_laz)).header
+    src = tmp_path / "short.laz"
+    raw[247:255] = (h.point_count - 5).to_bytes(8, "little")  # LAS 1.4 point count: 5 fewer than the data holds
+    src.write_bytes(bytes(raw))
+    assert laspy.open(str(src)).header.point_count == h.point_count - 5
+    out_h = las_output.prepare_header(laspy.open(str(src)).header, True)
+    out_h.add_extra_dim(laspy.ExtraBytesParams("NormalX", "f4"))
+    out_h = las_output.prepare_header(out_h, True)
+    assert las_output.layered_source(src, out_h, ["NormalX"]) is None
+    assert las_output.layered_source(channels_laz, out_h, ["NormalX"]) is not None

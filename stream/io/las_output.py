@@ -305,10 +305,18 @@ def layered_source(path: str | os.PathLike, header: laspy.LasHeader, new_dims) -
     except Exception:  # no usable chunk table: the records are read and coded whole, as before
         return None
     n = int(h_in.point_count)
-    if len(table) != -(-n // lp.chunk):
-        return None
+    if len(table) != -(-n // lp.chunk) or _points_in_chunk(path, table[-1], lp) != n - (len(table) - 1) * lp.chunk:
+        return None  # e.g. a header that counts fewer points than the last chunk holds: read and coded whole
     selection = LAYERED_SELECTION | (laspy.DecompressionSelection.GPS_TIME if header.version.minor >= 5 else 0)
     return LayeredSource(path=str(path), plan=lp, chunks=table, selection=selection)
+
+
+def _points_in_chunk(path, entry, lp: laz_layers.LayeredPlan) -> int:
+    """The point count a layered chunk (``entry``: its offset and size) says it holds; -1 if it cannot be read."""
+    with open(path, "rb") as f:
+        f.seek(int(entry[0]) + lp.in_size)
+        raw = f.read(4)
+    return struct.unpack("<I", raw)[0] if len(raw) == 4 and entry[1] >= lp.in_size + 4 else -1
 
 
 def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSource, first: int,
