@@ -124,9 +124,8 @@ def test_a_chunk_that_is_not_what_the_chunk_table_says_is_one_error_naming_the_f
     bad = las_output.LayeredSource(source.path, source.plan, source.chunks + np.array([[1, 0]]), source.selection)  # each chunk a byte off
     tmp = tmp_path / "out.laz"
     las_output.fragments_dir(tmp).mkdir()
-    pts = laspy.PackedPointRecord.zeros(50_000, h.point_format)
     with pytest.raises(PatchcloudIOError, match="scene.laz: corrupt LAZ chunk 0"):
-        las_output.write_laz_part_layered(tmp, 0, bad, 0, pts)
+        las_output.write_laz_part_layered(tmp, 0, bad, 0, np.zeros((50_000, 4), np.uint8), np.zeros(50_000, np.uint8))
     assert not list(las_output.fragments_dir(tmp).iterdir())  # nothing half-written
 
 
@@ -160,3 +159,22 @@ def test_a_header_that_counts_fewer_points_than_the_last_chunk_holds_is_read_who
     out_h = las_output.prepare_header(out_h, True)
     assert las_output.layered_source(src, out_h, ["NormalX"]) is None
     assert las_output.layered_source(channels_laz, out_h, ["NormalX"]) is not None
+
+
+def test_the_export_takes_its_points_tiles_from_the_ingest_and_decodes_nothing(channels_laz, tmp_path, monkeypatch):
+    from patchcloud.stream.engine import ingest
+    from patchcloud.stream.io.store import Store
+
+    calls = []
+    real = ingest.read_range
+    monkeypatch.setattr(ingest, "read_range", lambda *a, **k: calls.append(a[1:3]) or real(*a, **k))
+    routed, store = tmp_path / "routed.laz", tmp_path / "kept.zarr"
+    normals(channels_laz, routed, tile_size=16, quiet=True, in_memory=False, scheduler="threads", workers=1, store=store, keep_store=True)
+    parts = sorted(calls)  # the ingest's parts, each read once; the export read none
+    assert len(parts) == len(set(parts)) >= 2 and sum(c for _, c in parts) == laspy.open(str(channels_laz)).header.point_count
+    # the same store without the routes (as an older version made it): the export decodes the records, same bytes
+    Store.open(str(store)).remove("routes")
+    decoded = tmp_path / "decoded.laz"
+    normals(channels_laz, decoded, tile_size=16, quiet=True, in_memory=False, scheduler="threads", workers=1, store=store, keep_store=True)
+    assert sorted(calls[len(parts):]) == parts  # the store was complete: only the export read, each part once
+    assert routed.read_bytes() == decoded.read_bytes()

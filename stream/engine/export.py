@@ -43,7 +43,7 @@ import numpy as np
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, read_part, store_selection, tile_keys
+from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, read_part, route_path, store_selection, tile_keys
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io import las_output
 from patchcloud.stream.io.las import check_writable, is_laz_name, output_header
@@ -118,29 +118,40 @@ def _part_values(store: Store, cat: Catalog, p: int, f: int, first: int, count: 
     """Part ``p``'s input records (points ``first:first + count`` of file ``f`` of ``cat``, the store's catalog) and,
     for each column, their values.  ``selection``: the fields to decode of a layered LAZ (default: all)."""
     src = cat.sources[f]
-    tiles = store.tiles
+    records = read_part(store, p, src, first, count, laz_parallel, selection=selection)
+    kept = np.flatnonzero(store_selection(store).mask(records))  # the points the tiles hold; the others get each column's empty value
+    xyz = cat.common(f, records["X"][kept], records["Y"][kept], records["Z"][kept])
+    tid = np.full(len(records), -1, dtype=np.int64)
+    tid[kept] = np.searchsorted(pack_tile_keys(np.asarray(store.tiles, dtype=np.int64)), tile_keys(store.grid, xyz))
+    return records, _routed_values(store, src, p, tid, columns, local=False)
+
+
+def _routed_values(store: Store, src, p: int, tid: np.ndarray, columns: list[Column], local: bool) -> list[np.ndarray]:
+    """For each column, the values of part ``p``'s points, each in tile ``tid`` (-1: left out, the column's empty
+    value): a tile's position in the store's list, or with ``local`` among the part's own tiles (in key order)."""
     index = store.get("index/part_tile")
     lo, hi = np.searchsorted(index[:, 0], [p, p + 1])
     rows = index[lo:hi]
     starts = store.get("index/tile_start", slice(int(lo), int(hi)))
-    records = read_part(store, p, src, first, count, laz_parallel, selection=selection)
-    n = len(records)
-    kept = np.flatnonzero(store_selection(store).mask(records))  # the points the tiles hold; the others get each column's empty value
-    xyz = cat.common(f, records["X"][kept], records["Y"][kept], records["Z"][kept])
-    tid = np.searchsorted(pack_tile_keys(np.asarray(tiles, dtype=np.int64)), tile_keys(store.grid, xyz))
-    counts = np.bincount(tid, minlength=len(tiles))
+    n = len(tid)
+    kept = np.flatnonzero(tid >= 0)
+    t = tid[kept]
+    if local:
+        t = rows[:, 1][t] if rows.size else t
+    counts = np.bincount(t, minlength=len(store.tiles))
     if not np.array_equal(counts[rows[:, 1]], rows[:, 2]) or counts.sum() != rows[:, 2].sum():
         raise PatchcloudIOError(f"{src.path}: the file no longer matches the store {store.url} (part {p})")
-    order = kept[np.argsort(tid, kind="stable")]
+    order = kept[np.argsort(t, kind="stable")]
     values = [np.full((n, len(col.dims)) if len(col.dims) > 1 else n, col.empty, col.dtype) for col in columns]
+    tiles = store.tiles
     s = 0
-    for t, m, start in zip(rows[:, 1].tolist(), rows[:, 2].tolist(), starts.tolist()):
+    for ti, m, start in zip(rows[:, 1].tolist(), rows[:, 2].tolist(), starts.tolist()):
         dst = order[s : s + m]
         for col, v in zip(columns, values):
-            got = store.read(tiles[t], col.array, slice(start, start + m))
-            v[dst] = col.per_tile(store, t, got) if col.per_tile else got
+            got = store.read(tiles[ti], col.array, slice(start, start + m))
+            v[dst] = col.per_tile(store, ti, got) if col.per_tile else got
         s += m
-    return records, values
+    return values
 
 
 def first_seen_part(url: str, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool = False) -> list:
@@ -163,30 +174,77 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     """
     store = Store.open(url)
     cat = store.catalog
-    header = las_output.prepare_header(output_header(cat.sources[f], dims), compressed)
+    src = cat.sources[f]
+    header = las_output.prepare_header(output_header(src, dims), compressed)
     # a layered LAZ input whose records the output keeps: its chunks are copied, only the new bytes coded
-    layered = las_output.layered_source(cat.sources[f].path, header, [name for col in columns for name in col.dims])
-    selection = layered.selection if layered is not None else None
-    records, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel, selection)
+    layered = las_output.layered_source(src.path, header, [name for col in columns for name in col.dims])
+    if layered is not None:
+        routed = _export_routed(store, src, p, local, first, count, columns, header, layered, tmp)
+        if routed is not None:
+            return routed
+    records, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel, layered.selection if layered else None)
     n = len(records)
     out = laspy.PackedPointRecord.zeros(n, header.point_format)
     las_output.copy_records(records, out.array)
-    stored = {}  # each new dimension's values as stored, contiguous: its header range is read from them
+    stored = _stored(store, columns, values, n, out.array.dtype)
+    for name, v in stored.items():
+        out[name] = v
+    stats = las_output.point_stats(header, out, stored)
+    if layered is not None:
+        rec = out.array.view(np.uint8).reshape(n, out.array.dtype.itemsize)
+        return stats, las_output.write_laz_part_layered(tmp, local, layered, first, rec[:, layered.plan.in_size:],
+                                                        np.asarray(out["scanner_channel"]))
+    if compressed:
+        return stats, las_output.write_laz_part(tmp, local, header, out, parallel=laz_parallel)
+    las_output.write_las_part(tmp, start, first, out)
+    return stats, None
+
+
+def _stored(store: Store, columns: list[Column], values: list[np.ndarray], n: int, dtype: np.dtype) -> dict[str, np.ndarray]:
+    """Each new dimension's values as stored (``dtype``'s field), contiguous (its header range is read from them); ids
+    renumbered where a column asks (:attr:`Column.renumber`)."""
+    stored = {}
     for col, v in zip(columns, values):
         if col.renumber:
             known, number = store.get(f"export/{col.array}_ids"), store.get(f"export/{col.array}_numbers")
             w = np.asarray(v, dtype=np.int64)
             v = np.where(w != 0, number[np.clip(np.searchsorted(known, w), 0, max(known.size - 1, 0))] if known.size else 0, 0)
         for k, name in enumerate(col.dims):
-            stored[name] = np.ascontiguousarray((v if len(col.dims) == 1 else v[:, k]).reshape(n), dtype=out.array.dtype[name])
-            out[name] = stored[name]
-    stats = las_output.point_stats(header, out, stored)
-    if layered is not None:
-        return stats, las_output.write_laz_part_layered(tmp, local, layered, first, out)
-    if compressed:
-        return stats, las_output.write_laz_part(tmp, local, header, out, parallel=laz_parallel)
-    las_output.write_las_part(tmp, start, first, out)
-    return stats, None
+            stored[name] = np.ascontiguousarray((v if len(col.dims) == 1 else v[:, k]).reshape(n), dtype=dtype[name])
+    return stored
+
+
+def _export_routed(store: Store, src, p: int, local: int, first: int, count: int, columns: list[Column], header: laspy.LasHeader,
+                   layered: las_output.LayeredSource, tmp: str):
+    """:func:`export_part` of a layered input without decoding it: from the route the ingest recorded
+    (:func:`~patchcloud.stream.engine.ingest.route_path`: each point's tile, scanner channel and the records' header
+    statistics), the new bytes coded beside the input's copied chunks.  None where the store has no route of the
+    part (made by an older version) or it does not fit the output's header: the records are then decoded."""
+    route = route_path(p)
+    info = store.group_attrs(route)
+    if "stats" not in info or int(info.get("points", -1)) != count or header.version.minor >= 5:
+        return None  # (LAS 1.5 records the GPS time range, which the ingest does not decode)
+    part_stats = las_output.PointStats.from_json(info["stats"])
+    b = header.point_format.dtype()
+    in_size = layered.plan.in_size
+    new_names = [name for name in b.names if b.fields[name][1] >= in_size]
+    if len(las_output.extra_bytes_structs(header)) != len(part_stats.eb_min) + len(new_names):
+        return None
+    st = os.stat(src.path)
+    if st.st_size != src.size or st.st_mtime_ns != src.mtime_ns:
+        raise PatchcloudIOError(f"{src.path}: the file changed after it was read into the store {store.url}")
+    tid = store.get(f"{route}/tile").astype(np.int64)
+    values = _routed_values(store, src, p, tid, columns, local=True)
+    new_dtype = np.dtype(dict(names=new_names, formats=[b.fields[n][0] for n in new_names],
+                              offsets=[b.fields[n][1] - in_size for n in new_names], itemsize=b.itemsize - in_size))
+    stored = _stored(store, columns, values, count, b)
+    new = np.zeros(count, dtype=new_dtype)
+    for name, v in stored.items():
+        new[name] = v
+    channels = store.get(f"{route}/channel") if store.has_array(f"{route}/channel") else np.zeros(count, dtype=np.uint8)
+    stats = las_output.with_new_dims(part_stats, header, stored, count)
+    table = las_output.write_laz_part_layered(tmp, local, layered, first, new.view(np.uint8).reshape(count, new_dtype.itemsize), channels)
+    return stats, table
 
 
 def output_key(store: Store, columns: list[Column], dims) -> str:

@@ -29,6 +29,7 @@ from patchcloud.core import PatchcloudValueError, level_occupancy, sort_points
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
 from patchcloud.stream.io.las import POSITION_AND_CLASS, LasSource, read_range
+from patchcloud.stream.io import las_output
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.engine.tasks import map_tiles
@@ -36,7 +37,7 @@ from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
     "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "part_size", "part_ranges", "catalog_parts", "part_path",
-    "scatter_part", "read_part", "part_selection", "store_selection",
+    "scatter_part", "read_part", "route_path", "ranged_extra_bytes", "part_selection", "store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
@@ -214,13 +215,18 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
         return
     cat = store.catalog
     grid = store.grid
-    records = read_part(store, p, cat.sources[f], first, count, laz_parallel, whole=field == "record")
+    selection = None
+    if field == "xyz" and not store.in_memory:  # what places the points, and the extra bytes the export's header ranges
+        selection = POSITION_AND_CLASS | (laspy.DecompressionSelection.ALL_EXTRA_BYTES if ranged_extra_bytes(cat.sources[f]) else 0)
+    records = read_part(store, p, cat.sources[f], first, count, laz_parallel, whole=field == "record", selection=selection)
+    all_records = records
     keep, left_out, by_class = part_selection(store_selection(store), records)
     if not keep.all():
         records = records[keep]
     xyz = cat.common(f, records["X"], records["Y"], records["Z"])
     order, sk, starts, ends = _route(grid, xyz)
     if field == "xyz":
+        _put_route(store, p, cat.sources[f], all_records, keep, order, starts, ends)
         store.put(f"{path}/xyz", xyz[order])
         sums = xyz.astype(np.int64).sum(axis=0)
         store.set_group_attrs(path, keys=sk[starts].tolist(), counts=(ends - starts).tolist(), sums=sums.tolist(),
@@ -229,6 +235,50 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
         rec = records.view(np.uint8).reshape(len(records), records.dtype.itemsize)
         store.put(f"{path}/record", rec[order])
         store.set_group_attrs(path, done_record=True)
+
+
+def route_path(p: int) -> str:
+    """Where part ``p``'s route is in the store: each of its points' tile, for the export (:func:`_put_route`).
+
+    >>> route_path(3)
+    'routes/000003'
+    """
+    return f"routes/{p:06d}"
+
+
+def ranged_extra_bytes(src: LasSource) -> bool:
+    """Whether ``src`` has extra-bytes dimensions whose range an output's header records (typed ones)."""
+    with laspy.open(src.path) as reader:
+        return bool(_typed_extra(reader.header))
+
+
+def _typed_extra(header: laspy.LasHeader) -> list:
+    vlrs = header.vlrs.get("ExtraBytesVlr")
+    return [st for st in vlrs[0].extra_bytes_structs if st.data_type != 0] if vlrs else []
+
+
+def _put_route(store: Store, p: int, src: LasSource, records: np.ndarray, keep: np.ndarray, order: np.ndarray,
+               starts: np.ndarray, ends: np.ndarray) -> None:
+    """Record part ``p``'s route, so that its export need not decode the input's records again
+    (:func:`patchcloud.stream.engine.export.export_part`): ``tile`` (n,) int32, each point's tile among the part's
+    (in key order; -1: left out), ``channel`` (n,) uint8 the scanner channels where any is not 0, and the header
+    statistics of its records (:class:`~patchcloud.stream.io.las_output.PointStats`, the input's fields)."""
+    n = len(records)
+    tile = np.full(n, -1, dtype=np.int32)
+    local = np.empty(len(order), dtype=np.int32)
+    local[order] = np.repeat(np.arange(len(starts), dtype=np.int32), ends - starts)
+    tile[np.flatnonzero(keep)] = local
+    with laspy.open(src.path) as reader:
+        header = las_output.prepare_header(reader.header, False)
+    packed = laspy.PackedPointRecord(records, header.point_format)
+    stats = las_output.point_stats(header, packed)
+    route = route_path(p)
+    store.put(f"{route}/tile", tile)
+    if header.point_format.id >= 6:
+        channel = np.asarray(packed["scanner_channel"], dtype=np.uint8)
+        if channel.any():
+            store.put(f"{route}/channel", channel)
+    store.set_group_attrs(route, stats=stats.to_json(), points=n)
 
 
 def read_part(store: Store, p: int, src: LasSource, first: int, count: int, laz_parallel: bool = False,
@@ -249,7 +299,7 @@ def read_part(store: Store, p: int, src: LasSource, first: int, count: int, laz_
         return store.get(path)
     if store.in_memory:
         selection = None
-    elif not whole:
+    elif selection is None and not whole:
         selection = POSITION_AND_CLASS
     records = read_range(src, first, count, parallel=laz_parallel, selection=selection).array
     if store.in_memory:

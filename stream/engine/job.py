@@ -201,6 +201,8 @@ class RunOptions:
     def __post_init__(self) -> None:
         check_tile_size(self.tile_size)
         object.__setattr__(self, "classes", self.selection.classes)  # checked, as a sorted tuple
+        if isinstance(self.store, os.PathLike):  # a pathlib.Path as well as a str
+            object.__setattr__(self, "store", os.fspath(self.store))
         if self.units is not None and self.units not in UNITS:
             raise PatchcloudValueError(f"units must be one of {', '.join(UNITS)}; got {self.units!r}")
         if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) != self.workers or self.workers < 1):

@@ -43,7 +43,7 @@ from patchcloud.core import PatchcloudIOError
 
 from . import laz_layers
 
-__all__ = ["LAZ_CHUNK", "PointStats", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
+__all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
            "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
@@ -61,6 +61,18 @@ class PointStats:
     count: int
     eb_min: tuple[bytes, ...]  # raw min/max of each extra-bytes struct, as laspy keeps them
     eb_max: tuple[bytes, ...]
+
+    def to_json(self) -> dict:
+        """A JSON-able dict that :meth:`from_json` turns back into these statistics, bit for bit."""
+        return dict(mins=[float(v) for v in self.mins], maxs=[float(v) for v in self.maxs], gps=[float(v) for v in self.gps],
+                    by_return=[int(v) for v in self.by_return], count=int(self.count), eb_min=[b.hex() for b in self.eb_min],
+                    eb_max=[b.hex() for b in self.eb_max])
+
+    @classmethod
+    def from_json(cls, d: dict) -> "PointStats":
+        return cls(mins=np.asarray(d["mins"], dtype=np.float64), maxs=np.asarray(d["maxs"], dtype=np.float64), gps=tuple(d["gps"]),
+                   by_return=np.asarray(d["by_return"], dtype=np.uint64), count=int(d["count"]),
+                   eb_min=tuple(bytes.fromhex(v) for v in d["eb_min"]), eb_max=tuple(bytes.fromhex(v) for v in d["eb_max"]))
 
 
 def prepare_header(header: laspy.LasHeader, compressed: bool) -> laspy.LasHeader:
@@ -94,27 +106,30 @@ def copy_records(records: np.ndarray, out: np.ndarray) -> None:
             out[name] = records[name]
 
 
-def _eb_structs(h: laspy.LasHeader) -> list:
+def extra_bytes_structs(h: laspy.LasHeader) -> list:
+    """The extra-bytes descriptors of ``h``'s ExtraBytes VLR, in order ([] without one)."""
     vlrs = h.vlrs.get("ExtraBytesVlr")
     return list(vlrs[0].extra_bytes_structs) if vlrs else []
 
 
-def _eb_range(st, points: laspy.PackedPointRecord, columns: dict) -> tuple[np.ndarray, np.ndarray]:
+def _eb_range(st, points: laspy.PackedPointRecord | None, columns: dict, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Stored (unscaled) min and max of one extra-bytes dimension over ``points``, no-data and NaN values left out.
 
     laspy's own ``grow`` takes each call's first value for the whole call,
     so its ranges depend on how the points were cut: these are the true ones.
     ``columns``: contiguous copies of some dimensions' stored values, read
-    instead of the records' strided field.
+    instead of the records' strided field (``points`` None: the dimension
+    is one of them, ``n`` the number of points).
     """
-    t, n = np.dtype(st._long_type()), st.num_elements()
+    t, k = np.dtype(st._long_type()), st.num_elements()
     info = np.finfo(t) if t.kind == "f" else np.iinfo(t)
-    lo, hi = np.full(n, info.max, dtype=t), np.full(n, info.min, dtype=t)
-    if st.data_type == 0 or len(points) == 0:
+    lo, hi = np.full(k, info.max, dtype=t), np.full(k, info.min, dtype=t)
+    n = len(points) if points is not None else int(n)
+    if st.data_type == 0 or n == 0:
         return lo, hi
     name = st.format_name()
-    v = np.asarray(columns[name] if name in columns else points.array[name]).reshape(len(points), n)
-    for i in range(n):
+    v = np.asarray(columns[name] if name in columns else points.array[name]).reshape(n, k)
+    for i in range(k):
         col = v[:, i]
         valid = np.ones(col.shape, dtype=bool)
         if st.no_data is not None:
@@ -134,7 +149,7 @@ def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord, column
     row per point), so their ranges are read from these contiguous arrays.
     """
     columns = columns or {}
-    structs = _eb_structs(header)
+    structs = extra_bytes_structs(header)
     h = deepcopy(header)
     try:  # laspy's grow would set wrong extra-bytes ranges (see _eb_range): they are computed here
         h.vlrs.pop(h.vlrs.index("ExtraBytesVlr"))
@@ -150,6 +165,17 @@ def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord, column
     )
 
 
+def with_new_dims(stats: PointStats, header: laspy.LasHeader, columns: dict, n: int) -> PointStats:
+    """The statistics of records that are those ``stats`` describe (their own extra bytes' ranges first) with new
+    extra-bytes dimensions appended: ``header``'s last extra-bytes descriptors, whose stored values ``columns``
+    holds (name: (n,) array), give their ranges (what :func:`point_stats` of the whole records gives)."""
+    structs = extra_bytes_structs(header)[len(stats.eb_min):]
+    ranges = [_eb_range(st, None, columns, n) for st in structs]
+    return PointStats(mins=stats.mins, maxs=stats.maxs, gps=stats.gps, by_return=stats.by_return, count=stats.count,
+                      eb_min=stats.eb_min + tuple(lo.tobytes() for lo, _ in ranges),
+                      eb_max=stats.eb_max + tuple(hi.tobytes() for _, hi in ranges))
+
+
 def _merge(header: laspy.LasHeader, parts: list[PointStats]) -> laspy.LasHeader:
     """``header`` with the statistics of all ``parts`` (what growing it by every point in turn gives)."""
     h = deepcopy(header)
@@ -158,7 +184,7 @@ def _merge(header: laspy.LasHeader, parts: list[PointStats]) -> laspy.LasHeader:
     lo, hi = h.min_gps_time, h.max_gps_time
     by_return = np.zeros(15, dtype=np.uint64)
     count = 0
-    structs = _eb_structs(h)
+    structs = extra_bytes_structs(h)
     for s in parts:
         mins, maxs = np.minimum(mins, s.mins), np.maximum(maxs, s.maxs)
         lo, hi = min(lo, s.gps[0]), max(hi, s.gps[1])
@@ -292,6 +318,8 @@ def layered_source(path: str | os.PathLike, header: laspy.LasHeader, new_dims) -
     outs = header.vlrs.get("LasZipVlr")
     if not zips or not outs:
         return None
+    if not (np.array_equal(h_in.scales, header.scales) and np.array_equal(h_in.offsets, header.offsets)):
+        return None
     a, b = h_in.point_format.dtype(), header.point_format.dtype()
     if any(name not in b.fields or b.fields[name][1] != a.fields[name][1] for name in a.names):
         return None
@@ -319,13 +347,13 @@ def _points_in_chunk(path, entry, lp: laz_layers.LayeredPlan) -> int:
     return struct.unpack("<I", raw)[0] if len(raw) == 4 and entry[1] >= lp.in_size + 4 else -1
 
 
-def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSource, first: int,
-                           points: laspy.PackedPointRecord) -> list:
+def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSource, first: int, new: np.ndarray,
+                           channels: np.ndarray) -> list:
     """:func:`write_laz_part` for records that are the input's (``source``) points ``first, first + 1, ...`` with new
     extra bytes: the input's chunks copied, the new bytes coded (:func:`~patchcloud.stream.io.laz_layers.extend_chunk`).
 
-    ``points``: the output's records, of which only the new bytes and the
-    scanner channel are read.  ``first`` is a multiple of the chunk size.
+    ``new`` (n, k) uint8: each point's new bytes; ``channels`` (n,): the
+    points' scanner channels.  ``first`` is a multiple of the chunk size.
 
     Raises
     ------
@@ -333,7 +361,7 @@ def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSou
         A chunk of the input is not what its chunk table says.
     """
     lp = source.plan
-    n = len(points)
+    n = len(new)
     if first % lp.chunk:
         raise ValueError(f"part starts at point {first}, not at a LAZ chunk of {lp.chunk} points")
     c0, c1 = first // lp.chunk, -(-(first + n) // lp.chunk)
@@ -342,9 +370,6 @@ def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSou
     with open(source.path, "rb") as f:
         f.seek(start)
         raw = f.read(int(rows[-1, 0] + rows[-1, 1]) - start)
-    rec = points.array.view(np.uint8).reshape(n, points.array.dtype.itemsize)
-    new = rec[:, lp.in_size:]
-    channels = np.asarray(points["scanner_channel"])
     pieces, table = [], []
     for c, (at, size) in zip(range(c0, c1), rows.tolist()):
         s, e = c * lp.chunk - first, min((c + 1) * lp.chunk - first, n)
