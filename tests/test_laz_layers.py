@@ -178,3 +178,14 @@ def test_the_export_takes_its_points_tiles_from_the_ingest_and_decodes_nothing(c
     normals(channels_laz, decoded, tile_size=16, quiet=True, in_memory=False, scheduler="threads", workers=1, store=store, keep_store=True)
     assert sorted(calls[len(parts):]) == parts  # the store was complete: only the export read, each part once
     assert routed.read_bytes() == decoded.read_bytes()
+
+
+def test_the_ingest_records_routes_of_layered_laz_only(channels_laz, tmp_path):
+    from patchcloud.stream.io.store import Store
+
+    las = tmp_path / "scene.las"
+    laspy.read(str(channels_laz)).write(str(las))
+    for src, routed in ((channels_laz, True), (las, False)):
+        store = tmp_path / f"{src.suffix[1:]}.zarr"
+        normals(src, tmp_path / f"out{src.suffix}", tile_size=16, quiet=True, scheduler="threads", workers=1, store=store, keep_store=True)
+        assert Store.open(str(store)).has_array("routes") == routed, src

@@ -37,7 +37,7 @@ from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
     "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "part_size", "part_ranges", "catalog_parts", "part_path",
-    "scatter_part", "read_part", "route_path", "ranged_extra_bytes", "part_selection", "store_selection",
+    "scatter_part", "read_part", "route_path", "routes_pay", "ranged_extra_bytes", "part_selection", "store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
@@ -217,7 +217,8 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
     grid = store.grid
     selection = None
     if field == "xyz" and not store.in_memory:  # what places the points, and the extra bytes the export's header ranges
-        selection = POSITION_AND_CLASS | (laspy.DecompressionSelection.ALL_EXTRA_BYTES if ranged_extra_bytes(cat.sources[f]) else 0)
+        ranged = routes_pay(cat.sources[f]) and ranged_extra_bytes(cat.sources[f])
+        selection = POSITION_AND_CLASS | (laspy.DecompressionSelection.ALL_EXTRA_BYTES if ranged else 0)
     records = read_part(store, p, cat.sources[f], first, count, laz_parallel, whole=field == "record", selection=selection)
     all_records = records
     keep, left_out, by_class = part_selection(store_selection(store), records)
@@ -226,7 +227,8 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
     xyz = cat.common(f, records["X"], records["Y"], records["Z"])
     order, sk, starts, ends = _route(grid, xyz)
     if field == "xyz":
-        _put_route(store, p, cat.sources[f], all_records, keep, order, starts, ends)
+        if routes_pay(cat.sources[f]):
+            _put_route(store, p, cat.sources[f], all_records, keep, order, starts, ends)
         store.put(f"{path}/xyz", xyz[order])
         sums = xyz.astype(np.int64).sum(axis=0)
         store.set_group_attrs(path, keys=sk[starts].tolist(), counts=(ends - starts).tolist(), sums=sums.tolist(),
@@ -244,6 +246,12 @@ def route_path(p: int) -> str:
     'routes/000003'
     """
     return f"routes/{p:06d}"
+
+
+def routes_pay(src: LasSource) -> bool:
+    """Whether the ingest records the parts' routes of ``src``: for a layered LAZ (point formats 6 to 10), whose
+    export can copy its compressed chunks without decoding them (elsewhere the export reads the records anyway)."""
+    return bool(src.compressed) and int(src.point_format) >= 6
 
 
 def ranged_extra_bytes(src: LasSource) -> bool:
