@@ -1,6 +1,7 @@
 """A layered LAZ input's chunks copied into the output, only the new extra bytes coded: the bytes lazrs writes."""
 
 import io
+from pathlib import Path
 
 import laspy
 import lazrs
@@ -82,6 +83,8 @@ def channels_laz(tmp_path_factory):
     las.gps_time = np.cumsum(rng.uniform(1e-6, 1e-5, n)) + 4e8
     las.red, las.green, las.blue = (rng.integers(0, 65535, n) for _ in range(3))
     las.scanner_channel = (np.arange(n) // 7_000) % 2
+    las.number_of_returns = rng.integers(1, 5, n)
+    las.return_number = np.minimum(rng.integers(1, 5, n), las.number_of_returns)  # the header counts points by return
     las.classification = rng.choice(np.array([1, 2, 6, 7], np.uint8), n, p=[0.4, 0.3, 0.25, 0.05])
     las.withheld = rng.random(n) < 0.02
     las.Amplitude = rng.integers(0, 4000, n)
@@ -189,3 +192,15 @@ def test_the_ingest_records_routes_of_layered_laz_only(channels_laz, tmp_path):
         store = tmp_path / f"{src.suffix[1:]}.zarr"
         normals(src, tmp_path / f"out{src.suffix}", tile_size=16, quiet=True, scheduler="threads", workers=1, store=store, keep_store=True)
         assert Store.open(str(store)).has_array("routes") == routed, src
+
+
+def test_a_real_single_channel_file_without_extra_bytes_is_copied_to_the_same_bytes(tmp_path, monkeypatch):
+    # the embedded IGN LiDAR HD tile: point format 8, one scanner channel (no channel array), no extra bytes of its own
+    src = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
+    run = dict(tile_size=64, quiet=True, in_memory=False, scheduler="threads", workers=1)
+    copied, whole = tmp_path / "copied.laz", tmp_path / "whole.laz"
+    normals(src, copied, **run)
+    monkeypatch.setattr(las_output, "layered_source", lambda *a, **k: None)
+    normals(src, whole, **run)
+    assert copied.read_bytes() == whole.read_bytes()
+    assert laspy.open(str(copied)).header.number_of_points_by_return[0] > 0

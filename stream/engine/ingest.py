@@ -215,11 +215,13 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
         return
     cat = store.catalog
     grid = store.grid
+    routed = field == "xyz" and routes_pay(cat.sources[f])  # then an export in memory need not keep the records either
     selection = None
-    if field == "xyz" and not store.in_memory:  # what places the points, and the extra bytes the export's header ranges
-        ranged = routes_pay(cat.sources[f]) and ranged_extra_bytes(cat.sources[f])
+    if field == "xyz" and (routed or not store.in_memory):  # what places the points, and what the export's header needs
+        ranged = routed and ranged_extra_bytes(cat.sources[f])
         selection = POSITION_AND_CLASS | (laspy.DecompressionSelection.ALL_EXTRA_BYTES if ranged else 0)
-    records = read_part(store, p, cat.sources[f], first, count, laz_parallel, whole=field == "record", selection=selection)
+    records = read_part(store, p, cat.sources[f], first, count, laz_parallel, whole=field == "record", selection=selection,
+                        keep=not routed)
     all_records = records
     keep, left_out, by_class = part_selection(store_selection(store), records)
     if not keep.all():
@@ -227,7 +229,7 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
     xyz = cat.common(f, records["X"], records["Y"], records["Z"])
     order, sk, starts, ends = _route(grid, xyz)
     if field == "xyz":
-        if routes_pay(cat.sources[f]):
+        if routed:
             _put_route(store, p, cat.sources[f], all_records, keep, order, starts, ends)
         store.put(f"{path}/xyz", xyz[order])
         sums = xyz.astype(np.int64).sum(axis=0)
@@ -249,9 +251,9 @@ def route_path(p: int) -> str:
 
 
 def routes_pay(src: LasSource) -> bool:
-    """Whether the ingest records the parts' routes of ``src``: for a layered LAZ (point formats 6 to 10), whose
+    """Whether the ingest records the parts' routes of ``src``: for a layered LAZ (point formats 6 to 8), whose
     export can copy its compressed chunks without decoding them (elsewhere the export reads the records anyway)."""
-    return bool(src.compressed) and int(src.point_format) >= 6
+    return bool(src.compressed) and 6 <= int(src.point_format) <= 8  # (9 and 10: wave packets, which the export codes whole)
 
 
 def ranged_extra_bytes(src: LasSource) -> bool:
@@ -290,11 +292,12 @@ def _put_route(store: Store, p: int, src: LasSource, records: np.ndarray, keep: 
 
 
 def read_part(store: Store, p: int, src: LasSource, first: int, count: int, laz_parallel: bool = False,
-              whole: bool = True, selection: laspy.DecompressionSelection | None = None) -> np.ndarray:
+              whole: bool = True, selection: laspy.DecompressionSelection | None = None, keep: bool = True) -> np.ndarray:
     """The records of part ``p`` (points ``first:first + count`` of ``src``) as laspy's structured array.
 
     A store in memory keeps each part's records from its first read (the
-    ingest), so its export does not decode the file a second time; any
+    ingest; not with ``keep`` False: a layered LAZ, whose export copies the
+    compressed chunks), so its export does not decode the file a second time; any
     other store reads the file each time (:func:`patchcloud.stream.io.las.read_range`).
     With ``whole`` False, a store on disk decodes only what the ingest
     routes points by (:data:`~patchcloud.stream.io.las.POSITION_AND_CLASS`,
@@ -305,12 +308,12 @@ def read_part(store: Store, p: int, src: LasSource, first: int, count: int, laz_
     path = f"inputs/{p:06d}"
     if store.in_memory and store.has_array(path):
         return store.get(path)
-    if store.in_memory:
+    if store.in_memory and keep:
         selection = None
     elif selection is None and not whole:
         selection = POSITION_AND_CLASS
     records = read_range(src, first, count, parallel=laz_parallel, selection=selection).array
-    if store.in_memory:
+    if store.in_memory and keep:
         store.put(path, records)
     return records
 
