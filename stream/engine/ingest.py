@@ -19,6 +19,7 @@ calls: it reuses a store already made from the same file.
 
 from __future__ import annotations
 
+import functools
 import time
 
 import laspy
@@ -28,7 +29,7 @@ from patchcloud.core import PatchcloudValueError, level_occupancy, sort_points
 
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
-from patchcloud.stream.io.las import POSITION_AND_CLASS, LasSource, read_range
+from patchcloud.stream.io.las import POSITION_AND_CLASS, LasSource, output_header, read_range
 from patchcloud.stream.io import las_output
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.engine.runner import Runner
@@ -250,10 +251,20 @@ def route_path(p: int) -> str:
     return f"routes/{p:06d}"
 
 
+@functools.lru_cache(maxsize=256)
 def routes_pay(src: LasSource) -> bool:
-    """Whether the ingest records the parts' routes of ``src``: for a layered LAZ (point formats 6 to 8), whose
-    export can copy its compressed chunks without decoding them (elsewhere the export reads the records anyway)."""
-    return bool(src.compressed) and 6 <= int(src.point_format) <= 8  # (9 and 10: wave packets, which the export codes whole)
+    """Whether the ingest records the parts' routes of ``src``: where a LAZ output of it with new dimensions can copy
+    its compressed chunks (:func:`~patchcloud.stream.io.las_output.layered_source`: a layered LAZ, point formats 6
+    to 8, in chunks of 50,000 points, whose records an output keeps as they are), so that the export need not decode
+    it.  Elsewhere the export reads the records anyway (and in memory keeps them from the ingest)."""
+    if not src.compressed or not 6 <= int(src.point_format) <= 8:  # (9 and 10: wave packets, which the export codes whole)
+        return False
+    header = las_output.prepare_header(output_header(src, _PROBE_DIMS), True)
+    return las_output.layered_source(src.path, header, [d[0] for d in _PROBE_DIMS]) is not None
+
+
+#: A new dimension as a job adds one: what :func:`routes_pay` asks an output to hold.
+_PROBE_DIMS = (("PatchcloudRouteProbe", np.float32, "probe"),)
 
 
 def ranged_extra_bytes(src: LasSource) -> bool:
