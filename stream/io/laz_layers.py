@@ -210,47 +210,7 @@ def _layer(values, ctx, buf, dist, count, state):
     length = _M32
     pos = 0
     changed = False
-    one = True  # one context all along (one scanner channel): the common case, without the switches
     for j in range(1, n):
-        if ctx[j] != c0:
-            one = False
-            break
-    if one:
-        o0 = c0 * 256
-        s0 = 3 * c0 + 2
-        prev = np.int64(values[0])
-        for j in range(1, n):
-            v = np.int64(values[j])
-            sym = (v - prev) & 0xFF
-            prev = v
-            if sym != 0:
-                changed = True
-            o = o0 + sym
-            init_base = base
-            if sym == 255:
-                x = dist[o] * (length >> 15)
-                base = (base + x) & _M32
-                length -= x
-            else:
-                length >>= 15
-                x = dist[o] * length
-                base = (base + x) & _M32
-                length = dist[o + 1] * length - x
-            if init_base > base:
-                _carry(buf, pos)
-            if length < _AC_MIN_LENGTH:
-                if pos + 8 > cap:
-                    return -1, False
-                while length < _AC_MIN_LENGTH:
-                    buf[pos] = base >> 24
-                    pos += 1
-                    base = (base << 8) & _M32
-                    length = length << 8
-            count[o] += 1
-            state[s0] -= 1
-            if state[s0] == 0:
-                _model_update(dist, count, state, c0)
-    for j in range(1 if not one else n, n):
         c = ctx[j]
         last_idx = last_used
         if last_used != c:
@@ -293,23 +253,16 @@ def _layer(values, ctx, buf, dist, count, state):
         last_used = c
     # the coder's end (LASzip's ArithmeticEncoder::done)
     init_base = base
-    another = True
-    if length > 2 * _AC_MIN_LENGTH:
-        base = (base + _AC_MIN_LENGTH) & _M32
-        length = _AC_MIN_LENGTH >> 1
-    else:
-        base = (base + (_AC_MIN_LENGTH >> 1)) & _M32
-        length = _AC_MIN_LENGTH >> 9
-        another = False
+    another = length > 2 * _AC_MIN_LENGTH  # then the interval keeps 2**23 (one byte out, one zero more), else 2**15 (two)
+    base = (base + (_AC_MIN_LENGTH if another else _AC_MIN_LENGTH >> 1)) & _M32
     if init_base > base:
         _carry(buf, pos)
     if pos + 16 > cap:
         return -1, False
-    while length < _AC_MIN_LENGTH:
+    for _ in range(1 if another else 2):  # the renormalisation of those lengths
         buf[pos] = base >> 24
         pos += 1
         base = (base << 8) & _M32
-        length = length << 8
     buf[pos] = 0
     buf[pos + 1] = 0
     pos += 2
