@@ -58,6 +58,8 @@ def test_only_a_layered_input_whose_records_the_output_extends_is_copied():
     assert laz_layers.plan(v(1, 0), v(1, 21), 28, 49) is None  # point-wise LAZ (formats 0-5): no layers
     assert laz_layers.plan(v(6, 0), v(7, 21), 30, 57) is None  # a field added in the middle
     assert laz_layers.plan(v(6, 4), v(6, 4), 34, 34) is None  # nothing added
+    assert laz_layers.plan(v(6, 0)[:20], v(6, 21), 30, 51) is None  # a damaged VLR: coded whole, where it is reported
+    assert laz_layers.plan(v(6, 0)[:-1], v(6, 21), 30, 51) is None
     other = bytearray(v(6, 0))
     other[12:16] = (10_000).to_bytes(4, "little")  # another chunk size
     assert laz_layers.plan(bytes(other), v(6, 21), 30, 51) is None
@@ -226,3 +228,23 @@ def test_routes_are_recorded_where_an_output_can_copy_the_chunks_only():
     moved = shared_file("lidar-ign-extrabytes/las_with_several_extra_byte_bloc.laz")
     assert not routes_pay(open_catalog([moved]).sources[0])
     assert not routes_pay(open_catalog([shared_file("lidar-lastools/fusa.laz")]).sources[0])  # format 1: point-wise LAZ
+
+
+def test_segment_numbers_its_clusters_from_the_routes_and_writes_the_bytes_of_a_run_that_decodes(channels_laz, tmp_path,
+                                                                                                  monkeypatch):
+    from patchcloud.stream import segment
+    from patchcloud.stream.engine import ingest
+
+    calls = []
+    real = ingest.read_range
+    monkeypatch.setattr(ingest, "read_range", lambda *a, **k: calls.append(a[1:3]) or real(*a, **k))
+    run = dict(r_small=0.5, r_large=2.0, threshold=0.1, tolerance=0.5, min_cluster=5, tile_size=16, quiet=True, in_memory=False,
+               scheduler="threads", workers=1)
+    routed, decoded = tmp_path / "routed.laz", tmp_path / "decoded.laz"
+    segment(channels_laz, routed, **run)
+    assert len(calls) == len(set(calls))  # each part read once, by the ingest: neither the numbering nor the export decodes
+    monkeypatch.setattr(ingest, "routes_pay", lambda src: False)  # no routes: both read the records again
+    segment(channels_laz, decoded, **run)
+    assert len(calls) == 4 * len(set(calls[: len(calls) // 4]))
+    assert routed.read_bytes() == decoded.read_bytes()
+    assert np.asarray(laspy.read(str(routed)).ClusterID).max() > 1

@@ -46,7 +46,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, read_part, route_path, store_selection, tile_keys
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io import las_output
-from patchcloud.stream.io.las import check_writable, is_laz_name, output_header
+from patchcloud.stream.io.las import POSITION_AND_CLASS, check_writable, is_laz_name, output_header
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store
 
@@ -155,9 +155,18 @@ def _routed_values(store: Store, src, p: int, tid: np.ndarray, columns: list[Col
 
 
 def first_seen_part(url: str, p: int, f: int, first: int, count: int, columns: list[Column], laz_parallel: bool = False) -> list:
-    """Task: for each column to renumber, its ids in part ``p`` in the order they first appear (0 left out)."""
+    """Task: for each column to renumber, its ids in part ``p`` in the order they first appear (0 left out).
+
+    The points' tiles come from the part's route where the ingest recorded
+    one (nothing decoded), else from the records' positions and classes.
+    """
     store = Store.open(url)
-    _, values = _part_values(store, store.catalog, p, f, first, count, columns, laz_parallel)
+    cat = store.catalog
+    route = route_path(p)
+    if int(store.group_attrs(route).get("points", -1)) == count:
+        values = _routed_values(store, cat.sources[f], p, store.get(f"{route}/tile").astype(np.int64), columns, local=True)
+    else:
+        _, values = _part_values(store, cat, p, f, first, count, columns, laz_parallel, POSITION_AND_CLASS)
     out = []
     for v in values:
         v = np.asarray(v, dtype=np.int64).reshape(-1)

@@ -38,7 +38,7 @@ from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
     "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "part_size", "part_ranges", "catalog_parts", "part_path",
-    "scatter_part", "read_part", "route_path", "routes_pay", "ranged_extra_bytes", "part_selection", "store_selection",
+    "scatter_part", "read_part", "route_path", "routes_pay", "part_selection", "store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
@@ -216,13 +216,10 @@ def scatter_part(url: str, p: int, f: int, first: int, count: int, field: str = 
         return
     cat = store.catalog
     grid = store.grid
-    routed = field == "xyz" and routes_pay(cat.sources[f])  # then an export in memory need not keep the records either
-    selection = None
-    if field == "xyz" and (routed or not store.in_memory):  # what places the points, and what the export's header needs
-        ranged = routed and ranged_extra_bytes(cat.sources[f])
-        selection = POSITION_AND_CLASS | (laspy.DecompressionSelection.ALL_EXTRA_BYTES if ranged else 0)
-    records = read_part(store, p, cat.sources[f], first, count, laz_parallel, whole=field == "record", selection=selection,
-                        keep=not routed)
+    # a route: the export copies the part's compressed chunks as they are, so every field is decoded here, once (a
+    # damaged chunk is then one error now, not an output that cannot be read); an export in memory keeps no records
+    routed = field == "xyz" and routes_pay(cat.sources[f])
+    records = read_part(store, p, cat.sources[f], first, count, laz_parallel, whole=field == "record" or routed, keep=not routed)
     all_records = records
     keep, left_out, by_class = part_selection(store_selection(store), records)
     if not keep.all():
@@ -267,17 +264,6 @@ def routes_pay(src: LasSource) -> bool:
 _PROBE_DIMS = (("PatchcloudRouteProbe", np.float32, "probe"),)
 
 
-def ranged_extra_bytes(src: LasSource) -> bool:
-    """Whether ``src`` has extra-bytes dimensions whose range an output's header records (typed ones)."""
-    with laspy.open(src.path) as reader:
-        return bool(_typed_extra(reader.header))
-
-
-def _typed_extra(header: laspy.LasHeader) -> list:
-    vlrs = header.vlrs.get("ExtraBytesVlr")
-    return [st for st in vlrs[0].extra_bytes_structs if st.data_type != 0] if vlrs else []
-
-
 def _put_route(store: Store, p: int, src: LasSource, records: np.ndarray, keep: np.ndarray, order: np.ndarray,
                starts: np.ndarray, ends: np.ndarray) -> None:
     """Record part ``p``'s route, so that its export need not decode the input's records again
@@ -319,7 +305,7 @@ def read_part(store: Store, p: int, src: LasSource, first: int, count: int, laz_
     path = f"inputs/{p:06d}"
     if store.in_memory and store.has_array(path):
         return store.get(path)
-    if store.in_memory and keep:
+    if store.in_memory:
         selection = None
     elif selection is None and not whole:
         selection = POSITION_AND_CLASS

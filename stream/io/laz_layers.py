@@ -61,9 +61,13 @@ def read_vlr_items(record_data: bytes) -> tuple[int, int, list[tuple[int, int, i
     (3, 50000, [(10, 30, 3), (14, 16, 3)])
     """
     data = bytes(record_data)
+    if len(data) < 34:
+        raise ValueError(f"a LASzip VLR of {len(data)} bytes, fewer than its 34 fixed ones")
     compressor, = struct.unpack_from("<H", data, 0)
     chunk, = struct.unpack_from("<I", data, 12)
     n, = struct.unpack_from("<H", data, 32)
+    if len(data) < 34 + 6 * n:
+        raise ValueError(f"a LASzip VLR of {len(data)} bytes, too short for its {n} items")
     items = [struct.unpack_from("<3H", data, 34 + 6 * i) for i in range(n)]
     return int(compressor), int(chunk), [tuple(int(v) for v in it) for it in items]
 
@@ -86,8 +90,11 @@ def plan(in_vlr: bytes, out_vlr: bytes, in_size: int, out_size: int) -> LayeredP
     ``in_size``, ``out_size``: the records' bytes; the output's first ``in_size`` bytes must be the input record as
     it is (the caller checks that its fields sit where they were).
     """
-    ci, chunk_in, items_in = read_vlr_items(in_vlr)
-    co, chunk_out, items_out = read_vlr_items(out_vlr)
+    try:
+        ci, chunk_in, items_in = read_vlr_items(in_vlr)
+        co, chunk_out, items_out = read_vlr_items(out_vlr)
+    except ValueError:  # a damaged VLR: the records are read and coded whole, where its damage is reported
+        return None
     if ci != 3 or co != 3 or chunk_in != chunk_out or chunk_in in (0, _VARIABLE) or out_size <= in_size:
         return None
     if any(v != 3 for _, _, v in items_in + items_out) or not items_in or items_in[0][0] != _POINT14:
