@@ -59,12 +59,14 @@ def test_ctrl_c_in_a_terminal_with_worker_processes_is_one_line_and_resumes(tmp_
     out = tmp_path / "out.las"
     cmd = [sys.executable, "-c", "from patchcloud.stream.cli import main; main()", "normals", str(src), str(out),
            "--scheduler", "processes", "--workers", "2", "--tile-size", "4"]
-    p = subprocess.Popen(cmd + ["-q"], stderr=subprocess.PIPE, text=True, start_new_session=True)
+    # SIGINT as a terminal leaves it, even where this test runs in the background (which ignores it, and a child inherits that)
+    p = subprocess.Popen(cmd + ["-q"], stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     store = tmp_path / "out.las.store"
     deadline = time.time() + 120
     while not (store / "tiles").exists() and p.poll() is None and time.time() < deadline:
         time.sleep(0.2)
-    time.sleep(0.5)  # the workers at work (the whole run takes a few seconds: 2 s let it end first, once)
+    time.sleep(2)
     os.killpg(p.pid, signal.SIGINT)
     err = p.communicate(timeout=120)[1]
     lines = [ln for ln in err.splitlines() if ln.strip()]
