@@ -137,7 +137,7 @@ def _routed_values(store: Store, src, p: int, tid: np.ndarray, columns: list[Col
     kept = np.flatnonzero(tid >= 0)
     t = tid[kept]
     if local:
-        t = rows[:, 1][t] if rows.size else t
+        t = rows[:, 1][t]
     counts = np.bincount(t, minlength=len(store.tiles))
     if not np.array_equal(counts[rows[:, 1]], rows[:, 2]) or counts.sum() != rows[:, 2].sum():
         raise PatchcloudIOError(f"{src.path}: the file no longer matches the store {store.url} (part {p})")
@@ -231,8 +231,8 @@ def _export_routed(store: Store, src, p: int, local: int, first: int, count: int
     part (made by an older version) or it does not fit the output's header: the records are then decoded."""
     route = route_path(p)
     info = store.group_attrs(route)
-    if "stats" not in info or int(info.get("points", -1)) != count or header.version.minor >= 5:
-        return None  # (LAS 1.5 records the GPS time range, which the ingest does not decode)
+    if "stats" not in info or int(info.get("points", -1)) != count:
+        return None
     part_stats = las_output.PointStats.from_json(info["stats"])
     b = header.point_format.dtype()
     in_size = layered.plan.in_size

@@ -281,10 +281,9 @@ def _put_route(store: Store, p: int, src: LasSource, records: np.ndarray, keep: 
     stats = las_output.point_stats(header, packed)
     route = route_path(p)
     store.put(f"{route}/tile", tile)
-    if header.point_format.id >= 6:
-        channel = np.asarray(packed["scanner_channel"], dtype=np.uint8)
-        if channel.any():
-            store.put(f"{route}/channel", channel)
+    channel = np.asarray(packed["scanner_channel"], dtype=np.uint8)  # (a layered format: routes_pay)
+    if channel.any():
+        store.put(f"{route}/channel", channel)
     store.set_group_attrs(route, stats=stats.to_json(), points=n)
 
 

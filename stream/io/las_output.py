@@ -42,6 +42,7 @@ from laspy.vlrs.known import LasZipVlr
 from patchcloud.core import PatchcloudIOError
 
 from . import laz_layers
+from .las import laz_point_range
 
 __all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
            "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "restate"]
@@ -328,23 +329,19 @@ def layered_source(path: str | os.PathLike, header: laspy.LasHeader, new_dims) -
     lp = laz_layers.plan(zips[0].record_data, outs[0].record_data, a.itemsize, b.itemsize)
     if lp is None or lp.chunk != LAZ_CHUNK:
         return None
+    n = int(h_in.point_count)
+    # the chunks hold exactly the header's points (its last chunk's own count read; the table checked before lazrs
+    # allocates it), else, e.g. a header that counts fewer points than the last chunk holds, read and coded whole
+    if laz_point_range(path, h_in.offset_to_point_data, a.itemsize, h_in.point_format.id) != (n, n):
+        return None
     try:
         table = laz_layers.chunk_table(path, h_in.offset_to_point_data, zips[0].record_data)
     except Exception:  # no usable chunk table: the records are read and coded whole, as before
         return None
-    n = int(h_in.point_count)
-    if len(table) != -(-n // lp.chunk) or _points_in_chunk(path, table[-1], lp) != n - (len(table) - 1) * lp.chunk:
-        return None  # e.g. a header that counts fewer points than the last chunk holds: read and coded whole
+    if len(table) != -(-n // lp.chunk):
+        return None
     selection = LAYERED_SELECTION | (laspy.DecompressionSelection.GPS_TIME if header.version.minor >= 5 else 0)
     return LayeredSource(path=str(path), plan=lp, chunks=table, selection=selection)
-
-
-def _points_in_chunk(path, entry, lp: laz_layers.LayeredPlan) -> int:
-    """The point count a layered chunk (``entry``: its offset and size) says it holds; -1 if it cannot be read."""
-    with open(path, "rb") as f:
-        f.seek(int(entry[0]) + lp.in_size)
-        raw = f.read(4)
-    return struct.unpack("<I", raw)[0] if len(raw) == 4 and entry[1] >= lp.in_size + 4 else -1
 
 
 def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSource, first: int, new: np.ndarray,

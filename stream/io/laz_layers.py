@@ -48,9 +48,9 @@ __all__ = ["LayeredPlan", "plan", "read_vlr_items", "byte_contexts", "byte_layer
 #: Layers of a ``POINT14`` item (LASzip 3: changed values with X and Y, Z, classification, flags, intensity, scan angle,
 #: user data, point source, GPS time).
 POINT14_LAYERS = 9
-#: Layers of each other item type of a layered chunk (RGB14, RGBNIR14, BYTE14: one per byte, set apart).
-_LAYERS = {10: POINT14_LAYERS, 11: 1, 12: 2}
-_POINT14, _RGB14, _RGBNIR14, _WAVE14, _BYTE14 = 10, 11, 12, 13, 14
+_POINT14, _RGB14, _RGBNIR14, _BYTE14 = 10, 11, 12, 14  # LASzip's item types (13, WAVEPACKET14, is not copied)
+#: Layers of each item type of a layered chunk but BYTE14 (one layer per byte, counted apart).
+_LAYERS = {_POINT14: POINT14_LAYERS, _RGB14: 1, _RGBNIR14: 2}
 _VARIABLE = 0xFFFFFFFF
 
 
