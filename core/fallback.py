@@ -136,9 +136,10 @@ def _knn(points, qi, k, grid, whole: list, reach: int = 1) -> np.ndarray:
     far = np.flatnonzero(dist[:, -1] > reach * h)
     if far.size:
         nxt = reach * 4
-        # the whole cloud when the cells around the queries would be many (a lone point: (2 reach + 1)^3 cells each)
+        # the cells around the queries would be many (a lone point: (2 reach + 1)^3 cells each): the points within a
+        # distance of them instead, found in one pass over the cloud (a grid over all of it costs a sort of the cloud)
         if nxt >= (1 << level) or far.size > 256 or far.size * (2 * nxt + 1) ** 3 > 1 << 20:
-            nb[far] = _knn(points, qi[far], k, None, whole)
+            nb[far] = _knn_near(points, qi[far], k, nxt * h, whole)
         else:
             nb[far] = _knn(points, qi[far], k, grid, whole, nxt)
     return nb

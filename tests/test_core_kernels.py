@@ -78,17 +78,22 @@ def test_knn_pca_matches_a_direct_pca(rng):
     assert abs(np.median(np.maximum(np.abs(k1), np.abs(k2))) - 0.6) < 0.1
 
 
-def test_grid_knn_equals_whole_cloud_knn(rng):
-    # isolated points far from the rest force the widening search
-    p = np.concatenate([rng.uniform(0, 1, (4000, 3)), rng.uniform(5, 6, (3, 3))])
+@pytest.mark.parametrize("lone", [3, 1500])
+def test_grid_knn_equals_whole_cloud_knn(rng, lone):
+    # isolated points far from the rest force the widening search (1,500: more than the cells around them are searched for)
+    p = np.concatenate([rng.uniform(0, 1, (4000, 3)), rng.uniform(2, 7.9, (lone, 3))])
     from patchcloud.core.octree import sort_points
 
     order, keys, q = sort_points(p, np.zeros(3), 8.0)
     ps = p[order]
-    query = np.arange(0, len(ps), 3)
+    rank = np.argsort(order)  # where each point of p went
+    # the lone points (every third of the 1,500) and some of the dense ones: at most a tenth of the cloud, or
+    # knn_normals searches the whole cloud and the grid is not used
+    query = np.sort(np.r_[rank[4000::1 if lone < 100 else 3], rank[:4000:100]])
+    assert query.size <= len(ps) // 10
     a = knn_normals(ps, query, 10, grid=(q, keys, 5, 8.0 / 32))[5]
     b = knn_normals(ps, query, 10)[5]
-    assert np.array_equal(np.sort(a, axis=1), np.sort(b, axis=1))
+    assert np.array_equal(a, b)  # nearest first, ties by index
 
 
 @pytest.mark.parametrize("near", [0.02, 0.3, 5.0])
