@@ -13,6 +13,7 @@ import laspy
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import shared_file
 from test_stream import write_scene
 
 from patchcloud.core import PatchcloudIOError
@@ -43,6 +44,63 @@ def undescribed(tmp_path_factory):
     assert las.point_format.id == 2 and las.point_format.size == 38
     assert np.asarray(las[UNDESCRIBED_NAME]).shape == (len(las), 8)
     return path
+
+
+@pytest.fixture(scope="module")
+def two_blocks(tmp_path_factory):
+    """A LAS 1.4 file of point format 3 whose extra bytes are described by two ExtraBytes VLRs: TrueNormal (4 bytes) by
+    the first, ``conf`` (1 byte) by the second, as in IGN's las_with_several_extra_byte_bloc.laz.  laspy and PDAL read
+    the first VLR only: the last byte of each record is undescribed, one byte, which laspy describes as an unsigned
+    char (not as "undocumented extra bytes") when it adds dimensions."""
+    d = tmp_path_factory.mktemp("odd2")
+    src = d / "pf3.las"
+    write_scene(src, n=6_000, seed=4, point_format=3, extra=True)
+    las = laspy.read(str(src))
+    las.add_extra_dim(laspy.ExtraBytesParams(name="conf", type=np.uint8))
+    las.conf = (np.arange(len(las)) % 251).astype(np.uint8)
+    one = d / "one_vlr.las"
+    las.write(str(one))
+    raw = one.read_bytes()
+    vlr_at, n_vlrs, data_at = struct.unpack_from("<H", raw, 94)[0], struct.unpack_from("<I", raw, 100)[0], struct.unpack_from("<I", raw, 96)[0]
+    at, out = vlr_at, bytearray(raw[:vlr_at])
+    for _ in range(n_vlrs):  # the ExtraBytes VLR's two entries into two VLRs
+        size = struct.unpack_from("<H", raw, at + 20)[0]
+        head, body = bytearray(raw[at : at + 54]), raw[at + 54 : at + 54 + size]
+        if raw[at + 2 : at + 18].rstrip(b"\0") == b"LASF_Spec" and struct.unpack_from("<H", raw, at + 18)[0] == 4:
+            assert size == 2 * 192
+            for part in (body[:192], body[192:]):
+                struct.pack_into("<H", head, 20, 192)
+                out += head + part
+        else:
+            out += head + body
+        at += 54 + size
+    assert at == data_at
+    out += raw[data_at:]
+    struct.pack_into("<I", out, 96, data_at + 54)
+    struct.pack_into("<I", out, 100, n_vlrs + 1)
+    if struct.unpack_from("<Q", out, 235)[0]:
+        struct.pack_into("<Q", out, 235, struct.unpack_from("<Q", out, 235)[0] + 54)
+    path = d / "two_blocks.las"
+    path.write_bytes(bytes(out))
+    back = laspy.read(str(path))
+    assert list(back.point_format.dimension_names)[-2:] == ["TrueNormal", UNDESCRIBED_NAME]
+    assert np.array_equal(np.asarray(back[UNDESCRIBED_NAME]).ravel(), las.conf)
+    return path
+
+
+@pytest.mark.parametrize("name", ["out.las", "out.laz"])
+def test_one_undescribed_byte_after_a_second_extra_bytes_vlr_is_kept_last_and_undescribed(two_blocks, tmp_path, name):
+    out = tmp_path / name
+    r = CliRunner().invoke(main, ["normals", str(two_blocks), str(out), "-q", "--scheduler", "synchronous"])
+    assert r.exit_code == 0, r.output
+    a, b = laspy.read(str(two_blocks)), laspy.read(str(out))
+    for dim in a.point_format.dimension_names:
+        assert np.array_equal(np.asarray(a[dim]), np.asarray(b[dim])), dim
+    assert list(b.point_format.dimension_names)[-1] == UNDESCRIBED_NAME
+    assert _described(b) == ["TrueNormal", "NormalX", "NormalY", "NormalZ", "Curvature", "NormalMethod", "PatchId"]
+    n = np.column_stack([b.NormalX, b.NormalY, b.NormalZ])
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+    assert set(np.unique(b.NormalMethod)) <= {1, 2, 3, 4}
 
 
 def _described(las) -> list[str]:
@@ -145,3 +203,21 @@ def test_an_array_extra_dimension_survives_compress_and_decompress(tmp_path):
     assert np.asarray(b.Velocity).tobytes() == np.asarray(a.Velocity).tobytes()  # every value, bit for bit, in input order
     d = np.sqrt((a.x - b.x) ** 2 + (a.y - b.y) ** 2 + (a.z - b.z) ** 2)
     assert 0 < d.max() <= 0.02  # the default budget, the file's grid 1 mm
+
+
+def test_the_real_ign_file_with_two_extra_bytes_vlrs_reads_back_with_its_normals(tmp_path):
+    """IGN's file whose second ExtraBytes VLR describes a last byte that laspy and PDAL do not read: its output's
+    ExtraBytes VLR describes what is where (it said the new dimensions began a byte early: laspy and PDAL read
+    normals of 1e37 until 2026-11-26)."""
+    src = shared_file("lidar-ign-extrabytes/las_with_several_extra_byte_bloc.laz")
+    out = tmp_path / "out.laz"
+    r = CliRunner().invoke(main, ["normals", str(src), str(out), "-q"])
+    assert r.exit_code == 0, r.output
+    a, b = laspy.read(str(src)), laspy.read(str(out))
+    for dim in a.point_format.dimension_names:
+        assert np.array_equal(np.asarray(a[dim]), np.asarray(b[dim])), dim
+    done = np.asarray(b.NormalMethod) > 0
+    assert done.mean() > 0.95
+    n = np.column_stack([b.NormalX, b.NormalY, b.NormalZ])[done]
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+    assert np.median(n[:, 2]) > 0.9  # 98 % ground, normals up

@@ -711,10 +711,17 @@ def undescribed_last(header: laspy.LasHeader) -> laspy.LasHeader:
     pf.dimensions.remove(tail[0])
     pf.dimensions.append(tail[0])
     structs = vlrs[0].extra_bytes_structs
-    structs[:] = [st for st in structs if st.format_name() != UNDESCRIBED_NAME or st.data_type != 0]
+    # laspy describes them as "undocumented extra bytes" (data type 0), but one byte as an unsigned char (data type 1),
+    # with its own description: left in the VLR, that entry would say the added dimensions start a byte further
+    structs[:] = [st for st in structs if st.format_name() != UNDESCRIBED_NAME or (st.data_type != 0 and not _laspy_described(st))]
     if not structs:
         header.vlrs.pop(header.vlrs.index("ExtraBytesVlr"))
     return header
+
+
+def _laspy_described(st: ExtraBytesStruct) -> bool:
+    """Whether an extra-bytes entry is laspy's own description of undescribed bytes (not one read from a file)."""
+    return bytes(st.description).split(b"\0", 1)[0].decode("ascii", "replace") == UNDESCRIBED_DESCRIPTION
 
 
 def raw_header(path: str | os.PathLike) -> tuple[bytes, bytes]:
