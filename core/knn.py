@@ -274,13 +274,22 @@ def _rings(points, ids, cells, starts, corner, edge, level, levels, qx, qy, qz, 
     # the query's distance to the nearest face of its own cell: a point beyond ring r is at least r edges farther
     inner = min(min(min(fx - cx, cx + 1 - fx), min(fy - cy, cy + 1 - fy)), min(fz - cz, cz + 1 - fz)) * edge
     far = max(max(max(abs(cx), abs(cx - n + 1)), max(abs(cy), abs(cy - n + 1))), max(abs(cz), abs(cz - n + 1)))
+    k = bd.size
     for r in range(3):
         for i in range(max(cx - r, 0), min(cx + r, n - 1) + 1):
+            gx = max(max(i - fx, fx - (i + 1)), 0.0)  # the query's distance to the cells' slab, in edges
             for j in range(max(cy - r, 0), min(cy + r, n - 1) + 1):
+                gy = max(max(j - fy, fy - (j + 1)), 0.0)
                 side = abs(i - cx) == r or abs(j - cy) == r
                 for t in range(2 * r + 1 if side else 2):
                     z = cz - r + t if side else (cz - r if t == 0 else cz + r)
                     if z < 0 or z >= n:
+                        continue
+                    # a cell whose every point would be farther than the limit or than the k-th nearest so far
+                    # (with a margin for rounding, and a tie kept: it may hold a smaller index) is not looked up
+                    gz = max(max(z - fz, fz - (z + 1)), 0.0)
+                    gap = (gx * gx + gy * gy + gz * gz) * edge * edge * (1.0 - 1e-9)
+                    if gap > limit or gap > bd[k - 1]:
                         continue
                     key = _kernels.morton_key(i, j, z) << shift
                     a = _lower_bound(cells, key)
@@ -324,18 +333,22 @@ def _search(points, ids, cells, starts, corner, edge, levels, queries, limit, di
     # around a query hold every point within the limit, so a query with none there is done at once
     coarse = -1
     coarse_edge = edge
-    if limit < np.inf:
+    first, first_edge = levels, edge  # with a finite limit: the finest level whose two rings reach past the limit (no
+    if limit < np.inf:                # second try on larger cells; the cells of the rings beyond the limit are skipped)
         coarse = levels
         while coarse > 0 and coarse_edge * coarse_edge < limit:
             coarse -= 1
             coarse_edge *= 2.0
+        while first > 0 and 4.0 * first_edge * first_edge < limit:
+            first -= 1
+            first_edge *= 2.0
     for m in prange(queries.shape[0]):
         bd = dist[m]
         bi = idx[m]
         if coarse >= 0 and not _any_near(cells, corner, coarse_edge, coarse, levels, queries[m, 0], queries[m, 1], queries[m, 2]):
             continue
-        level = levels
-        e = edge
+        level = first
+        e = first_edge
         while True:
             if level == 0:  # the root cell: every point
                 _offer(points, ids, 0, points.shape[0], queries[m, 0], queries[m, 1], queries[m, 2], limit, bd, bi)
