@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "CHUNK"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "CHUNK"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -380,7 +380,7 @@ def cell_moments(local, starts, centres, out):
 
 
 @njit(cache=True, nogil=True)
-def _cholesky_solve6(G, b):
+def cholesky_solve6(G, b):
     """Solve ``G x = b`` for a symmetric positive definite 6x6 ``G`` (overwritten)."""
     for j in range(6):
         d = G[j, j]
@@ -621,7 +621,7 @@ def knn_pca(points, query, nb, normals, sigma3, k1s, k2s, dir1):
             tr += G[a, a]
         for a in range(6):
             G[a, a] += 1e-8 * tr / 6.0 + 1e-300
-        beta = _cholesky_solve6(G, rhs)
+        beta = cholesky_solve6(G, rhs)
         coeffs = np.empty((1, 6))
         coeffs[0, 0], coeffs[0, 1], coeffs[0, 2] = beta[0] / s, beta[1] / s, beta[2] / s
         coeffs[0, 3], coeffs[0, 4], coeffs[0, 5] = beta[3], beta[4], beta[5] * s

@@ -29,6 +29,7 @@ __all__ = [
     "shift_entries",
     "pca",
     "quadric_normal_equations",
+    "TENSOR_INDEX",
 ]
 
 #: Exponent triples (a, b, c) of the 35 monomials, ordered by degree.
@@ -52,6 +53,9 @@ def _tensor_index(order: int) -> np.ndarray:
 
 
 _T1, _T2, _T3, _T4 = (_tensor_index(k) for k in (1, 2, 3, 4))
+#: The moment index of every entry of the symmetric moment tensors of degree 2, 3 and 4: (3, 3), (3, 3, 3), (3, 3, 3, 3)
+#: int64 (what :func:`patchcloud.core._fit_kernels.fit_quadrics` reads the moments through).
+TENSOR_INDEX = (_T2, _T3, _T4)
 
 # Binomial shift: (p + d)^alpha = sum_{beta <= alpha} C(alpha, beta) d^(alpha - beta) p^beta.
 _pairs = [

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .moments import pca, quadric_normal_equations
+from ._fit_kernels import fit_quadrics
+from .moments import TENSOR_INDEX
 
 __all__ = ["NodeFit", "fit_nodes", "surface_normals", "surface_curvatures", "implicit_value", "turn_over"]
 
@@ -75,35 +76,15 @@ def fit_nodes(moments: np.ndarray, half_edge: np.ndarray, quadric: bool = True) 
     quadric : bool
         When False only the PCA is computed and ``coeffs``/``rmse`` are zeros/NaN.
     """
-    count = moments[:, 0]
-    mean, eig, frame = pca(moments)
+    moments = np.ascontiguousarray(moments, dtype=np.float64)
     m = moments.shape[0]
-    if not quadric or m == 0:
-        return NodeFit(count, mean, eig, frame, np.zeros((m, 6)), np.full(m, np.nan))
-    s = half_edge
-    G, b, ww = quadric_normal_equations(moments, frame, s)
-    # A tiny ridge keeps degenerate nodes (all points on a line) solvable.
-    ridge = 1e-13 * np.trace(G, axis1=1, axis2=2) / 6.0 + 1e-300
-    Gr = G + ridge[:, None, None] * np.eye(6)
-    beta = np.linalg.solve(Gr, b[:, :, None])[:, :, 0]
-    rss = ww - 2.0 * np.einsum("ni,ni->n", beta, b) + np.einsum("ni,nij,nj->n", beta, G, beta)
-    rmse = s * np.sqrt(np.maximum(rss, 0.0) / np.maximum(count, 1.0))
-    # back to metres, origin at the node centre
-    a, bb, c = beta[:, 0] / s, beta[:, 1] / s, beta[:, 2] / s
-    d, e, f = beta[:, 3], beta[:, 4], beta[:, 5] * s
-    # move the origin to the centroid: (u0, v0, w0) = frame.T @ mean
-    u0, v0, w0 = np.einsum("nai,na->ni", frame, mean).T
-    coeffs = np.stack(
-        [
-            a,
-            bb,
-            c,
-            d + 2 * a * u0 + bb * v0,
-            e + bb * u0 + 2 * c * v0,
-            a * u0 * u0 + bb * u0 * v0 + c * v0 * v0 + d * u0 + e * v0 + f - w0,
-        ],
-        axis=1,
-    )
+    mean, eig, frame = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3, 3))
+    coeffs, rmse = np.zeros((m, 6)), np.full(m, np.nan)
+    if m:  # one compiled loop: the PCA, the normal equations (with a tiny ridge, so that a node whose points lie on a
+        # line is solvable) and the solve, node by node (moments.pca and quadric_normal_equations are its reference)
+        fit_quadrics(moments, np.ascontiguousarray(np.broadcast_to(half_edge, (m,)), dtype=np.float64), *TENSOR_INDEX,
+                     bool(quadric), mean, eig, frame, coeffs, rmse)
+    count = moments[:, 0]
     return NodeFit(count, mean, eig, frame, coeffs, rmse)
 
 
