@@ -185,6 +185,12 @@ class Runner:
                 raise PatchcloudValueError(f"cannot reach the dask scheduler at {self.scheduler} ({exc})") from exc
             info = self._client.scheduler_info()
             self.slots = max(1, sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()))
+            from patchcloud.stream.engine.worker_setup import tune_running_worker
+
+            try:  # zarr's threads, one per task thread (stream.io.store.limit_zarr_threads): what a local worker's set-up does
+                self._client.run(tune_running_worker)
+            except Exception:  # a worker that cannot (an older patchcloud, ...) keeps zarr's default
+                pass
             self.ready_at = time.time()
             return
         # the local cluster starts in the background while the caller gets on (opening the input, making the store)

@@ -27,8 +27,9 @@ import sys
 
 from patchcloud.stream.engine.allocator import tune_allocator
 from patchcloud.stream.engine.numba_start import skip_numba_blas_probe
+from patchcloud.stream.io.store import limit_zarr_threads
 
-__all__ = ["dask_setup", "exit_now"]
+__all__ = ["dask_setup", "exit_now", "worker_threads", "tune_running_worker"]
 
 
 def exit_now() -> None:
@@ -50,8 +51,25 @@ def exit_now() -> None:
 
 def dask_setup(worker) -> None:
     """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT, tune the allocator, skip
-    numba's BLAS probe (:mod:`~patchcloud.stream.engine.numba_start`), leave at once at exit (see the module's notes)."""
+    numba's BLAS probe (:mod:`~patchcloud.stream.engine.numba_start`), have zarr code chunks on as many threads as the
+    worker runs tasks (:func:`~patchcloud.stream.io.store.limit_zarr_threads`), leave at once at exit (see the module's
+    notes)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tune_allocator()
     skip_numba_blas_probe()
+    limit_zarr_threads(worker_threads(worker))
     atexit.register(exit_now)
+
+
+def tune_running_worker(dask_worker=None) -> None:
+    """What :func:`dask_setup` sets that a worker already running needs too (a worker of another cluster, reached by
+    its scheduler's address, which preloads nothing of patchcloud's): zarr's threads, set by ``Client.run`` as the run
+    connects.  A worker that has coded chunks before keeps the pool it made then."""
+    limit_zarr_threads(worker_threads(dask_worker))
+
+
+def worker_threads(worker) -> int:
+    """How many tasks a dask worker runs at once (1 without a worker: a test's, or one too old to say)."""
+    state = getattr(worker, "state", None)
+    n = getattr(state, "nthreads", None) or getattr(worker, "nthreads", None)
+    return int(n) if n else 1
