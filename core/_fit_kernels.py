@@ -43,7 +43,6 @@ def fit_quadrics(moments, half_edge, t2, t3, t4, quadric, mean, eig, frame, coef
     chunks = (M + CHUNK - 1) // CHUNK
     for chunk in prange(chunks):
         cov = np.empty((3, 3))
-        work = np.empty((3, 3))
         w = np.empty(3)
         vec = np.empty((3, 3))
         e = np.empty((3, 3))  # rows: e1, e2, e3
@@ -65,7 +64,7 @@ def fit_quadrics(moments, half_edge, t2, t3, t4, quadric, mean, eig, frame, coef
             for a in range(3):
                 for b in range(3):
                     cov[a, b] = moments[m, t2[a, b]] / n - mean[m, a] * mean[m, b]
-            eigh3_into(cov, work, w, vec)
+            eigh3_into(cov, w, vec)
             eig[m, 0], eig[m, 1], eig[m, 2] = max(w[2], 0.0), max(w[1], 0.0), max(w[0], 0.0)
             sgn = -1.0 if vec[0, 0] * 1e-3 + vec[1, 0] * 1e-2 + vec[2, 0] < 0 else 1.0
             for a in range(3):

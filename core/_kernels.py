@@ -425,20 +425,18 @@ def _plane_normal(vec):
 @njit(cache=True, nogil=True)
 def eigh3(A):
     """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric 3x3 matrix (:func:`eigh3_into`)."""
-    a = A.copy()
-    work = np.empty((3, 3))
     w = np.empty(3)
     v = np.empty((3, 3))
-    eigh3_into(a, work, w, v)
+    eigh3_into(A, w, v)
     return w, v
 
 
 @njit(cache=True, nogil=True)
-def eigh3_into(a, work, w, v):
+def eigh3_into(a, w, v):
     """:func:`eigh3` without allocating: reads the upper triangle of ``a`` (3, 3); writes ``w`` (3,) and ``v`` (3, 3).
 
-    ``work`` (3, 3) is scratch.  Closed form, after D. Eberly, "A Robust
-    Eigensolver for 3 x 3 Symmetric Matrices" (Geometric Tools, 2014): the
+    Closed form, after D. Eberly, "A Robust Eigensolver for 3 x 3
+    Symmetric Matrices" (Geometric Tools, 2014): the
     matrix is scaled by its largest entry; the eigenvalues are those of the
     trigonometric solution of the characteristic cubic; the eigenvector of
     the eigenvalue farthest from the other two is the longest cross product
@@ -916,7 +914,6 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
         Q = np.empty(6)  # (xx, xy, xz, yy, yz, zz)
         v = np.empty(3)
         cov = np.empty((3, 3))
-        work = np.empty((3, 3))
         ev = np.empty(3)
         vec = np.empty((3, 3))
         at = np.empty(8, dtype=np.int64)  # the 8 cells' rows in ckeys (-1: empty), kept while the base cell stays
@@ -988,7 +985,7 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
             cov[1, 1] = Q[3] / W - my * my
             cov[1, 2] = Q[4] / W - my * mz
             cov[2, 2] = Q[5] / W - mz * mz
-            eigh3_into(cov, work, ev, vec)
+            eigh3_into(cov, ev, vec)
             l0, l1, l2 = max(ev[0], 0.0), max(ev[1], 0.0), max(ev[2], 0.0)
             tot = l0 + l1 + l2
             sigma3[m] = l0 / tot if tot > 0 else 0.0

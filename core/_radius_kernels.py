@@ -276,7 +276,6 @@ def pca_normals(moments, query, viewpoint, min_points, normals, variation):
     chunks = (M + CHUNK - 1) // CHUNK
     for chunk in prange(chunks):  # scratch allocated once per chunk of rows, not once per row
         cov = np.empty((3, 3))
-        work = np.empty((3, 3))
         w = np.empty(3)
         v = np.empty((3, 3))
         for m in range(chunk * CHUNK, min(M, (chunk + 1) * CHUNK)):
@@ -294,7 +293,7 @@ def pca_normals(moments, query, viewpoint, min_points, normals, variation):
             cov[1, 2] = moments[m, 8] / n - my * mz
             cov[2, 2] = moments[m, 9] / n - mz * mz
             cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
-            eigh3_into(cov, work, w, v)
+            eigh3_into(cov, w, v)
             if not (w[1] > 1e-12 * w[2]) or w[2] <= 0.0:
                 for a in range(3):
                     normals[m, a] = np.nan

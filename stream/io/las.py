@@ -500,33 +500,29 @@ class _LazChunks:
     header: laspy.LasHeader
     vlr: bytes
     chunk: int
-    starts: np.ndarray
-    sizes: np.ndarray
+    table: np.ndarray  # (C, 2): each chunk's byte offset and byte count (laz_layers.chunk_table)
 
 
 @functools.lru_cache(maxsize=8)
 def _laz_chunks(path: str, size: int, mtime_ns: int) -> _LazChunks | None:
     """The chunk table of a LAZ file of fixed-size chunks (read once per file version), or None (variable chunks, no
     table, or anything unexpected: the caller then reads as laspy does)."""
+    from . import laz_layers  # (numba: not for a command that only reads headers)
+
     try:
         with open(path, "rb") as f:
             header = laspy.LasHeader.read_from(f)
-            vlrs = header.vlrs.get("LasZipVlr")
-            if not vlrs:
-                return None
-            data = bytes(vlrs[0].record_data)
-            vlr = lazrs.LazVlr(data)
-            if vlr.uses_variable_size_chunks() or struct.unpack("<H", data[:2])[0] == POINTWISE_COMPRESSOR:
-                return None
-            f.seek(header.offset_to_point_data)
-            table = lazrs.read_chunk_table(f, vlr)
+        vlrs = header.vlrs.get("LasZipVlr")
+        if not vlrs:
+            return None
+        data = bytes(vlrs[0].record_data)
+        vlr = lazrs.LazVlr(data)
+        if vlr.uses_variable_size_chunks() or struct.unpack("<H", data[:2])[0] == POINTWISE_COMPRESSOR:
+            return None
+        table = laz_layers.chunk_table(path, header.offset_to_point_data, data)
     except Exception:
         return None
-    if not table:
-        return None
-    sizes = np.array([int(c[1]) for c in table], dtype=np.int64)
-    starts = header.offset_to_point_data + 8 + np.r_[0, np.cumsum(sizes)[:-1]]
-    return _LazChunks(header, data, int(vlr.chunk_size()), starts, sizes)
+    return _LazChunks(header, data, int(vlr.chunk_size()), table) if len(table) else None
 
 
 def _read_whole_chunks(src: LasSource, first: int, count: int, selection) -> laspy.ScaleAwarePointRecord | None:
@@ -544,16 +540,17 @@ def _read_whole_chunks(src: LasSource, first: int, count: int, selection) -> las
     if plan is None or first % plan.chunk or first + count > src.point_count:
         return None
     c0, c1 = first // plan.chunk, -(-(first + count) // plan.chunk)
-    if c1 > plan.sizes.size:
+    if c1 > len(plan.table):
         return None
     pf = plan.header.point_format
-    table = [(min(plan.chunk, src.point_count - c * plan.chunk), int(plan.sizes[c])) for c in range(c0, c1)]
+    starts, sizes = plan.table[:, 0], plan.table[:, 1]
+    table = [(min(plan.chunk, src.point_count - c * plan.chunk), int(sizes[c])) for c in range(c0, c1)]
     out = np.empty(sum(n for n, _ in table) * pf.size, dtype=np.uint8)
     sel = (selection if selection is not None else laspy.DecompressionSelection.all()).to_lazrs()
     try:
         with open(src.path, "rb") as f:
-            f.seek(int(plan.starts[c0]))
-            data = f.read(int(plan.sizes[c0:c1].sum()))
+            f.seek(int(starts[c0]))
+            data = f.read(int(sizes[c0:c1].sum()))
         lazrs.decompress_points_with_chunk_table(data, plan.vlr, out, table, sel)
     except Exception:
         return None
