@@ -24,8 +24,10 @@ def _chunks(data: bytes, vlr) -> list[bytes]:
     return out
 
 
-@pytest.mark.parametrize("pf, m, k, channels", [(6, 0, 21, 1), (6, 16, 21, 4), (7, 3, 5, 2), (8, 0, 24, 3)])
-def test_a_chunk_with_new_extra_bytes_is_the_one_lazrs_codes_from_the_whole_records(pf, m, k, channels):
+@pytest.mark.parametrize("pf, m, k, channels, tail", [(6, 0, 21, 1, 0), (6, 16, 21, 4, 0), (7, 3, 5, 2, 0), (8, 0, 24, 3, 0),
+                                                      (6, 16, 21, 4, 1), (8, 3, 5, 2, 3)])
+def test_a_chunk_with_new_extra_bytes_is_the_one_lazrs_codes_from_the_whole_records(pf, m, k, channels, tail):
+    # tail: the input's last extra bytes, which the output moves after the new ones (undescribed bytes)
     rng = np.random.default_rng(pf * 100 + k)
     n = 120_000  # 3 chunks, the last one short
     size = laspy.PointFormat(pf).size + m
@@ -37,10 +39,11 @@ def test_a_chunk_with_new_extra_bytes_is_the_one_lazrs_codes_from_the_whole_reco
     new[:, 1] = (np.arange(n) // 1000).astype(np.uint8)  # one that seldom does
     new[:, 2] = rng.choice(np.array([0, 255], np.uint8), n)  # the last symbol of the model, often
     vin, vout = lazrs.LazVlr.new_for_compression(pf, m), lazrs.LazVlr.new_for_compression(pf, m + k)
-    lp = laz_layers.plan(vin.record_data(), vout.record_data(), size, size + k)
-    assert lp == laz_layers.LayeredPlan(in_size=size, in_layers=9 + {6: 0, 7: 1, 8: 2}[pf] + m, new_bytes=k, chunk=50_000)
+    lp = laz_layers.plan(vin.record_data(), vout.record_data(), size, size + k, tail)
+    assert lp == laz_layers.LayeredPlan(in_size=size, in_layers=9 + {6: 0, 7: 1, 8: 2}[pf] + m, new_bytes=k, chunk=50_000, tail=tail)
     copied = _chunks(bytes(lazrs.compress_points(vin, rec.ravel(), False)), vin)
-    whole = _chunks(bytes(lazrs.compress_points(vout, np.concatenate([rec, new], axis=1).ravel(), False)), vout)
+    out = np.concatenate([rec[:, : size - tail], new, rec[:, size - tail :]], axis=1)
+    whole = _chunks(bytes(lazrs.compress_points(vout, out.ravel(), False)), vout)
     assert len(copied) == len(whole) == 3
     for c, (a, b) in enumerate(zip(copied, whole)):
         s = slice(c * 50_000, (c + 1) * 50_000)
@@ -58,6 +61,8 @@ def test_only_a_layered_input_whose_records_the_output_extends_is_copied():
     assert laz_layers.plan(v(1, 0), v(1, 21), 28, 49) is None  # point-wise LAZ (formats 0-5): no layers
     assert laz_layers.plan(v(6, 0), v(7, 21), 30, 57) is None  # a field added in the middle
     assert laz_layers.plan(v(6, 4), v(6, 4), 34, 34) is None  # nothing added
+    assert laz_layers.plan(v(6, 4), v(6, 25), 34, 55, tail=4) is not None  # the input's 4 extra bytes moved after the new
+    assert laz_layers.plan(v(6, 4), v(6, 25), 34, 55, tail=5) is None  # a point field moved
     assert laz_layers.plan(v(6, 0)[:20], v(6, 21), 30, 51) is None  # a damaged VLR: coded whole, where it is reported
     assert laz_layers.plan(v(6, 0)[:-1], v(6, 21), 30, 51) is None
     other = bytearray(v(6, 0))
@@ -223,10 +228,10 @@ def test_routes_are_recorded_where_an_output_can_copy_the_chunks_only():
 
     embedded = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
     assert routes_pay(open_catalog([embedded]).sources[0])  # format 8, chunks of 50,000
-    # format 8 too, but an output moves its second extra-bytes block (undescribed to laspy) last: coded whole, and in
-    # memory its records are kept from the ingest for the export, as before
+    # format 8 too, and an output moves its second extra-bytes block (undescribed to laspy) after the new dimensions:
+    # their layers too are moved, not coded again
     moved = shared_file("lidar-ign-extrabytes/las_with_several_extra_byte_bloc.laz")
-    assert not routes_pay(open_catalog([moved]).sources[0])
+    assert routes_pay(open_catalog([moved]).sources[0])
     assert not routes_pay(open_catalog([shared_file("lidar-lastools/fusa.laz")]).sources[0])  # format 1: point-wise LAZ
 
 

@@ -8,6 +8,7 @@ before lazrs allocates it (a failed allocation in Rust aborts the process).
 """
 
 import struct
+from pathlib import Path
 
 import laspy
 import numpy as np
@@ -46,19 +47,17 @@ def undescribed(tmp_path_factory):
     return path
 
 
-@pytest.fixture(scope="module")
-def two_blocks(tmp_path_factory):
-    """A LAS 1.4 file of point format 3 whose extra bytes are described by two ExtraBytes VLRs: TrueNormal (4 bytes) by
-    the first, ``conf`` (1 byte) by the second, as in IGN's las_with_several_extra_byte_bloc.laz.  laspy and PDAL read
-    the first VLR only: the last byte of each record is undescribed, one byte, which laspy describes as an unsigned
-    char (not as "undocumented extra bytes") when it adds dimensions."""
-    d = tmp_path_factory.mktemp("odd2")
-    src = d / "pf3.las"
-    write_scene(src, n=6_000, seed=4, point_format=3, extra=True)
+def _two_blocks(d, point_format: int, name: str, n: int = 6_000):
+    """A LAS 1.4 file (``name``: .las or .laz) of ``point_format`` whose extra bytes are described by two ExtraBytes VLRs:
+    TrueNormal (4 bytes) by the first, ``conf`` (1 byte) by the second, as in IGN's las_with_several_extra_byte_bloc.laz.
+    laspy and PDAL read the first VLR only: the last byte of each record is undescribed, one byte, which laspy describes
+    as an unsigned char (not as "undocumented extra bytes") when it adds dimensions."""
+    src = d / f"pf{point_format}.las"
+    write_scene(src, n=n, seed=4, point_format=point_format, extra=True)
     las = laspy.read(str(src))
     las.add_extra_dim(laspy.ExtraBytesParams(name="conf", type=np.uint8))
     las.conf = (np.arange(len(las)) % 251).astype(np.uint8)
-    one = d / "one_vlr.las"
+    one = d / f"one_vlr{Path(name).suffix}"
     las.write(str(one))
     raw = one.read_bytes()
     vlr_at, n_vlrs, data_at = struct.unpack_from("<H", raw, 94)[0], struct.unpack_from("<I", raw, 100)[0], struct.unpack_from("<I", raw, 96)[0]
@@ -80,12 +79,20 @@ def two_blocks(tmp_path_factory):
     struct.pack_into("<I", out, 100, n_vlrs + 1)
     if struct.unpack_from("<Q", out, 235)[0]:
         struct.pack_into("<Q", out, 235, struct.unpack_from("<Q", out, 235)[0] + 54)
-    path = d / "two_blocks.las"
+    if name.endswith(".laz"):  # the chunk table's offset, the points' first 8 bytes
+        struct.pack_into("<q", out, data_at + 54, struct.unpack_from("<q", out, data_at + 54)[0] + 54)
+    path = d / name
     path.write_bytes(bytes(out))
     back = laspy.read(str(path))
     assert list(back.point_format.dimension_names)[-2:] == ["TrueNormal", UNDESCRIBED_NAME]
     assert np.array_equal(np.asarray(back[UNDESCRIBED_NAME]).ravel(), las.conf)
     return path
+
+
+@pytest.fixture(scope="module")
+def two_blocks(tmp_path_factory):
+    """:func:`_two_blocks` of point format 3, a LAS."""
+    return _two_blocks(tmp_path_factory.mktemp("odd2"), 3, "two_blocks.las")
 
 
 def _described(las) -> list[str]:
@@ -109,6 +116,29 @@ def test_undescribed_bytes_are_kept_last_and_undescribed(fixture, request, tmp_p
     assert b.point_format.size == a.point_format.size + 3 * 4 + 4 + 1 + 4
     n = np.column_stack([b.NormalX, b.NormalY, b.NormalZ])
     assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+
+
+@pytest.mark.parametrize("in_memory", [True, False])
+def test_a_layered_laz_with_undescribed_bytes_is_copied_to_the_bytes_of_one_coded_whole(tmp_path, monkeypatch, in_memory):
+    """Its chunks are copied with the undescribed byte's layer moved after the new dimensions' (not coded again): the
+    output is the one that codes every record."""
+    from patchcloud.stream import normals
+    from patchcloud.stream.io import las_output
+
+    src = _two_blocks(tmp_path, 7, "two_blocks.laz", n=60_000)  # 2 LAZ chunks
+    run = dict(tile_size=16, quiet=True, in_memory=in_memory, scheduler="synchronous" if in_memory else "threads", workers=1)
+    copied, whole = tmp_path / "copied.laz", tmp_path / "whole.laz"
+    tails, real = [], las_output.layered_source
+    monkeypatch.setattr(las_output, "layered_source", lambda *a, **k: tails.append(getattr(real(*a, **k), "plan", None)) or real(*a, **k))
+    normals(src, copied, **run)
+    assert tails and all(t is not None and t.tail == 1 for t in tails)
+    monkeypatch.setattr(las_output, "layered_source", lambda *a, **k: None)
+    normals(src, whole, **run)
+    assert copied.read_bytes() == whole.read_bytes()
+    a, b = laspy.read(str(src)), laspy.read(str(copied))
+    for dim in a.point_format.dimension_names:
+        assert np.array_equal(np.asarray(a[dim]), np.asarray(b[dim])), dim
+    assert list(b.point_format.dimension_names)[-1] == UNDESCRIBED_NAME
 
 
 def test_undescribed_bytes_survive_compress_and_decompress(undescribed, tmp_path):

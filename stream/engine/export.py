@@ -201,7 +201,8 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     stats = las_output.point_stats(header, out, stored)
     if layered is not None:
         rec = out.array.view(np.uint8).reshape(n, out.array.dtype.itemsize)
-        return stats, las_output.write_laz_part_layered(tmp, local, layered, first, rec[:, layered.plan.in_size:],
+        at = layered.plan.at
+        return stats, las_output.write_laz_part_layered(tmp, local, layered, first, rec[:, at : at + layered.plan.new_bytes],
                                                         np.asarray(out["scanner_channel"]))
     if compressed:
         return stats, las_output.write_laz_part(tmp, local, header, out, parallel=laz_parallel)
@@ -235,8 +236,8 @@ def _export_routed(store: Store, src, p: int, local: int, first: int, count: int
         return None
     part_stats = las_output.PointStats.from_json(info["stats"])
     b = header.point_format.dtype()
-    in_size = layered.plan.in_size
-    new_names = [name for name in b.names if b.fields[name][1] >= in_size]
+    at, end = layered.plan.at, layered.plan.at + layered.plan.new_bytes  # the new bytes of each output record
+    new_names = [name for name in b.names if at <= b.fields[name][1] < end]
     if len(las_output.extra_bytes_structs(header)) != len(part_stats.eb_min) + len(new_names):
         return None
     st = os.stat(src.path)
@@ -245,7 +246,7 @@ def _export_routed(store: Store, src, p: int, local: int, first: int, count: int
     tid = store.get(f"{route}/tile").astype(np.int64)
     values = _routed_values(store, src, p, tid, columns, local=True)
     new_dtype = np.dtype(dict(names=new_names, formats=[b.fields[n][0] for n in new_names],
-                              offsets=[b.fields[n][1] - in_size for n in new_names], itemsize=b.itemsize - in_size))
+                              offsets=[b.fields[n][1] - at for n in new_names], itemsize=end - at))
     stored = _stored(store, columns, values, count, b)
     new = np.zeros(count, dtype=new_dtype)
     for name, v in stored.items():

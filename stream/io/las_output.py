@@ -309,7 +309,9 @@ def layered_source(path: str | os.PathLike, header: laspy.LasHeader, new_dims) -
     It can when the input is a layered LAZ (point formats 6, 7 and 8) in
     chunks of :data:`LAZ_CHUNK` points, and the output's records are the
     input's, every field at its place, followed by the dimensions
-    ``new_dims`` (names) and nothing else.
+    ``new_dims`` (names) and nothing else; or followed by them and then
+    the input's last extra bytes (the bytes no ExtraBytes entry describes,
+    which :func:`~patchcloud.stream.io.las.undescribed_last` moves last).
     """
     if not header.are_points_compressed:
         return None
@@ -322,11 +324,18 @@ def layered_source(path: str | os.PathLike, header: laspy.LasHeader, new_dims) -
     if not (np.array_equal(h_in.scales, header.scales) and np.array_equal(h_in.offsets, header.offsets)):
         return None
     a, b = h_in.point_format.dtype(), header.point_format.dtype()
-    if any(name not in b.fields or b.fields[name][1] != a.fields[name][1] for name in a.names):
+    if any(name not in b.fields for name in a.names):
         return None
-    if any(name not in b.fields or b.fields[name][1] < a.itemsize for name in new_dims):
+    moved = {name for name in a.names if b.fields[name][1] != a.fields[name][1]}
+    tail = a.itemsize - min((a.fields[name][1] for name in moved), default=a.itemsize)  # the input's bytes moved last
+    grow = b.itemsize - a.itemsize
+    if any((a.fields[name][1] >= a.itemsize - tail) != (name in moved) for name in a.names):  # every field of the tail moves,
         return None
-    lp = laz_layers.plan(zips[0].record_data, outs[0].record_data, a.itemsize, b.itemsize)
+    if any(b.fields[name][1] != a.fields[name][1] + grow for name in moved):  # after the new ones
+        return None
+    if any(name not in b.fields or not a.itemsize - tail <= b.fields[name][1] < b.itemsize - tail for name in new_dims):
+        return None
+    lp = laz_layers.plan(zips[0].record_data, outs[0].record_data, a.itemsize, b.itemsize, tail)
     if lp is None or lp.chunk != LAZ_CHUNK:
         return None
     n = int(h_in.point_count)

@@ -17,7 +17,10 @@ compressed chunk and codes only the new bytes (:func:`byte_layers`, the
 coder of LASzip's ``BYTE14`` version 3 as lazrs runs it).  The input's
 point fields are then neither decoded nor coded again, and the result is
 byte for byte what lazrs writes when it compresses the whole records
-(tested on every layered format, with several scanner channels).
+(tested on every layered format, with several scanner channels).  For the
+same reason the new bytes may go before some of the input's extra bytes
+(an output keeps the bytes no ExtraBytes entry describes last: a real IGN
+file has one): their layers then follow the new ones.
 
 :func:`plan` says whether an input and an output can go this way: both
 layered LAZ (compressor 3) of items version 3, the same chunk size of
@@ -75,20 +78,29 @@ def read_vlr_items(record_data: bytes) -> tuple[int, int, list[tuple[int, int, i
 @dataclass(frozen=True)
 class LayeredPlan:
     """How an output's chunks are made from the input's: ``in_size`` bytes of the input's records (all copied),
-    ``in_layers`` layers in its chunks, ``new_bytes`` extra bytes appended, ``chunk`` points per chunk."""
+    ``in_layers`` layers in its chunks, ``new_bytes`` extra bytes added, ``chunk`` points per chunk; the new bytes
+    go before the input's last ``tail`` extra bytes (which the output moves after them), else at the end."""
 
     in_size: int
     in_layers: int
     new_bytes: int
     chunk: int
+    tail: int = 0
+
+    @property
+    def at(self) -> int:
+        """Where the new bytes start in an output record."""
+        return self.in_size - self.tail
 
 
-def plan(in_vlr: bytes, out_vlr: bytes, in_size: int, out_size: int) -> LayeredPlan | None:
+def plan(in_vlr: bytes, out_vlr: bytes, in_size: int, out_size: int, tail: int = 0) -> LayeredPlan | None:
     """The :class:`LayeredPlan` from an input's LASzip VLR data to an output's, or None where the output's chunks
     cannot be the input's with more extra bytes (then the whole records are coded).
 
-    ``in_size``, ``out_size``: the records' bytes; the output's first ``in_size`` bytes must be the input record as
-    it is (the caller checks that its fields sit where they were).
+    ``in_size``, ``out_size``: the records' bytes; the output record must be
+    the input record as it is with the new bytes inserted before its last
+    ``tail`` bytes, which must be extra bytes (the caller checks that the
+    fields sit there; 0: the new bytes at the end).
     """
     try:
         ci, chunk_in, items_in = read_vlr_items(in_vlr)
@@ -111,7 +123,10 @@ def plan(in_vlr: bytes, out_vlr: bytes, in_size: int, out_size: int) -> LayeredP
         return None
     if sum(s for _, s, _ in items_in) != in_size or sum(s for _, s, _ in items_out) != out_size or mk - m != out_size - in_size:
         return None
-    return LayeredPlan(in_size=in_size, in_layers=sum(_LAYERS[t] for t, _, _ in body_in) + m, new_bytes=mk - m, chunk=chunk_in)
+    if not 0 <= tail <= m:
+        return None
+    return LayeredPlan(in_size=in_size, in_layers=sum(_LAYERS[t] for t, _, _ in body_in) + m, new_bytes=mk - m, chunk=chunk_in,
+                       tail=int(tail))
 
 
 def chunk_table(path: str | os.PathLike, offset_to_points: int, vlr_data: bytes) -> np.ndarray:
@@ -313,8 +328,8 @@ def byte_layers(values: np.ndarray, contexts: np.ndarray) -> tuple[np.ndarray, n
 
 
 def extend_chunk(chunk: bytes | memoryview, lp: LayeredPlan, values: np.ndarray, channels: np.ndarray) -> bytes:
-    """The input's compressed ``chunk`` of n points with ``values`` (n, ``lp.new_bytes``) uint8 appended to each
-    record as extra bytes: its records and layers copied, the new layers coded.
+    """The input's compressed ``chunk`` of n points with ``values`` (n, ``lp.new_bytes``) uint8 added to each
+    record as extra bytes (before its last ``lp.tail`` bytes): its records and layers copied, the new layers coded.
 
     ``channels`` (n,): the points' scanner channels (what the new bytes'
     contexts follow).
@@ -334,12 +349,18 @@ def extend_chunk(chunk: bytes | memoryview, lp: LayeredPlan, values: np.ndarray,
     if count != n or head + int(sizes_in.sum(dtype=np.int64)) != len(mv):
         raise ValueError(f"LAZ chunk of {count:,} points and {len(mv):,} bytes is not the layered chunk of {n:,} points expected")
     layers, sizes = byte_layers(values, byte_contexts(np.asarray(channels)))
+    at = lp.at  # where the new bytes go in the first record,
+    kept = lp.in_layers - lp.tail  # among the layers
+    moved = head + int(sizes_in[:kept].sum(dtype=np.int64))  # and in the layers' bytes
     out = io.BytesIO()
-    out.write(mv[: lp.in_size])
+    out.write(mv[:at])  # the first point's record, raw
     out.write(values[0].tobytes())
-    out.write(mv[lp.in_size : head])
+    out.write(mv[at : lp.in_size])
+    out.write(mv[lp.in_size : lp.in_size + 4 + 4 * kept])  # the point count, the layers' sizes
     out.write(sizes.astype("<u4").tobytes())
-    out.write(mv[head:])
+    out.write(mv[lp.in_size + 4 + 4 * kept : head])
+    out.write(mv[head:moved])  # the layers
     for i in range(lp.new_bytes):
         out.write(layers[i, : sizes[i]].tobytes())
+    out.write(mv[moved:])
     return out.getvalue()
