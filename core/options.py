@@ -37,7 +37,7 @@ from .checks import (
 from .errors import PatchcloudValueError
 
 __all__ = [
-    "NormalsOptions", "DonOptions", "SegmentOptions", "CompressOptions", "options_with", "check_scales", "check_threshold", "AXES",
+    "NormalsOptions", "DonOptions", "SegmentOptions", "CompressOptions", "options_with", "check_scales", "check_threshold", "AXES", "MAX_K_FALLBACK",
 ]
 
 
@@ -51,6 +51,8 @@ def _viewpoint(viewpoint) -> tuple[float, float, float] | None:
 
 #: Names of the DoN vector's components, for thresholds on one of them.
 AXES = ("x", "y", "z")
+#: The most neighbours a k-NN fallback normal may take.
+MAX_K_FALLBACK = 1000
 
 
 def check_scales(r_small, r_large) -> tuple[float, float]:
@@ -107,7 +109,9 @@ class NormalsOptions:
     min_sigma2 : float
         Leaves with sigma2 below this, in [0, 1/3), are 3D curves: edge patches.
     k_fallback : int
-        Neighbours of the k-NN PCA normal of the points of edge and sparse leaves.
+        Neighbours of the k-NN PCA normal of the points of edge and sparse
+        leaves, 3 to :data:`MAX_K_FALLBACK` (a plane needs 3 points; more than
+        a thousand is no longer a local normal, and the search slows as k^2).
     orient : {"up", "viewpoint", "outward", "none"}
         Which side normals face: +Z (aerial and mobile LiDAR), ``viewpoint``,
         away from the cloud's centroid (closed objects), or no rule
@@ -135,7 +139,10 @@ class NormalsOptions:
         if self.orient not in ORIENT_RULES:
             raise PatchcloudValueError(f"orient must be one of {', '.join(ORIENT_RULES)}; got {self.orient!r}")
         _set(self, "n_min", check_positive("n_min", self.n_min, integer=True))
-        _set(self, "k_fallback", check_positive("k_fallback", self.k_fallback, integer=True))
+        k = self.k_fallback
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 3 <= k <= MAX_K_FALLBACK:
+            raise PatchcloudValueError(f"k_fallback must be a whole number from 3 to {MAX_K_FALLBACK}; got {k!r}")
+        _set(self, "k_fallback", int(k))
         for name in ("threshold", "d_min", "max_edge"):
             _set(self, name, check_positive(name, getattr(self, name)))
         if not (0 <= self.min_sigma2 < 1 / 3 + 1e-12):

@@ -243,3 +243,27 @@ def test_python_api_errors_are_specific(scene_las, tmp_path):
     with pytest.raises(PatchcloudValueError):
         tile(path, str(tmp_path / "s.zarr"), tile_size=-1)
     assert not os.path.exists(tmp_path / "o.las")
+
+
+def test_cli_viewpoint_orients_as_pdals_does_and_bad_options_are_named_as_typed(scene_las, tmp_path):
+    """--viewpoint alone orients the normals towards it (PDAL's viewpoint); with another --orient it is an error; the
+    Python API's parameter names reach the user as the options they typed."""
+    from click.testing import CliRunner
+
+    from patchcloud.stream.cli import main
+
+    path, pts, _ = scene_las
+    run = ["--scheduler", "synchronous", "-q"]
+    below = [str(v) for v in (pts.mean(axis=0) - [0, 0, 1000])]  # under the scene: ground normals point down
+    r = CliRunner().invoke(main, ["normals", str(path), str(tmp_path / "a.las"), "--viewpoint", *below, *run])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["normals", str(path), str(tmp_path / "b.las"), "--viewpoint", *below, "--orient", "viewpoint", *run])
+    assert r.exit_code == 0, r.output
+    a, b = read_normals(tmp_path / "a.las")[1], read_normals(tmp_path / "b.las")[1]
+    assert np.array_equal(a, b) and np.median(a[:, 2]) < -0.9
+    for args, words in ((["--viewpoint", *below, "--orient", "up"], "goes with --orient viewpoint, not --orient up"),
+                        (["--orient", "viewpoint"], "--orient viewpoint needs a viewpoint"),
+                        (["--fallback-knn", "100000"], "--fallback-knn must be a whole number from 3 to 1000; got 100000")):
+        r = CliRunner().invoke(main, ["normals", str(path), str(tmp_path / "c.las"), *args, *run])
+        assert r.exit_code == 2 and words in r.output, r.output
+        assert not (tmp_path / "c.las").exists()

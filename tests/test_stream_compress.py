@@ -128,7 +128,7 @@ def test_cli_and_bad_input(las_file, tmp_path):
     assert r.exit_code == 2 and r.output.startswith("error:") and "not a patchcloud .pcz" in r.output
     assert not (tmp_path / "x.las").exists()
     r = CliRunner().invoke(main, ["compress", str(las_file), str(tmp_path / "y.pcz"), "--max-error", "-1", "-q"])
-    assert r.exit_code == 2 and "max_error must be a positive number" in r.output
+    assert r.exit_code == 2 and "--max-error must be a positive number" in r.output
     assert not (tmp_path / "y.pcz").exists() and not (tmp_path / "y.pcz.store").exists()
     with pytest.raises(PatchcloudValueError, match="density or lod, not both"):
         decompress(tmp_path / "c.pcz", tmp_path / "z.las", density=10.0, lod=1)

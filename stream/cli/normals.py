@@ -22,9 +22,10 @@ from . import options
               "so NormalZ >= 0 everywhere (the principal curvatures follow). Unlike --orient up, which turns whole patch groups. "
               "Default: off (PDAL's default is on).")
 @click.option("--fallback-knn", "k_fallback", type=int, default=NormalsOptions.k_fallback, show_default=True, metavar="K",
-              help="Neighbours of the k-NN fallback: the PCA normal of the points of edge and sparse patches (NormalMethod 3). "
+              help="Neighbours of the k-NN fallback (3 to 1000): the PCA normal of the points of edge and sparse patches (NormalMethod 3). "
               "Not PDAL's knn, the neighbours of every normal: patchcloud's other normals come from the patches' quadrics.")
-@click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z", help="With --orient viewpoint, in the file's coordinates.")
+@click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z",
+              help="Normals face this point (file coordinates), as PDAL's viewpoint: it implies --orient viewpoint.")
 @click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
 @click.option("--principal-curvatures", is_flag=True,
               help="Also write PrincipalCurvature1 >= PrincipalCurvature2 (1/m, positive where convex seen from the normal's side) "
@@ -58,6 +59,11 @@ def normals_command(paths, criterion, threshold, orient, always_up, k_fallback, 
     """
     from patchcloud.stream import normals
 
+    if viewpoint:  # PDAL's meaning: a viewpoint given orients the normals towards it
+        explicit = click.get_current_context().get_parameter_source("orient") != click.core.ParameterSource.DEFAULT
+        if explicit and orient != "viewpoint":
+            raise click.UsageError(f"--viewpoint orients the normals towards it: it goes with --orient viewpoint, not --orient {orient}")
+        orient = "viewpoint"
     run = options.run_options(run)
     input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
     asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import logging
 import os
+import re
 import sys
 import warnings
 
@@ -12,7 +13,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
+__all__ = ["classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="LENGTH",
@@ -282,6 +283,43 @@ def don_options(func):
     return func
 
 
+def in_option_words(message: str, command: click.Command | None) -> str:
+    """An error ``message`` of the Python API in the words of ``command``'s options: a parameter named as in Python
+    becomes its option (``r_small`` anywhere, ``threshold must``, ``r_small=2 m``, ``orient="viewpoint"`` become
+    ``--rs``, ``--threshold must``, ``--rs 2 m``, ``--orient viewpoint``), and Python's None "not given".
+
+    >>> cmd = click.Command("don", params=[click.Option(["--rs", "r_small"], type=float), click.Option(["--rl", "r_large"]),
+    ...                                     click.Option(["--orient"]), click.Option(["--viewpoint"])])
+    >>> in_option_words('r_small must be smaller than r_large; got r_small=2 m, r_large=0.5 m', cmd)
+    '--rs must be smaller than --rl; got --rs 2 m, --rl 0.5 m'
+    >>> in_option_words('orient="viewpoint" needs a viewpoint (x, y, z), or None', cmd)
+    '--orient viewpoint needs a viewpoint (x, y, z), or not given'
+    """
+    options = {}
+    for param in getattr(command, "params", ()):
+        longest = max((o for o in getattr(param, "opts", ()) if o.startswith("--")), key=len, default=None)
+        if isinstance(param, click.Option) and param.name and longest:
+            options[param.name] = longest
+    if not options:
+        return message
+    names = "|".join(re.escape(n) for n in sorted(options, key=len, reverse=True))
+    # a name opening a sentence that says what it must be or needs (not "the store is ..."), name="value", name=value,
+    # and a Python name (with an underscore) anywhere
+    subject = re.compile(rf"(^|[:;] )({names})(?= must| needs)")
+    message = subject.sub(lambda m: m.group(1) + options[m.group(2)], message)
+    pattern = re.compile(rf'(?<![\w-])({names})(="([^"]*)"|=)|(?<![\w-])(\w+_\w+)(?![\w-])')
+
+    def word(m: re.Match) -> str:
+        if m.group(4) is not None:  # a name with an underscore: an option's only if one has it
+            return options.get(m.group(4), m.group(4))
+        option, rest = options[m.group(1)], m.group(2)
+        if rest.startswith('="'):
+            return f"{option} {m.group(3)}"
+        return f"{option} "
+
+    return re.sub(r"\bor None\b", "or not given", pattern.sub(word, message))
+
+
 def reports_errors(func):
     """Turn a PatchcloudError (bad file, bad parameter) or an OSError (disk full, permission, read-only file system)
     into one line on stderr and exit status 2, Ctrl-C into one line and 130; any other exception (a bug, raised here
@@ -292,7 +330,12 @@ def reports_errors(func):
         try:
             return func(*args, **kwargs)
         except PatchcloudError as exc:
-            click.echo(f"error: {exc}", err=True)
+            ctx = click.get_current_context(silent=True)
+            try:
+                line = in_option_words(str(exc), ctx.command if ctx is not None else None)
+            except Exception:  # (the message as it is, rather than a second error)
+                line = str(exc)
+            click.echo(f"error: {line}", err=True)
             sys.exit(2)
         except OSError as exc:
             click.echo(f"error: {os_error_line(exc)}", err=True)
