@@ -171,6 +171,10 @@ def test_points_mode_does_not_depend_on_the_part_size_or_the_scheduler_and_reads
     inside = (a.x >= box[0]) & (a.x <= box[3]) & (a.y >= box[1]) & (a.y <= box[4]) & (a.z >= box[2]) & (a.z <= box[5])
     assert 0 < len(part.points) == int(inside.sum())
     assert np.asarray(part.points.array).tobytes() == np.asarray(a.points.array[inside]).tobytes()
+    far = (OFFSET[0] - 50, OFFSET[1] - 50, -5.0, OFFSET[0] - 40, OFFSET[1] - 40, 5.0)  # outside the input: an error, no file
+    with pytest.raises(PatchcloudValueError, match=r"two.pcz: the box x .* lies outside the input's bounds \(x .*\): no point to write"):
+        decompress(tmp_path / "two.pcz", tmp_path / "far.las", bbox=far)
+    assert not (tmp_path / "far.las").exists()
 
 
 def test_points_mode_bad_requests_and_damaged_files_are_one_line(tmp_path):

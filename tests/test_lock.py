@@ -110,3 +110,13 @@ def test_two_concurrent_runs_on_one_output_one_writes_it_the_other_stops(scene, 
     back = laspy.read(str(out))
     assert len(back) == len(laspy.read(str(scene))) and np.all(np.isfinite(back.NormalX))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.las"]
+
+
+def test_a_lock_records_the_command_line_whole_up_to_its_first_words(monkeypatch):
+    from patchcloud.stream.io.lock import COMMAND_WORDS
+
+    monkeypatch.setattr(sys, "argv", ["patchcloud", "normals", "a b.laz", "out.laz", "--tile-size", "1"])
+    assert json.loads(RunLock([])._info())["command"] == "patchcloud normals 'a b.laz' out.laz --tile-size 1"
+    monkeypatch.setattr(sys, "argv", ["patchcloud", "normals", *[f"t{i}.laz" for i in range(40)], "--out-dir", "o"])
+    words = json.loads(RunLock([])._info())["command"].split()
+    assert len(words) == COMMAND_WORDS + 1 and words[-1] == "..."

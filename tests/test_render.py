@@ -199,6 +199,8 @@ def test_bbox_restricts_the_points_and_is_the_frame(tmp_path):
     assert set(np.unique(ob.value[ob.filled])) <= {6.0, 7.0}
     with pytest.raises(PatchcloudValueError, match="bbox"):
         render_array(path, color="classification", bbox=(X0 + 5, Y0, X0, Y0 + 1))
+    with pytest.raises(PatchcloudValueError, match=r"bbox.las: the box x .* lies outside the input's bounds .*: nothing to draw"):
+        render_array(path, color="classification", bbox=(X0 - 10, Y0 - 10, X0 - 5, Y0 - 5))
 
 
 def test_segment_zero_is_grey_and_patch_boundaries_are_darkened(tmp_path):

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import socket
 import sys
 import threading
@@ -32,7 +33,7 @@ from pathlib import Path
 
 from patchcloud.core import PatchcloudIOError
 
-__all__ = ["RunLock", "PatchcloudLockedError", "lock_path", "HEARTBEAT", "STALE"]
+__all__ = ["RunLock", "PatchcloudLockedError", "lock_path", "HEARTBEAT", "STALE", "COMMAND_WORDS"]
 
 #: Seconds between two touches of a held lock.
 HEARTBEAT = 30.0
@@ -82,6 +83,10 @@ def _stale(lock: Path, info: dict | None) -> str | None:
     return f"no heartbeat from {info.get('host')} for {age:.0f} s" if age > STALE else None
 
 
+#: How many words of the command line a lock records (a catalog's may name hundreds of files): more are "...".
+COMMAND_WORDS = 16
+
+
 class RunLock:
     """Exclusive locks on ``paths`` (outputs, stores: local paths), held from :meth:`acquire` (or ``with``) to :meth:`release`."""
 
@@ -94,7 +99,7 @@ class RunLock:
 
     def _info(self) -> str:
         return json.dumps(dict(pid=os.getpid(), host=socket.gethostname(), started=time.time(), token=self.token,
-                               command=" ".join(sys.argv[:1] + sys.argv[1:6])))
+                               command=shlex.join(sys.argv[:COMMAND_WORDS]) + (" ..." if len(sys.argv) > COMMAND_WORDS else "")))
 
     def _create(self, lock: Path) -> bool:
         try:

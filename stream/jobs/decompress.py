@@ -27,7 +27,7 @@ from patchcloud.stream.io.las_output import copy_records, legacy_counts, point_s
 from patchcloud.stream.io.las_records import parse_records, provenance_vlr
 from patchcloud.stream.engine.background import stops_what_it_starts
 
-__all__ = ["decompress", "DecompressSummary", "DECOMPRESS_DIMS", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile"]
+__all__ = ["decompress", "DecompressSummary", "DECOMPRESS_DIMS", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile", "check_box_meets"]
 
 
 @dataclass
@@ -153,6 +153,26 @@ def _write_points(writer, header: laspy.LasHeader, rec: laspy.PackedPointRecord,
     return len(rec)
 
 
+def check_box_meets(box: np.ndarray, header: laspy.LasHeader, input) -> None:
+    """Refuse a box (xmin, ymin, zmin, xmax, ymax, zmax) outside the bounds of the input ``header`` says: it would give
+    an output without points.
+
+    >>> h = laspy.LasHeader(point_format=1)
+    >>> h.mins, h.maxs = [0.0, 0.0, 0.0], [10.0, 20.0, 5.0]
+    >>> check_box_meets(np.array([5.0, 5, 0, 6, 6, 1]), h, "a.pcz")
+    >>> check_box_meets(np.array([0.0, 0, 0, 1, 1, 1]) - 100, h, "a.pcz")
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: a.pcz: the box x -100 to -99, y -100 to -99, z -100 to -99 lies outside the input's bounds (x 0 to 10, y 0 to 20, z 0 to 5): no point to write
+    """
+    lo, hi = np.asarray(header.mins, dtype=np.float64), np.asarray(header.maxs, dtype=np.float64)
+    if np.all(box[:3] <= hi) and np.all(box[3:] >= lo):
+        return
+    span = lambda a, b: ", ".join(f"{c} {a[i]:.10g} to {b[i]:.10g}" for i, c in enumerate("xyz"))  # noqa: E731
+    raise PatchcloudValueError(f"{input}: the box {span(box[:3], box[3:])} lies outside the input's bounds ({span(lo, hi)}): "
+                               "no point to write")
+
+
 def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | None, overwrite: bool) -> int:
     """Write a points-mode ``.pcz``'s points (those in ``box``, if given) to ``output`` in input order; return how many."""
     header, kept = _output_header(f, input, (), dict(bbox=None if box is None else box.tolist()))
@@ -230,6 +250,8 @@ def decompress(
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
+        if box is not None:
+            check_box_meets(box, f.las_header(), input)
         if isinstance(f, pcz.PointsPczFile):
             if density is not None or lod is not None:
                 raise PatchcloudValueError(f"{input}: holds every point (compress --keep-points): density and lod (--density, --lod) "

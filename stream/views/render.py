@@ -989,6 +989,11 @@ def render_arrays(
     origin = np.min([s.mins for s in sources], axis=0).astype(np.float64)
     lo = np.zeros(3)
     hi = np.max([s.maxs for s in sources], axis=0).astype(np.float64) - origin
+    if bbox is not None and not (bbox[0] <= hi[0] + origin[0] and bbox[2] >= origin[0] and bbox[1] <= hi[1] + origin[1] and bbox[3] >= origin[1]):
+        raise PatchcloudValueError(
+            f"{name}: the box x {bbox[0]:.10g} to {bbox[2]:.10g}, y {bbox[1]:.10g} to {bbox[3]:.10g} lies outside the input's "
+            f"bounds (x {origin[0]:.10g} to {hi[0] + origin[0]:.10g}, y {origin[1]:.10g} to {hi[1] + origin[1]:.10g}): nothing to draw"
+        )
     if bbox is not None:
         lo[:2] = np.asarray(bbox[:2]) - origin[:2]
         hi[:2] = np.asarray(bbox[2:]) - origin[:2]
