@@ -12,7 +12,7 @@ from .errors import PatchcloudValueError
 
 __all__ = [
     "coordinates", "CRITERIA", "ORIENT_RULES", "MODES", "check_positive", "check_radius", "check_viewpoint", "check_mode",
-    "check_cluster_sizes", "check_budget",
+    "check_cluster_sizes", "check_budget", "check_indices",
 ]
 
 #: Octree split criteria: quadric fit RMSE (metres) or surface variation.
@@ -117,3 +117,29 @@ def check_budget(max_error) -> float:
     if not np.isfinite(budget) or budget <= 0:
         raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
     return budget
+
+
+def check_indices(at, n: int, name: str = "at") -> np.ndarray:
+    """``at`` as (M,) int64 indices of ``n`` points: whole numbers in ``[0, n)``, or a boolean mask of length ``n``
+    (its True rows); else a PatchcloudValueError saying which.
+
+    >>> check_indices([3, 0], 5).tolist(), check_indices(np.array([True, False, True]), 3).tolist()
+    ([3, 0], [0, 2])
+    >>> check_indices([5], 5)
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: at must hold indices of the 5 points (0 to 4) or be a mask of 5 booleans; got 5
+    """
+    a = np.asarray(at)
+    if a.dtype == bool:
+        if a.shape != (n,):
+            raise PatchcloudValueError(f"{name} as a mask must hold {n} booleans, one per point; got shape {a.shape}")
+        return np.flatnonzero(a)
+    valid = f"indices of the {n} points (0 to {n - 1}) or be a mask of {n} booleans"
+    if a.ndim != 1 or (a.size and not np.issubdtype(a.dtype, np.integer)):
+        raise PatchcloudValueError(f"{name} must hold {valid}; got an array of shape {a.shape} and type {a.dtype}")
+    a = a.astype(np.int64)
+    if a.size and (a.min() < 0 or a.max() >= n):
+        bad = a[(a < 0) | (a >= n)][0]
+        raise PatchcloudValueError(f"{name} must hold {valid}; got {bad}")
+    return a

@@ -69,9 +69,20 @@ def difference_of_normals(
 
 
 def don_magnitude(don: np.ndarray) -> np.ndarray:
-    """(N,) magnitude of DoN vectors, in [0, 1]; NaN where undefined."""
-    d = np.asarray(don, dtype=np.float64)
+    """(N,) magnitude of DoN vectors ((N, 3), as :func:`difference_of_normals` gives), in [0, 1]; NaN where undefined.
+
+    >>> don_magnitude(np.array([[0.3, 0.0, 0.4], [np.nan] * 3])).tolist()
+    [0.5, nan]
+    """
+    d = _don_vectors(don)
     return np.sqrt(np.einsum("ij,ij->i", d, d))
+
+
+def _don_vectors(don) -> np.ndarray:
+    d = np.asarray(don, dtype=np.float64)
+    if d.ndim != 2 or d.shape[1] != 3:
+        raise PatchcloudValueError(f"don must be an (N, 3) array of DoN vectors, got shape {d.shape}")
+    return d
 
 
 def don_mask(don: np.ndarray, threshold: float, *, axis: str | None = None, axis_threshold: float | None = None) -> np.ndarray:
@@ -85,7 +96,7 @@ def don_mask(don: np.ndarray, threshold: float, *, axis: str | None = None, axis
     [True, False, False]
     """
     check_threshold(threshold, axis, axis_threshold)
-    d = np.asarray(don, dtype=np.float64)
+    d = _don_vectors(don)
     keep = don_magnitude(d) >= threshold
     if axis is not None:
         keep &= np.abs(d[:, AXES.index(axis)]) >= axis_threshold

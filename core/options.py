@@ -145,12 +145,18 @@ class NormalsOptions:
         _set(self, "k_fallback", int(k))
         for name in ("threshold", "d_min", "max_edge"):
             _set(self, name, check_positive(name, getattr(self, name)))
+        if self.d_min is not None and self.max_edge is not None and self.d_min > self.max_edge:
+            raise PatchcloudValueError(f"d_min must be at most max_edge; got d_min={self.d_min:g}, max_edge={self.max_edge:g}")
         if not (0 <= self.min_sigma2 < 1 / 3 + 1e-12):
             raise PatchcloudValueError(f"min_sigma2 must be in [0, 1/3), got {self.min_sigma2!r}")
         _set(self, "min_sigma2", float(self.min_sigma2))
         if self.orient == "viewpoint" and self.viewpoint is None:
             raise PatchcloudValueError('orient="viewpoint" needs a viewpoint (x, y, z)')
+        if self.orient != "viewpoint" and self.viewpoint is not None:  # it would be ignored
+            raise PatchcloudValueError(f'viewpoint goes with orient="viewpoint", not orient={self.orient!r}')
         _set(self, "viewpoint", _viewpoint(self.viewpoint))
+        if not isinstance(self.blend, (bool, np.bool_)):
+            raise PatchcloudValueError(f"blend must be True or False; got {self.blend!r}")
         _set(self, "blend", bool(self.blend))
 
 

@@ -30,6 +30,7 @@ from .checks import check_budget
 from .errors import PatchcloudValueError
 from .merge import leaf_neighbours, merge_leaves, moment_scale, sum_moments
 from .octree import estimate_spacing, sort_points
+from .options import NormalsOptions
 from .patches import PatchKind
 from .points import root_cube, validate_points
 from .quadric import fit_nodes, implicit_value
@@ -349,6 +350,8 @@ def fit_models(
     """
     pts, lo, hi = validate_points(points)
     budget = check_budget(max_error)
+    o = NormalsOptions(d_min=d_min, max_edge=max_edge, n_min=n_min, min_sigma2=min_sigma2)  # (checks them)
+    d_min, max_edge, n_min, min_sigma2 = o.d_min, o.max_edge, o.n_min, o.min_sigma2
     if not np.isfinite(outlier_factor) or outlier_factor < 1:
         raise PatchcloudValueError(f"outlier_factor must be at least 1, got {outlier_factor!r}")
     n = pts.shape[0]

@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _radius_kernels as _rk
-from .checks import check_mode, check_radius, check_viewpoint, coordinates
+from .checks import check_indices, check_mode, check_positive, check_radius, check_viewpoint, coordinates
 from .errors import PatchcloudValueError
 from .grid import CellGrid
 
@@ -151,10 +151,13 @@ def radius_moments(
     pts = check_points(points)
     r = check_radius("radius", radius)
     check_mode(mode, resolution, 3)
-    q = pts if at is None else pts[np.asarray(at, dtype=np.int64)]
+    at = None if at is None else check_indices(at, pts.shape[0])
+    q = pts if at is None else pts[at]
     out = np.zeros((q.shape[0], 10))
     if q.shape[0] == 0:
         return out
+    if density is not None:
+        density = check_positive("density", density)
     if mode == "fast" and density is None:
         density = cell_density(pts, r / resolution)
     voxels = mode == "fast" and uses_voxels(r, resolution, density)
@@ -222,9 +225,9 @@ def radius_normals(
         Fast mode: voxels per radius (voxel edge ``radius / resolution``).
     min_points : int
         Fewest points in a ball for a normal (at least 3).
-    at : (M,) int array, optional
-        Indices of the points to compute normals at (neighbours are still
-        all of ``points``).  Default: every point.
+    at : (M,) int array or (N,) bool array, optional
+        Indices of the points to compute normals at, or a mask of them
+        (neighbours are still all of ``points``).  Default: every point.
     density : float, optional
         Fast mode: :func:`cell_density` of the cloud at the voxel edge,
         which decides whether voxels pay off at this radius (default: from
@@ -257,7 +260,8 @@ def radius_normals(
     r = check_radius("radius", radius)
     check_mode(mode, resolution, min_points)
     vp = default_viewpoint(pts) if viewpoint is None else check_viewpoint(viewpoint)
-    q = pts if at is None else pts[np.asarray(at, dtype=np.int64)]
+    at = None if at is None else check_indices(at, pts.shape[0])
+    q = pts if at is None else pts[at]
     mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at, density=density)
     normals = np.empty((q.shape[0], 3))
     variation = np.empty(q.shape[0])

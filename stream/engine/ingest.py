@@ -37,7 +37,7 @@ from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
-    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "TileSizeError", "part_size", "part_ranges", "catalog_parts", "part_path",
+    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "FEW_TILES", "TileSizeError", "tile_size_for", "tile_size_of_tiles", "part_size", "part_ranges", "catalog_parts", "part_path",
     "scatter_part", "read_part", "route_path", "routes_pay", "part_selection", "store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
@@ -50,9 +50,17 @@ _BIAS = 1 << 20
 
 def auto_tile_size(src: LasSource | Catalog, target: int = TARGET_TILE_POINTS) -> float:
     """A power-of-two tile size (metres) giving about ``target`` points per tile over the headers' extent."""
-    dx = max(src.maxs[0] - src.mins[0], 1e-3)
-    dy = max(src.maxs[1] - src.mins[1], 1e-3)
-    density = src.point_count / (dx * dy)  # points per square metre of the footprint
+    return tile_size_for(src.point_count, src.maxs[0] - src.mins[0], src.maxs[1] - src.mins[1], target)
+
+
+def tile_size_for(points: int, dx: float, dy: float, target: int = TARGET_TILE_POINTS) -> float:
+    """A power-of-two tile size (metres) giving about ``target`` of ``points`` per tile over a footprint of ``dx`` by
+    ``dy`` metres.
+
+    >>> tile_size_for(1_000_000, 1000.0, 1000.0), tile_size_for(83_028, 0.0, 0.0)
+    (512.0, 1.0)
+    """
+    density = points / (max(dx, 1e-3) * max(dy, 1e-3))  # points per square metre of the footprint
     t = np.sqrt(target / density)
     return float(np.clip(2.0 ** np.floor(np.log2(t)), 1.0, MAX_TILE))
 
@@ -78,10 +86,12 @@ def check_tile_size(tile_size) -> float | None:
 
 #: A tile size leaving fewer points per tile than this over the input's footprint is refused.
 MIN_POINTS_PER_TILE = 10
-#: A tile size leaving fewer points than this per occupied tile on average is refused once the points are tiled: each
-#: tile costs a few milliseconds a step whatever its points (a 57,000-point file in 1,806 tiles of 2 m: 46 s, against
-#: 0.6 s in one tile), and an octree of a few dozen points models nothing.
+#: A tile size leaving fewer points than this per occupied tile on average, over more than :data:`FEW_TILES` tiles, is
+#: refused once the points are tiled: each tile costs a few milliseconds a step whatever its points (a 57,000-point file
+#: in 1,806 tiles of 2 m: 46 s, against 0.6 s in one tile), and an octree of a few dozen points models nothing.
 MIN_POINTS_PER_OCCUPIED_TILE = 50
+#: So few tiles cost little whatever they hold (a file of 30 points is one tile of 30 points).
+FEW_TILES = 64
 
 
 def check_points_per_tile(src: LasSource | Catalog, t: float) -> None:
@@ -97,6 +107,27 @@ def check_points_per_tile(src: LasSource | Catalog, t: float) -> None:
         )
 
 
+def tile_size_of_tiles(tiles, counts: np.ndarray, t: float) -> float | None:
+    """The default tile size from where the points fell (``tiles``: occupied tile indices, ``counts`` their points, at
+    tiles of ``t`` metres, the default size from the headers' bounds) where it is larger than ``t`` and tiles of ``t``
+    hold fewer than a hundredth of :data:`TARGET_TILE_POINTS` on average: the headers' bounds understated the cloud
+    (a writer that leaves them zero); else None.
+
+    >>> tile_size_of_tiles([(0, 0, 0), (1, 0, 0)], np.array([10, 10]), 1.0) is None  # few tiles
+    True
+    >>> ijk = [(i, j, 0) for i in range(100) for j in range(100)]  # 10,000 tiles of 1 m holding 10 points each
+    >>> tile_size_of_tiles(ijk, np.full(10_000, 10), 1.0)
+    256.0
+    """
+    counts = np.asarray(counts)
+    if counts.size <= FEW_TILES or counts.sum() >= TARGET_TILE_POINTS / 100 * counts.size:
+        return None
+    ijk = np.asarray(tiles, dtype=np.int64).reshape(-1, 3)
+    span = (ijk.max(axis=0) - ijk.min(axis=0) + 1) * t
+    bigger = tile_size_for(int(counts.sum()), float(span[0]), float(span[1]))
+    return bigger if bigger > t else None
+
+
 class TileSizeError(PatchcloudValueError):
     """A tile size that leaves too few points per occupied tile (:func:`check_occupied_tiles`), found once the points
     are tiled: the run's store is removed (unless named), since the same command cannot resume from it."""
@@ -107,12 +138,13 @@ def check_occupied_tiles(counts: np.ndarray, t: float, where: str) -> None:
     (``counts``: the points of each occupied tile), once tiled: what :func:`check_points_per_tile` cannot see from the
     footprint (a tall scene, a sparse one).
 
-    >>> check_occupied_tiles(np.array([40, 20]), 2.0, "house.laz")
+    >>> check_occupied_tiles(np.array([40, 20]), 2.0, "small.laz")  # few tiles: whatever they hold
+    >>> check_occupied_tiles(np.full(100, 30), 2.0, "house.laz")
     Traceback (most recent call last):
     ...
-    patchcloud.stream.engine.ingest.TileSizeError: house.laz: a tile size of 2 m leaves 30 points per occupied tile on average (2 tiles; at least 50 needed); give a larger --tile-size, or leave it out
+    patchcloud.stream.engine.ingest.TileSizeError: house.laz: a tile size of 2 m leaves 30 points per occupied tile on average (100 tiles; at least 50 needed); give a larger --tile-size, or leave it out
     """
-    if counts.size and counts.sum() < MIN_POINTS_PER_OCCUPIED_TILE * counts.size:
+    if counts.size > FEW_TILES and counts.sum() < MIN_POINTS_PER_OCCUPIED_TILE * counts.size:
         raise TileSizeError(
             f"{where}: a tile size of {t:g} m leaves {counts.sum() / counts.size:.3g} points per occupied tile on average "
             f"({counts.size:,} tiles; at least {MIN_POINTS_PER_OCCUPIED_TILE} needed); give a larger --tile-size, or leave it out"
@@ -506,13 +538,21 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
             store = Store.create(url, overwrite=True)
     else:
         store = Store.create(url)
-    if "part_points" not in store.attrs:
-        store.update(source=cat.sources[0].to_json(), catalog=cat.to_json(), grid=grid.to_json(), selection=selection.to_json(),
-                     part_points=part_size(cat.point_count, runner.slots, chunk))
-    if not store.step_done("bucket"):
-        _scatter(store, runner, "xyz", "tile: read")
-        _index_parts(store)
-        store.mark_step("bucket", {"part_points": int(store.attrs["part_points"])})
+    for attempt in range(2):
+        if "part_points" not in store.attrs:
+            store.update(source=cat.sources[0].to_json(), catalog=cat.to_json(), grid=grid.to_json(), selection=selection.to_json(),
+                         part_points=part_size(cat.point_count, runner.slots, chunk))
+        if not store.step_done("bucket"):
+            _scatter(store, runner, "xyz", "tile: read")
+            _index_parts(store)
+            store.mark_step("bucket", {"part_points": int(store.attrs["part_points"])})
+        bigger = tile_size_of_tiles(store.tiles, store.tile_counts, grid.tile_size) if tile_size is None and attempt == 0 else None
+        if bigger is None:
+            break
+        # the headers' bounds understated the cloud (the default tile size comes from them): tiled again at the size its
+        # points give, found from the tiles they fell in
+        grid = Grid(origin=grid.origin, tile_size=bigger, scale=grid.scale, offset=grid.offset)
+        store = Store.create(url, overwrite=True)
     check_occupied_tiles(store.tile_counts, grid.tile_size, cat.path)
     occ = map_tiles(sort_tile, store, runner=runner, label="tile: sort")
     store.remove("parts")

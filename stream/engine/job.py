@@ -417,6 +417,8 @@ class Job:
     write_step = "export"
     #: Whether the job takes a catalog of several files (``RunOptions.out_dir``).
     catalogs = True
+    #: What an output's name ends in (any case), and what that makes of it.
+    output_names = {".las": "LAS", ".laz": "LAZ"}
     #: The command's name, as the outputs' provenance VLR states it.
     name = ""
     #: Whether the store's tiles hold only the points of ``RunOptions.selection`` (else every point: the job applies
@@ -505,10 +507,17 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
     if run.out_dir is None:
         if output is None:
             raise PatchcloudValueError("give an output file, or out_dir (--out-dir) for a catalog of files")
+        if not isinstance(input, (str, os.PathLike, list, tuple)):
+            raise PatchcloudValueError(f"input must be the path of a LAS/LAZ file (or several paths, with out_dir), not a "
+                                       f"{type(input).__name__}; for points in memory use patchcloud.estimate_normals and the "
+                                       "other functions of patchcloud.core")
         if not isinstance(input, (str, os.PathLike)):
             raise PatchcloudValueError("several inputs make a catalog: give out_dir (--out-dir) instead of one output file")
         if Path(input).is_dir():
             raise PatchcloudIOError(f"{input}: is a directory; for a catalog of its files give --out-dir OUT (out_dir)")
+        if Path(output).suffix.lower() not in job.output_names:
+            kinds = " or ".join(f"{suffix} ({kind})" for suffix, kind in job.output_names.items())
+            raise PatchcloudValueError(f"{output}: an output's name ends in {kinds}, any case")
         check_las_output(output)
         check_writable(output, overwrite=True)  # its directory; whether it may be replaced once the store is known
         catalog = Catalog.of(open_source(input))

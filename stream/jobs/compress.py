@@ -205,6 +205,7 @@ class CompressJob(Job):
     """The steps of ``compress`` on the scaffold; its write packs the ``.pcz``."""
 
     write_step = "pack"
+    output_names = {".pcz": "a patch-model file"}
     catalogs = False  # a catalog is compressed file by file: compress_catalog
     tiles_selection = False  # every point is tiled: compress_tile models the selection's, the others are residual points
 

@@ -69,6 +69,7 @@ class PointsJob(Job):
     """``compress --keep-points`` on the scaffold: no tiles; ``encode`` (one task per part), then ``pack`` the ``.pcz``."""
 
     write_step = "pack"
+    output_names = {".pcz": "a patch-model file"}
     catalogs = False  # a catalog is compressed file by file (stream.jobs.compress.compress_catalog)
     tiled = False
     name = "compress"

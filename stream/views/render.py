@@ -1028,6 +1028,7 @@ def render_arrays(
                  f"a picture {layout.width:,} px wide (its image {image})" if layout else f"a picture of {image}")
     zb = ZBuffer(frame.height, frame.width, channels)
     in_box = 0
+    astray = 0  # points outside the headers' x, y bounds (without a bbox, which the frame is made from)
     firsts = np.cumsum([0] + [s.point_count for s in sources])  # a point's index: its place in the catalog (ties: the first)
     chunks = ((int(first) + start, pts) for src, first in zip(sources, firsts) for start, pts in read_chunks(src, int(chunk)))
     for start, pts in chunks:
@@ -1038,6 +1039,8 @@ def render_arrays(
         sel = None
         if bbox is not None:
             sel = (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
+        else:
+            astray += int(np.count_nonzero((x < lo[0]) | (x > hi[0]) | (y < lo[1]) | (y > hi[1])))
         if sel is not None:
             x, y, z, index = x[sel], y[sel], z[sel], index[sel]
         u = x * R[0, 0] + y * R[0, 1] + z * R[0, 2]
@@ -1056,6 +1059,13 @@ def render_arrays(
         zb.add(pixel[inside], w[inside], index[inside], vals[inside])
         del pts, vals, cols
 
+    if astray:
+        total = int(sum(s.point_count for s in sources))
+        raise PatchcloudValueError(
+            f"{name}: {astray:,} of its {total:,} points lie outside its header's bounds (x {origin[0]:.10g} to "
+            f"{hi[0] + origin[0]:.10g}, y {origin[1]:.10g} to {hi[1] + origin[1]:.10g}), which frame the picture: rewrite "
+            "the header (e.g. pdal translate IN OUT)"
+        )
     drawn = zb.filled
     points_drawn = int(drawn.sum())
     fill = auto_fill(drawn) if fill is None else float(fill)

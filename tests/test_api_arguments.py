@@ -1,0 +1,110 @@
+"""Arguments the Python API and the CLI used to accept and then ignore or misread (a sweep of 2026-11-26)."""
+
+import struct
+
+import laspy
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from test_stream import write_scene
+
+from patchcloud.core import (
+    PatchcloudValueError,
+    difference_of_normals,
+    don_magnitude,
+    don_mask,
+    estimate_normals,
+    fit_models,
+    radius_normals,
+)
+from patchcloud.stream import normals
+from patchcloud.stream.cli import main
+
+
+@pytest.fixture(scope="module")
+def plane():
+    xy = np.random.default_rng(2).uniform(0, 4, (2000, 2))
+    return np.column_stack([xy, 0.1 * xy[:, 0]])
+
+
+def test_at_takes_indices_or_a_mask_and_refuses_anything_else(plane):
+    mask = plane[:, 0] < 1.0
+    whole = radius_normals(plane, 0.5)
+    assert np.array_equal(radius_normals(plane, 0.5, at=mask), whole[mask])
+    assert np.array_equal(radius_normals(plane, 0.5, at=np.flatnonzero(mask)), whole[mask])
+    assert np.array_equal(difference_of_normals(plane, 0.3, 1.0, at=mask), difference_of_normals(plane, 0.3, 1.0)[mask])
+    for bad, words in (([2000], "got 2000"), ([-1], "got -1"), ([1.7], "type float64"), (mask[:10], "mask must hold 2000 booleans")):
+        with pytest.raises(PatchcloudValueError, match=words):
+            radius_normals(plane, 0.5, at=bad)
+    with pytest.raises(PatchcloudValueError, match="density must be a positive finite number"):
+        radius_normals(plane, 0.5, density=-5.0)
+
+
+def test_options_that_would_be_ignored_are_refused(plane):
+    with pytest.raises(PatchcloudValueError, match="blend must be True or False; got 'no'"):
+        estimate_normals(plane, blend="no")
+    with pytest.raises(PatchcloudValueError, match='viewpoint goes with orient="viewpoint", not orient=\'up\''):
+        estimate_normals(plane, viewpoint=(5, 5, -100))
+    down = estimate_normals(plane, orient="viewpoint", viewpoint=(2, 2, -100)).normals
+    assert np.median(down[:, 2]) < -0.9
+    with pytest.raises(PatchcloudValueError, match="d_min must be at most max_edge"):
+        fit_models(plane, 0.01, d_min=5.0, max_edge=1.0)
+    with pytest.raises(PatchcloudValueError, match="n_min must be a positive integer"):
+        fit_models(plane, 0.01, n_min=0)
+    with pytest.raises(PatchcloudValueError, match=r"min_sigma2 must be in \[0, 1/3\)"):
+        fit_models(plane, 0.01, min_sigma2=-1.0)
+
+
+def test_don_vectors_must_be_n_by_3():
+    assert don_magnitude(np.array([[0.3, 0.0, 0.4]])).tolist() == [0.5]
+    for bad in (np.ones((3, 2)), np.ones(3)):
+        with pytest.raises(PatchcloudValueError, match=r"don must be an \(N, 3\) array"):
+            don_magnitude(bad)
+        with pytest.raises(PatchcloudValueError, match=r"don must be an \(N, 3\) array"):
+            don_mask(bad, 0.2)
+
+
+def test_file_jobs_take_paths_and_write_las_or_laz(tmp_path):
+    src = tmp_path / "scene.las"
+    write_scene(src, n=3000, seed=1)
+    with pytest.raises(PatchcloudValueError, match="input must be the path of a LAS/LAZ file .* not a LasData"):
+        normals(laspy.read(str(src)), tmp_path / "out.laz", quiet=True)
+    with pytest.raises(PatchcloudValueError, match=r"out.txt: an output's name ends in .las \(LAS\) or .laz \(LAZ\)"):
+        normals(src, tmp_path / "out.txt", quiet=True)
+    assert not (tmp_path / "out.txt").exists()
+
+
+def test_a_file_of_a_few_points_runs_as_one_tile(tmp_path):
+    src = tmp_path / "scene.las"
+    write_scene(src, n=3000, seed=1)
+    las = laspy.read(str(src))
+    few = laspy.LasData(las.header)
+    few.points = las.points[:30].copy()
+    few.write(str(tmp_path / "few.las"))
+    for args in ([], ["--tile-size", "1000"]):
+        r = CliRunner().invoke(main, ["normals", str(tmp_path / "few.las"), str(tmp_path / "out.las"), "-q", "--overwrite", *args])
+        assert r.exit_code == 0, r.output
+        assert len(laspy.read(str(tmp_path / "out.las")).points) == 30
+
+
+def test_header_bounds_that_understate_the_cloud(tmp_path):
+    """Zeroed header bounds (some writers leave them so): the default tile size, taken from them, would cut the cloud
+    into thousands of 1 m tiles; the cloud is tiled again at the size its points give, and the normals are those of
+    the file with true bounds up to rounding (the local frame's origin moves).  render, framed by them, refuses."""
+    good, bad = tmp_path / "good.las", tmp_path / "bad.las"
+    write_scene(good, n=60_000, seed=2, point_format=1, extra=False)
+    raw = bytearray(good.read_bytes())
+    struct.pack_into("<6d", raw, 179, *([0.0] * 6))  # max x, min x, max y, min y, max z, min z
+    bad.write_bytes(bytes(raw))
+    tiles = []
+    for src in (good, bad):
+        r = CliRunner().invoke(main, ["normals", str(src), str(tmp_path / f"{src.stem}_n.las")])
+        assert r.exit_code == 0, r.output
+        tiles.append([line for line in r.output.splitlines() if line.strip().startswith("tiles ")])
+    assert tiles[0] == tiles[1] and "of 128 m" in tiles[0][0]  # (thousands of 1 m tiles before)
+    a, b = laspy.read(str(tmp_path / "good_n.las")), laspy.read(str(tmp_path / "bad_n.las"))
+    assert np.array_equal(a.NormalMethod, b.NormalMethod)
+    assert np.allclose(np.asarray(a.NormalZ), np.asarray(b.NormalZ), atol=1e-5)
+    r = CliRunner().invoke(main, ["render", str(bad), str(tmp_path / "bad.png"), "--color", "elevation"])
+    assert r.exit_code == 2 and "59,932 of its 59,932 points lie outside its header's bounds (x 0 to 0, y 0 to 0)" in r.output
+    assert not (tmp_path / "bad.png").exists()
