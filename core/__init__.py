@@ -26,6 +26,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.moments': ('cell_moments',),
     '.morton': ('MAX_DEPTH', 'decode'),
     '.frame': ('cell_indices', 'local_coordinates'),
+    '.points': ('GRID_ANCHOR',),
     '.codes': ('Method', 'PatchKind'),
     '.normals': ('NormalsParameters', 'NormalsResult', 'estimate_normals'),
     '.options': ('CompressOptions', 'DonOptions', 'NormalsOptions', 'SegmentOptions', 'options_with'),
@@ -79,6 +80,7 @@ __all__ = [
     # .frame
     "local_coordinates",
     "cell_indices",
+    "GRID_ANCHOR",
     # .octree
     "level_occupancy",
     "max_level_for",

@@ -136,10 +136,14 @@ def estimate_normals(
         orientation rule (``orient``, ``viewpoint``) and ``blend``; see
         :class:`~patchcloud.core.options.NormalsOptions` for each one's
         meaning and default (None: from the data).
-    root : ((3,) float, float), optional
+    root : ((3,) float, float) or "grid", optional
         Minimum corner and edge of the root cube; default: the bounding cube
-        of the points.  The stream passes a tile's cube so per-tile octrees
-        are subtrees of one global octree.
+        of the points (results then do not move with the cloud).  The stream
+        passes a tile's cube so per-tile octrees are subtrees of one global
+        octree; "grid" takes that global octree's cube
+        (:data:`~patchcloud.core.GRID_ANCHOR`), so a whole file's points in
+        memory give the normals of ``patchcloud normals`` of the file (its
+        noise and withheld points left out, as the command does).
     **kwargs
         Any field of :class:`~patchcloud.core.options.NormalsOptions` by
         name (``criterion="sigma3"``, ``orient="outward"``), overriding

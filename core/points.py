@@ -14,7 +14,11 @@ from . import _kernels
 from .checks import check_positive, coordinates
 from .errors import PatchcloudValueError
 
-__all__ = ["validate_points", "root_cube"]
+__all__ = ["validate_points", "root_cube", "GRID_ANCHOR"]
+
+#: The stream's tile grids start at a multiple of this (metres), so grids of every power-of-two tile size up to it
+#: align, and their octrees' cells are those of ``root="grid"``.
+GRID_ANCHOR = 4096.0
 
 
 def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -67,9 +71,11 @@ def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
     ----------
     lo, hi : (3,) float64
         Per-axis minimum and maximum of the points (as :func:`validate_points`).
-    root : ((3,) float, float) or None
-        Minimum corner and edge of the root cube (a tile of the stream), or
-        None for the points' bounding cube: centred on the points' box, its
+    root : ((3,) float, float), "grid" or None
+        Minimum corner and edge of the root cube (a tile of the stream);
+        "grid": the cube the stream's tiles are cells of, a power-of-two
+        edge of at least :data:`GRID_ANCHOR` at a multiple of it; or None
+        for the points' bounding cube: centred on the points' box, its
         edge the box's longest side plus a margin of 1e-6 of it (or a tiny
         positive edge when all points coincide).
 
@@ -94,7 +100,19 @@ def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
     (True, True)
     >>> root_cube(np.zeros(3), np.ones(3), ((0, 0, 0), 8))
     (array([0., 0., 0.]), 8.0)
+    >>> corner, edge = root_cube(np.array([650100.0, 6860200.0, 10.0]), np.array([650900.0, 6860700.0, 90.0]), "grid")
+    >>> corner.tolist(), edge
+    ([647168.0, 6856704.0, 0.0], 4096.0)
     """
+    if isinstance(root, str):
+        if root != "grid":
+            raise PatchcloudValueError(f"root must be (corner, edge), 'grid' or None; got {root!r}")
+        edge = GRID_ANCHOR  # the smallest cube of a power-of-two edge, at a multiple of it, holding every point
+        while True:
+            corner = np.floor(lo / edge) * edge
+            if np.all(hi < corner + edge):
+                return corner, edge
+            edge *= 2.0
     if root is not None:
         corner, edge = root
         corner = np.asarray(corner, dtype=np.float64).reshape(3)

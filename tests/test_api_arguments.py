@@ -108,3 +108,23 @@ def test_header_bounds_that_understate_the_cloud(tmp_path):
     r = CliRunner().invoke(main, ["render", str(bad), str(tmp_path / "bad.png"), "--color", "elevation"])
     assert r.exit_code == 2 and "59,932 of its 59,932 points lie outside its header's bounds (x 0 to 0, y 0 to 0)" in r.output
     assert not (tmp_path / "bad.png").exists()
+
+
+def test_root_grid_gives_the_commands_normals_in_memory(tmp_path):
+    """estimate_normals(points, root="grid") of a whole file: the octree of the command's tile grid, so the normals of
+    `patchcloud normals` of the file (the embedded IGN tile: no noise or withheld point to leave out)."""
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
+    r = CliRunner().invoke(main, ["normals", str(src), str(tmp_path / "n.laz"), "-q"])
+    assert r.exit_code == 0, r.output
+    las, out = laspy.read(str(src)), laspy.read(str(tmp_path / "n.laz"))
+    assert not np.isin(np.asarray(las.classification), [7, 18]).any() and not np.asarray(las.withheld).any()
+    res = estimate_normals(np.column_stack([las.x, las.y, las.z]), root="grid")
+    cli = np.column_stack([out.NormalX, out.NormalY, out.NormalZ])
+    assert np.array_equal(res.method, np.asarray(out.NormalMethod))
+    assert np.abs(res.normals - cli).max() < 1e-6
+    other = estimate_normals(np.column_stack([las.x, las.y, las.z]))  # the bounding cube: another octree
+    assert np.mean(np.abs(other.normals - cli).max(axis=1) > 1e-3) > 0.5
+    with pytest.raises(PatchcloudValueError, match="root must be \\(corner, edge\\), 'grid' or None; got 'tiles'"):
+        estimate_normals(np.column_stack([las.x, las.y, las.z]), root="tiles")

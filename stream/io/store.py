@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from patchcloud.core import PatchcloudIOError, PatchcloudValueError, PatchTable, cell_indices, local_coordinates
+from patchcloud.core import GRID_ANCHOR, PatchcloudIOError, PatchcloudValueError, PatchTable, cell_indices, local_coordinates
 
 from . import memory_group
 from .catalog import Catalog
@@ -68,8 +68,9 @@ FORMAT = "patchcloud-store"
 VERSION = 4
 #: What a damaged store's error tells the user to do.
 START_OVER = "remove the store to start over"
-#: The grid origin is a multiple of this (metres), so grids of every power-of-two tile size up to it align.
-ANCHOR = 4096.0
+#: The grid origin is a multiple of this (metres), so grids of every power-of-two tile size up to it align (core's
+#: ``root="grid"`` is the cube they are cells of).
+ANCHOR = GRID_ANCHOR
 #: Largest tile size (metres).
 MAX_TILE = ANCHOR
 
