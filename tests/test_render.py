@@ -201,6 +201,9 @@ def test_bbox_restricts_the_points_and_is_the_frame(tmp_path):
         render_array(path, color="classification", bbox=(X0 + 5, Y0, X0, Y0 + 1))
     with pytest.raises(PatchcloudValueError, match=r"bbox.las: the box x .* lies outside the input's bounds .*: nothing to draw"):
         render_array(path, color="classification", bbox=(X0 - 10, Y0 - 10, X0 - 5, Y0 - 5))
+    for bad in ((1.0, 1.0), (5.0, 1.0), (0.0, float("nan"))):  # a range of nothing, upside down, not a number
+        with pytest.raises(PatchcloudValueError, match="value_range must be two finite numbers, low < high"):
+            render_array(path, color="elevation", value_range=bad)
 
 
 def test_segment_zero_is_grey_and_patch_boundaries_are_darkened(tmp_path):
@@ -254,6 +257,8 @@ def test_render_tiles_shows_pending_and_done_columns(tmp_path):
     ts = tile_state(url, "fit")
     ncol = len(ts.columns)
     assert ncol >= 4 and ts.counts() == {"failed": 0, "done": 0, "partly done": 0, "pending": ncol}
+    st.mark_tile(st.tiles[0], "records")  # a job's own bookkeeping step (compress') is not the default one to show
+    assert tile_state(url).step == "sort"
     first = st.tiles[0]
     st.mark_tile(first, "fit", fit={"patches": 7})
     out = tmp_path / "tiles.png"

@@ -142,6 +142,12 @@ def test_info_describes_a_pcz(las_file, tmp_path):
     compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True)
     r = CliRunner().invoke(main, ["info", str(tmp_path / "s.pcz")])
     assert r.exit_code == 0 and f"patchcloud .pcz version {pcz.VERSION} (model mode)" in r.output and "residual" in r.output
+    whole = (tmp_path / "s.pcz").read_bytes()
+    (tmp_path / "cut.pcz").write_bytes(whole[: len(whole) // 2])  # no zip directory left: still a .pcz, truncated
+    (tmp_path / "cut.bin").write_bytes(whole[: len(whole) // 2])  # whatever its name
+    for name in ("cut.pcz", "cut.bin"):
+        r = CliRunner().invoke(main, ["info", str(tmp_path / name)])
+        assert r.exit_code == 2 and "not a patchcloud .pcz file (not a zip archive; truncated?)" in r.output, r.output
 
 
 def test_header_vlrs_and_extended_vlrs_survive(tmp_path):
@@ -196,3 +202,21 @@ def test_the_same_input_gives_the_same_pcz_bytes_wherever_and_whenever_it_is(tmp
     compress(a, tmp_path / "three.pcz", max_error=0.02, quiet=True, record_source=True)
     src = dict(zarr.open_group(ZipStore(str(tmp_path / "three.pcz"), mode="r"), mode="r").attrs)["source"]
     assert src["path"] == str(a.resolve()) and src["mtime_ns"] == a.stat().st_mtime_ns
+
+
+def test_sampled_points_stay_within_the_inputs_bounds_and_are_single_returns(tmp_path):
+    """The embedded IGN tile, cut at the file's border: at 20 cm, mask cells of its edge patches reached up to 0.35 m
+    past it, and sampled points were written there, with return number 0, which LAS does not allow (a sweep of
+    2026-11-26)."""
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
+    compress(src, tmp_path / "t.pcz", max_error=0.2, quiet=True)
+    decompress(tmp_path / "t.pcz", tmp_path / "t.las")
+    inp, out = laspy.open(str(src)).header, laspy.read(str(tmp_path / "t.las"))
+    sampled = np.asarray(out.Reconstructed) == 1
+    assert sampled.sum() > 10_000
+    xyz = np.column_stack([out.x, out.y, out.z])[sampled]
+    assert np.all(xyz >= np.asarray(inp.mins) - 1e-9) and np.all(xyz <= np.asarray(inp.maxs) + 1e-9)
+    assert np.all(np.asarray(out.return_number)[sampled] == 1) and np.all(np.asarray(out.number_of_returns)[sampled] == 1)
+    assert int(np.sum(out.header.number_of_points_by_return)) == len(out.points)

@@ -48,7 +48,7 @@ classes = click.option(
     "--classes", default=None, metavar="LIST",
     help="Only points of these ASPRS classes, e.g. 2,6 (PDAL's `where: Classification == 2`): only they are computed and "
     "used as neighbours; the others are written unchanged with the empty value (NormalMethod 0 and a zero normal, DoN 0, "
-    "ClusterID 0; compress keeps them exactly, as residual points). Default: every class.",
+    "ClusterID 0; compress keeps them as residual points, within --max-error, with the residual points' attributes). Default: every class.",
 )
 keep_noise = click.option(
     "--keep-noise", is_flag=True,

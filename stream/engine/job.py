@@ -155,7 +155,7 @@ class RunOptions:
         those of these ASPRS classes ("2,6" or ``(2, 6)``) are computed and
         used as neighbours; the others are written unchanged with the new
         dimensions' empty value (NormalMethod 0 and a zero normal, DoN 0,
-        ClusterID 0; ``compress`` keeps them exactly, as residual points).
+        ClusterID 0; ``compress`` keeps them as residual points, within its budget).
         PDAL's ``where: Classification == 2``.  Default: every class.
     keep_noise : bool
         Keep noise (classes 7 and 18) and withheld points in the

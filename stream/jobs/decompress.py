@@ -286,6 +286,9 @@ def decompress(
         def write(writer, rec, is_res: bool) -> None:
             written[int(is_res)] += _write_points(writer, header, rec, box, output, stats)
 
+        source = f.las_header()  # the input's bounds, in its integers: a sampled point stays within them
+        lowest = np.ceil((np.asarray(source.mins) - offset) / scale - 1e-9).astype(np.int64)
+        highest = np.floor((np.asarray(source.maxs) - offset) / scale + 1e-9).astype(np.int64)
         with atomic_output(output, overwrite) as out:
             with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
                             laz_backend=laz_backend()) as writer:
@@ -306,11 +309,15 @@ def decompress(
                         if xyz.size and (xyz.min() < -(2**31) or xyz.max() >= 2**31):
                             raise PatchcloudIOError(f"{input}: damaged .pcz file (tile {tile_name(f.tiles[int(t)])} lies beyond "
                                                     "what LAS coordinates can hold)")
-                        xyz = xyz.astype(np.int64)
+                        # a patch's mask cell may reach past the cloud's edge (a tile cut at the file's border): such
+                        # samples are brought back onto the input's bounds, not made up beyond them
+                        xyz = np.clip(xyz.astype(np.int64), lowest, highest) if lowest.size else xyz.astype(np.int64)
                         sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
                         sampled["X"], sampled["Y"], sampled["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
                         sampled["classification"] = cls[k]
                         sampled["intensity"] = inten[k]
+                        one = np.ones(len(xyz), np.uint8)  # a point of a surface: one return (the LAS spec allows no 0)
+                        sampled["return_number"], sampled["number_of_returns"] = one, one
                         sampled["Reconstructed"] = np.ones(len(xyz), np.uint8)
                         write(writer, sampled, False)
                     rxyz, rrec = f.residual(int(t))

@@ -86,7 +86,8 @@ def info(path: str | os.PathLike) -> dict:
     ({'1': 581, '2': 22343, '3': 2497, '4': 2449, '5': 17875, '6': 14908}, 0, {})
     """
     p = str(path)
-    if os.path.isfile(p) and zipfile.is_zipfile(p):
+    if os.path.isfile(p) and (zipfile.is_zipfile(p) or p.lower().endswith(".pcz") or _starts_as_zip(p)):  # (a truncated
+        # zip has no central directory: still a .pcz, which open_pcz says is truncated)
         with open_pcz(p) as f:
             a = f.attrs
             return {"kind": "pcz", "path": p, "bytes": os.path.getsize(p), "version": a["version"],
@@ -118,6 +119,12 @@ def info(path: str | os.PathLike) -> dict:
             "crs_info": _crs_info((a.get("catalog") or {}).get("crs") or (a.get("source") or {}).get("crs")),
         }
     raise PatchcloudIOError(f"{p}: neither a LAS/LAZ file nor a patchcloud store")
+
+
+def _starts_as_zip(path: str) -> bool:
+    """Whether a file begins with a zip entry's signature (a ``.pcz``, whole or not)."""
+    with open(path, "rb") as f:
+        return f.read(4) == b"PK\x03\x04"
 
 
 def _crs_info(wkt: str | None) -> dict | None:

@@ -981,6 +981,10 @@ def render_arrays(
     if units is not None and units not in UNITS:
         raise PatchcloudValueError(f"units must be one of {', '.join(UNITS)}; got {units!r}")
     bbox = _check_bbox(bbox)
+    if value_range is not None:
+        low, high = (float(v) for v in value_range)
+        if not (np.isfinite(low) and np.isfinite(high) and low < high):
+            raise PatchcloudValueError(f"value_range must be two finite numbers, low < high; got {tuple(value_range)!r}")
     sources, name = input_sources(input, assume_crs)
     if output is not None:  # where the caller will write the picture: never one of the inputs
         check_not_input(output, [s.path for s in sources])

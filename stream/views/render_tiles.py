@@ -99,9 +99,10 @@ def tile_state(store: Store | str, step: str | None = None) -> TileState:
         for k, v in a.get("done", {}).items():
             if v and k not in seen:
                 seen.append(k)
-    steps = [s for s in TILE_STEPS if s in seen] + sorted(s for s in seen if s not in TILE_STEPS)
-    if step is None:
-        step = steps[-1] if steps else "sort"
+    known = [s for s in TILE_STEPS if s in seen]
+    steps = known + sorted(s for s in seen if s not in TILE_STEPS)
+    if step is None:  # the last of the steps a job's tiles go through (not a job's own bookkeeping, e.g. compress' records)
+        step = known[-1] if known else (steps[-1] if steps else "sort")
     elif step not in TILE_STEPS and step not in seen:
         raise PatchcloudValueError(
             f"{st.url}: no tile has a step {step!r}; steps: {', '.join(TILE_STEPS)} (done on some tile: {', '.join(steps) or 'none'})"
