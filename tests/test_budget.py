@@ -183,3 +183,18 @@ def test_a_residual_block_whose_header_disagrees_with_the_index_is_refused(small
     with pcz.open_pcz(edited(small_pcz, tmp_path / "lie.pcz", lie)) as f:
         with pytest.raises(PatchcloudIOError, match=r"their LAZ header says 1,000,000,000 points of \d+ bytes, the index says"):
             f.residual(t)
+
+
+def test_a_tile_too_large_for_the_budget_is_refused_once_tiled(tmp_path, monkeypatch):
+    """--max-memory on disk: a tile's steps hold all its points in one worker (about 300 bytes a point), so a tile
+    size whose largest tile would not fit is refused, with what to do (a 2M-point tile ran to 811 MiB under 200 MiB)."""
+    from patchcloud.stream import normals
+    from patchcloud.stream.engine.ingest import TILE_POINT_BYTES
+
+    src = tmp_path / "scene.las"
+    write_scene(src, n=250_000, seed=3, extra=False)
+    monkeypatch.setenv(budget.ENV, "64MiB")
+    assert TILE_POINT_BYTES * 250_000 > 64 << 20
+    with pytest.raises(PatchcloudMemoryError, match=r"scene.las: a tile of 64 m holding [\d,]+ points would need .* give a smaller --tile-size"):
+        normals(src, tmp_path / "out.las", tile_size=64, in_memory=False, scheduler="synchronous", quiet=True)
+    assert not (tmp_path / "out.las").exists()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import signal
 
 import click
 
@@ -51,6 +52,12 @@ main.add_command(render_command)
 main.add_command(render_tiles_command)
 
 
+def _terminated(signum, frame) -> None:
+    """SIGTERM handler of the console script: the run stops as on Ctrl-C (one line, its store kept and said, its
+    locks released, its workers closed, exit status 130), where Python would end at once and leave them."""
+    raise KeyboardInterrupt("terminated")
+
+
 def run() -> None:
     """The ``patchcloud`` console script: :func:`main` as a process of its own.
 
@@ -70,6 +77,7 @@ def run() -> None:
     """
     gc.set_threshold(100_000, 50, 50)
     skip_numba_blas_probe()  # 0.14 s of scipy that numba would import for nothing (stream.engine.numba_start)
+    signal.signal(signal.SIGTERM, _terminated)  # what SLURM, PBS, Kubernetes and systemd send: as Ctrl-C
     try:
         main()
     finally:

@@ -27,6 +27,7 @@ import numpy as np
 
 from patchcloud.core import PatchcloudValueError, level_occupancy, sort_points
 
+from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
 from patchcloud.stream.io.las import POSITION_AND_CLASS, LasSource, output_header, read_range
@@ -37,7 +38,7 @@ from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
-    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "FEW_TILES", "TileSizeError", "tile_size_for", "tile_size_of_tiles", "part_size", "part_ranges", "catalog_parts", "part_path",
+    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "FEW_TILES", "TILE_POINT_BYTES", "TileSizeError", "tile_size_for", "tile_size_of_tiles", "part_size", "part_ranges", "catalog_parts", "part_path",
     "scatter_part", "read_part", "route_path", "routes_pay", "part_selection", "store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
@@ -92,6 +93,10 @@ MIN_POINTS_PER_TILE = 10
 MIN_POINTS_PER_OCCUPIED_TILE = 50
 #: So few tiles cost little whatever they hold (a file of 30 points is one tile of 30 points).
 FEW_TILES = 64
+#: Bytes a worker holds per point of the tile it works on, beyond its own start (about 300 measured: a tile of 2 million
+#: points of the synthetic city took a worker to 811 MiB, one of its default tiles to about 490 MiB): what the memory
+#: budget (``--max-memory``) is checked against once the tiles are known.
+TILE_POINT_BYTES = 300
 
 
 def check_points_per_tile(src: LasSource | Catalog, t: float) -> None:
@@ -554,6 +559,10 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
         grid = Grid(origin=grid.origin, tile_size=bigger, scale=grid.scale, offset=grid.offset)
         store = Store.create(url, overwrite=True)
     check_occupied_tiles(store.tile_counts, grid.tile_size, cat.path)
+    if store.tile_counts.size:  # a tile's steps hold all its points at once, in one process
+        most = int(store.tile_counts.max())
+        check_memory(TILE_POINT_BYTES * most, f"{cat.path}: a tile of {grid.tile_size:g} m holding {most:,} points",
+                     hint="give a smaller --tile-size")
     occ = map_tiles(sort_tile, store, runner=runner, label="tile: sort")
     store.remove("parts")
     log_t = int(round(np.log2(grid.tile_size)))
