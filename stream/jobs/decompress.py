@@ -250,8 +250,9 @@ def decompress(
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:
+        source = f.las_header()  # the input's header: its bounds bound the box asked for and the points sampled
         if box is not None:
-            check_box_meets(box, f.las_header(), input)
+            check_box_meets(box, source, input)
         if isinstance(f, pcz.PointsPczFile):
             if density is not None or lod is not None:
                 raise PatchcloudValueError(f"{input}: holds every point (compress --keep-points): density and lod (--density, --lod) "
@@ -286,7 +287,7 @@ def decompress(
         def write(writer, rec, is_res: bool) -> None:
             written[int(is_res)] += _write_points(writer, header, rec, box, output, stats)
 
-        source = f.las_header()  # the input's bounds, in its integers: a sampled point stays within them
+        # the input's bounds in its integers: a sampled point stays within them
         lowest = np.ceil((np.asarray(source.mins) - offset) / scale - 1e-9).astype(np.int64)
         highest = np.floor((np.asarray(source.maxs) - offset) / scale + 1e-9).astype(np.int64)
         with atomic_output(output, overwrite) as out:
@@ -311,14 +312,14 @@ def decompress(
                                                     "what LAS coordinates can hold)")
                         # a patch's mask cell may reach past the cloud's edge (a tile cut at the file's border): such
                         # samples are brought back onto the input's bounds, not made up beyond them
-                        xyz = np.clip(xyz.astype(np.int64), lowest, highest) if lowest.size else xyz.astype(np.int64)
+                        xyz = np.clip(xyz.astype(np.int64), lowest, highest)
                         sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
                         sampled["X"], sampled["Y"], sampled["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
                         sampled["classification"] = cls[k]
                         sampled["intensity"] = inten[k]
                         one = np.ones(len(xyz), np.uint8)  # a point of a surface: one return (the LAS spec allows no 0)
                         sampled["return_number"], sampled["number_of_returns"] = one, one
-                        sampled["Reconstructed"] = np.ones(len(xyz), np.uint8)
+                        sampled["Reconstructed"] = one
                         write(writer, sampled, False)
                     rxyz, rrec = f.residual(int(t))
                     check_in_tile(input, rxyz * scale + offset - origin, f.tiles[int(t)], f.tile_size)
