@@ -41,3 +41,43 @@ def test_the_probe_is_skipped_and_the_kernels_give_the_same_bits():
     assert heavy and blas  # without the skip numba imports scipy.linalg and finds its BLAS
     assert len(skipped) == len(plain) > 0 and skipped == plain
     assert np.isfinite(np.frombuffer(plain[: 20000 * 12], dtype=np.float32)).all()
+
+
+LIGHT = textwrap.dedent("""
+    import sys
+    # modules numba's refresh imports and no kernel of patchcloud's needs (others, numba.np.arraymath, ..., a cached
+    # kernel's environment imports as it loads)
+    REFRESH_ONLY = ("numba.np.polynomial.polynomial_functions", "numba.typed.typedset", "numba.cpython.printimpl")
+    import numpy as np
+    from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly
+    if sys.argv[1] == "light":
+        assert load_cached_kernels_lightly()
+    from patchcloud.core import estimate_normals
+    xy = np.random.default_rng(0).uniform(0, 10, (20000, 2))
+    pts = np.column_stack([xy, 0.3 * np.sin(xy[:, 0]) + 0.1 * xy[:, 1]])
+    res = estimate_normals(pts)
+    refreshed = any(m in sys.modules for m in REFRESH_ONLY)
+    sys.path.insert(0, sys.argv[2])
+    import kernel_for_light_test as k  # a kernel of its own cache: cached for floats by the first run, ints compiled anew
+    extra = (k.twice(1.5), k.twice(3)) if sys.argv[3] == "both" else (k.twice(1.5),)
+    sys.stdout.buffer.write(repr((refreshed, extra)).encode() + b"\\n" + res.normals.tobytes() + res.curvature.tobytes())
+""")
+
+
+def test_cached_kernels_load_without_the_refresh_and_give_the_same_bits(tmp_path):
+    (tmp_path / "kernel_for_light_test.py").write_text(
+        "import numba\n\n@numba.njit(cache=True)\ndef twice(x):\n    return 2 * x\n")
+
+    def run(mode, calls):
+        out = subprocess.run([sys.executable, "-c", LIGHT, mode, str(tmp_path), calls], capture_output=True, timeout=600)
+        assert out.returncode == 0, out.stderr.decode()[-2000:]
+        head, _, data = out.stdout.partition(b"\n")
+        return eval(head.decode()), data
+
+    (refreshed, extra), plain = run("plain", "floats")  # also fills the caches
+    assert refreshed and extra == (3.0,)
+    (refreshed, extra), light = run("light", "floats")
+    assert not refreshed  # every kernel came from the cache, without numba's compiler set-up
+    assert extra == (3.0,) and light == plain and len(plain) > 0
+    (refreshed, extra), light = run("light", "both")  # a signature not in the cache compiles, with the full set-up
+    assert extra == (3.0, 6) and light == plain

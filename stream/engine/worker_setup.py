@@ -26,7 +26,7 @@ import signal
 import sys
 
 from patchcloud.stream.engine.allocator import tune_allocator
-from patchcloud.stream.engine.numba_start import skip_numba_blas_probe
+from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
 from patchcloud.stream.io.store import limit_zarr_threads
 
 __all__ = ["dask_setup", "exit_now", "worker_threads", "tune_running_worker"]
@@ -57,6 +57,7 @@ def dask_setup(worker) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tune_allocator()
     skip_numba_blas_probe()
+    load_cached_kernels_lightly()
     limit_zarr_threads(worker_threads(worker))
     atexit.register(exit_now)
 
