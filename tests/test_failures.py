@@ -103,3 +103,47 @@ def test_sigterm_stops_the_console_script_as_ctrl_c_does(tmp_path):
     assert store.is_dir() and not out.exists() and not list(tmp_path.glob("*.lock"))
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0 and out.exists() and not store.exists(), r.stderr
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_the_worker_processes_start_is_one_line(tmp_path):
+    """SIGINT to the whole process group while the local cluster's worker processes are still starting (importing,
+    before their set-up ignores it): they inherit SIGINT blocked, so they print nothing; the run prints one line."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    src = tmp_path / "big.las"
+    write_scene(src, n=100_000, seed=4)
+    out = tmp_path / "out.las"
+    cmd = [sys.executable, "-c", "from patchcloud.stream.cli import run; run()", "normals", str(src), str(out),
+           "--scheduler", "processes", "--workers", "2", "-q"]
+
+    def worker_processes(pid):  # the children of the run spawned by multiprocessing (the workers, its resource tracker)
+        found = []
+        for d in os.listdir("/proc"):
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+                with open(f"/proc/{d}/cmdline", "rb") as f:
+                    spawned = b"spawn_main" in f.read()
+            except (OSError, ValueError, IndexError):
+                continue
+            if ppid == pid and spawned:
+                found.append(int(d))
+        return found
+
+    for delay in (0.0, 0.15, 0.3, 0.5):  # after the first worker process appears: Python starting, then importing dask
+        p = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        deadline = time.time() + 60
+        while not worker_processes(p.pid) and p.poll() is None and time.time() < deadline:
+            time.sleep(0.01)
+        assert p.poll() is None, "the run ended before its workers started"
+        time.sleep(delay)
+        os.killpg(p.pid, signal.SIGINT)
+        err = p.communicate(timeout=120)[1]
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert p.returncode == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted"), (delay, err[-3000:])

@@ -13,6 +13,7 @@ import logging
 import os
 import re
 import resource
+import signal
 import socket
 import threading
 import time
@@ -193,15 +194,25 @@ class Runner:
                 pass
             self.ready_at = time.time()
             return
-        # the local cluster starts in the background while the caller gets on (opening the input, making the store)
+        # the local cluster starts in the background while the caller gets on (opening the input, making the store).
+        # A terminal's Ctrl-C reaches every process of its foreground group, a worker too, and one that is still
+        # starting (before its set-up, stream.engine.worker_setup, ignores it) would print a KeyboardInterrupt
+        # traceback of its imports. So the starting thread blocks SIGINT: the threads dask starts from it (its event
+        # loop's, which start the workers) inherit the block, and so do the worker processes (a signal mask survives
+        # fork and exec), while this process's main thread still takes Ctrl-C and closes the cluster.
         self._starting = threading.Thread(target=self._start_local, args=(n,), name="patchcloud-start-cluster", daemon=True)
         self._starting.start()
 
     def _start_local(self, n: int) -> None:
         try:
+            processes = self.scheduler == "processes"
+            if processes:  # the worker processes start with Ctrl-C held back (see below)
+                from multiprocessing import resource_tracker
+
+                resource_tracker.ensure_running()  # first: starting it unblocks SIGINT in the thread that does
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
             from dask.distributed import Client, LocalCluster
 
-            processes = self.scheduler == "processes"
             self.cluster = LocalCluster(  # workers log nothing but critical: a task's error reaches the user as one line
                 processes=processes, n_workers=n if processes else 1, threads_per_worker=1 if processes else n, dashboard_address=":0",
                 silence_logs=logging.CRITICAL, **({"preload": ["patchcloud.stream.engine.worker_setup"]} if processes else {}),
