@@ -7,6 +7,7 @@ import signal
 
 import click
 
+from patchcloud.stream.engine.laspy_start import skip_laspy_http
 from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
 
 from .compress import compress_command, decompress_command
@@ -73,11 +74,13 @@ def run() -> None:
     as before.  Only the console script does this: in another program
     (or CliRunner) :func:`main` leaves the collector alone.  So too numba's
     BLAS probe, which the console script skips
-    (:func:`~patchcloud.stream.engine.numba_start.skip_numba_blas_probe`).
+    (:func:`~patchcloud.stream.engine.numba_start.skip_numba_blas_probe`), numba's compiler set-up when it loads
+    cached kernels and laspy's HTTP support (:mod:`~patchcloud.stream.engine.laspy_start`).
     """
     gc.set_threshold(100_000, 50, 50)
     skip_numba_blas_probe()  # 0.14 s of scipy that numba would import for nothing (stream.engine.numba_start)
     load_cached_kernels_lightly()  # 0.07 s of numba's compiler set-up that a cached kernel does not need (same module)
+    skip_laspy_http()  # 0.02 s of requests, for COPC over HTTP (stream.engine.laspy_start)
     signal.signal(signal.SIGTERM, _terminated)  # what SLURM, PBS, Kubernetes and systemd send: as Ctrl-C
     try:
         main()

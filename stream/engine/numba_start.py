@@ -30,9 +30,9 @@ is compiled as before, and compiling refreshes in full.
 
 from __future__ import annotations
 
-import importlib.abc
-import importlib.machinery
 import sys
+
+from patchcloud.stream.engine.import_hooks import after_importing, hide_while_importing
 
 __all__ = ["skip_numba_blas_probe", "load_cached_kernels_lightly", "PROBED", "PROBING", "CACHING"]
 
@@ -40,6 +40,8 @@ __all__ = ["skip_numba_blas_probe", "load_cached_kernels_lightly", "PROBED", "PR
 PROBED = "scipy.linalg.cython_blas"
 #: The numba module that imports it, once, as it is imported.
 PROBING = "numba.np.arraymath"
+#: The numba module whose cache loads kernels.
+CACHING = "numba.core.caching"
 
 
 def skip_numba_blas_probe() -> bool:
@@ -47,50 +49,7 @@ def skip_numba_blas_probe() -> bool:
 
     Returns whether it will: False when numba has already done its probe in this process.
     """
-    if PROBING in sys.modules:
-        return False
-    if not any(isinstance(f, _SkipProbe) for f in sys.meta_path):
-        sys.meta_path.insert(0, _SkipProbe())
-    return True
-
-
-class _SkipProbe(importlib.abc.MetaPathFinder):
-    """Finds ``numba.np.arraymath`` as the path finder does, with a loader that hides :data:`PROBED` while it runs."""
-
-    def find_spec(self, name, path=None, target=None):
-        if name != PROBING:
-            return None
-        spec = importlib.machinery.PathFinder.find_spec(name, path, target)
-        if spec is not None and spec.loader is not None:
-            spec.loader = _WithoutProbe(spec.loader)
-        return spec
-
-
-class _WithoutProbe(importlib.abc.Loader):
-    """A module's own loader, run with :data:`PROBED` unimportable (``sys.modules[PROBED] = None``) for the while."""
-
-    def __init__(self, loader) -> None:
-        self.loader = loader
-
-    def create_module(self, spec):
-        return self.loader.create_module(spec)
-
-    def exec_module(self, module) -> None:
-        hide = PROBED not in sys.modules
-        if hide:
-            sys.modules[PROBED] = None  # an import of it now raises ImportError without importing scipy.linalg
-        try:
-            self.loader.exec_module(module)
-        finally:
-            if hide and PROBED in sys.modules and sys.modules[PROBED] is None:
-                del sys.modules[PROBED]
-
-    def __getattr__(self, name):  # get_source, get_filename, ...: the module's own loader's
-        return getattr(self.loader, name)
-
-
-#: The numba module whose cache loads kernels.
-CACHING = "numba.core.caching"
+    return hide_while_importing(PROBING, PROBED)
 
 
 def load_cached_kernels_lightly() -> bool:
@@ -102,11 +61,9 @@ def load_cached_kernels_lightly() -> bool:
     not work as this expects (numba then loads as it always does).  Loaded
     kernels are the cache's machine code either way: the same results.
     """
-    module = sys.modules.get(CACHING)
-    if module is not None:
-        return _lighten(module)
-    if not any(isinstance(f, _Lighten) for f in sys.meta_path):
-        sys.meta_path.insert(0, _Lighten())
+    if CACHING in sys.modules:
+        return _lighten(sys.modules[CACHING])
+    after_importing(CACHING, _lighten)
     return True
 
 
@@ -129,32 +86,3 @@ def _lighten(caching) -> bool:
     load_overload.__doc__ = cache.load_overload.__doc__
     cache.load_overload = load_overload
     return True
-
-
-class _Lighten(importlib.abc.MetaPathFinder):
-    """Finds :data:`CACHING` as the path finder does, with a loader that lightens it once it has run (:func:`_lighten`)."""
-
-    def find_spec(self, name, path=None, target=None):
-        if name != CACHING:
-            return None
-        spec = importlib.machinery.PathFinder.find_spec(name, path, target)
-        if spec is not None and spec.loader is not None:
-            spec.loader = _ThenLighten(spec.loader)
-        return spec
-
-
-class _ThenLighten(importlib.abc.Loader):
-    """A module's own loader, then :func:`_lighten` on the module it made."""
-
-    def __init__(self, loader) -> None:
-        self.loader = loader
-
-    def create_module(self, spec):
-        return self.loader.create_module(spec)
-
-    def exec_module(self, module) -> None:
-        self.loader.exec_module(module)
-        _lighten(module)
-
-    def __getattr__(self, name):  # get_source, get_filename, ...: the module's own loader's
-        return getattr(self.loader, name)

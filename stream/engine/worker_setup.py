@@ -26,8 +26,8 @@ import signal
 import sys
 
 from patchcloud.stream.engine.allocator import tune_allocator
+from patchcloud.stream.engine.laspy_start import skip_laspy_http
 from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
-from patchcloud.stream.io.store import limit_zarr_threads
 
 __all__ = ["dask_setup", "exit_now", "worker_threads", "tune_running_worker"]
 
@@ -51,13 +51,17 @@ def exit_now() -> None:
 
 def dask_setup(worker) -> None:
     """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT, tune the allocator, skip
-    numba's BLAS probe (:mod:`~patchcloud.stream.engine.numba_start`), have zarr code chunks on as many threads as the
+    numba's BLAS probe and its compiler set-up for cached kernels (:mod:`~patchcloud.stream.engine.numba_start`) and
+    laspy's HTTP support (:mod:`~patchcloud.stream.engine.laspy_start`), have zarr code chunks on as many threads as the
     worker runs tasks (:func:`~patchcloud.stream.io.store.limit_zarr_threads`), leave at once at exit (see the module's
     notes)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tune_allocator()
     skip_numba_blas_probe()
     load_cached_kernels_lightly()
+    skip_laspy_http()
+    from patchcloud.stream.io.store import limit_zarr_threads  # after the skips: it imports laspy and numba
+
     limit_zarr_threads(worker_threads(worker))
     atexit.register(exit_now)
 
@@ -66,6 +70,8 @@ def tune_running_worker(dask_worker=None) -> None:
     """What :func:`dask_setup` sets that a worker already running needs too (a worker of another cluster, reached by
     its scheduler's address, which preloads nothing of patchcloud's): zarr's threads, set by ``Client.run`` as the run
     connects.  A worker that has coded chunks before keeps the pool it made then."""
+    from patchcloud.stream.io.store import limit_zarr_threads
+
     limit_zarr_threads(worker_threads(dask_worker))
 
 
