@@ -264,7 +264,7 @@ def test_bad_classes_are_one_error_line_listing_valid_values(value, says, tmp_pa
     r = CliRunner().invoke(main, ["normals", str(SAMPLE), str(tmp_path / "o.las"), "--classes", value])
     assert r.exit_code == 2
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: classes") and says in lines[0], r.stderr
+    assert len(lines) == 1 and lines[0].startswith(f"error: --classes {value}: ") and says in lines[0], r.stderr
     assert "valid: classification codes 0 to 255" in lines[0]
     assert not (tmp_path / "o.las").exists()
 

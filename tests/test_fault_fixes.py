@@ -194,3 +194,26 @@ def test_tile_refuses_a_path_holding_something_else_and_touches_nothing(tmp_path
     with pytest.raises(PatchcloudStoreError, match=r"s.zarr: exists and is not a patchcloud store .*remove the store to start over"):
         tile(SAMPLE, str(store), tile_size=64, scheduler="synchronous", quiet=True)
     assert (store / "notes.txt" if what == "directory" else store).read_text() == "mine"
+
+
+@pytest.mark.parametrize("args, says", [
+    (["normals", "IN", "OUT", "--orient", "bad"], "error: Invalid value for '--orient': 'bad' is not one of"),
+    (["normals", "IN", "OUT", "--bogus"], "error: No such option '--bogus' (`patchcloud normals --help` for help)"),
+    (["nrmals"], "error: No such command 'nrmals'"),
+    (["--bogus"], "error: No such option '--bogus' (`patchcloud --help` for help)"),
+    (["normals"], "error: Missing argument"),
+    (["don", "IN", "OUT", "--rs", "abc"], "error: Invalid value for '--rs': 'abc' is not a valid float"),
+    (["normals", "IN", "OUT", "--viewpoint", "1", "2", "3", "--orient", "up"], "error: --viewpoint orients the normals"),
+    (["render", "IN", "OUT"], "error: Missing option '--color' / '--colour'. Choose from: normals, curvature, don,"),
+])
+def test_usage_errors_are_one_line_with_exit_2(args, says, tmp_path):
+    """What click refuses itself (an unknown option or command, a value of the wrong kind, a missing argument) is one
+    line too, naming the command's help, where click prints four (usage, hint, blank, ``Error:``)."""
+    from click.testing import CliRunner
+
+    from patchcloud.stream.cli import main
+
+    args = [str(tmp_path / "in.las") if a == "IN" else str(tmp_path / "out.las") if a == "OUT" else a for a in args]
+    r = CliRunner().invoke(main, args, prog_name="patchcloud")
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and r.output.startswith(says), r.output
+    assert not (tmp_path / "out.las").exists()

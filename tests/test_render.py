@@ -354,3 +354,21 @@ def test_outliers_far_above_do_not_spoil_the_framing(tmp_path):
     for bad in (-1, 65, "2", True):
         with pytest.raises(PatchcloudValueError, match="fill must be a gap-filling radius in pixels from 0"):
             render_array(path, color="elevation", fill=bad)
+
+
+def test_undefined_don_and_left_out_normals_show_the_undefined_grey():
+    """The outputs hold DoN 0 where it is undefined, and normal (0, 0, 0) for a point left out (their declared no-data):
+    the picture shows them UNDEFINED grey, not the colour map's low end, and the colour range leaves them out."""
+    from patchcloud.stream.views.render import UNDEFINED, colorize
+
+    don = np.array([[0.0, 0.1, 0.2, 0.3]])
+    filled = np.ones_like(don, dtype=bool)
+    rgb, rng, _ = colorize("don", don, filled)
+    assert rgb[0, 0].tolist() == list(UNDEFINED)
+    assert all(rgb[0, i].tolist() != list(UNDEFINED) for i in (1, 2, 3))
+    assert rng[0] >= 0.1  # the 2nd percentile of 0.1, 0.2, 0.3, not of the zeros
+    normals = np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]])
+    rgb, _, _ = colorize("normals", normals, np.ones((1, 2), dtype=bool))
+    assert rgb[0, 0].tolist() == list(UNDEFINED) and rgb[0, 1].tolist() == [0.5, 0.5, 1.0]
+    rgb, _, _ = colorize("curvature", don, filled)  # a curvature of 0 is a plane's: coloured
+    assert rgb[0, 0].tolist() != list(UNDEFINED)

@@ -15,6 +15,7 @@ from .don import don_command
 from .don_scales import don_scales_command
 from .info import info_command
 from .normals import normals_command
+from .options import OneLineErrors
 from .render import render_command, render_tiles_command
 from .segment import segment_command
 from .tile import tile_command
@@ -22,7 +23,7 @@ from .tile import tile_command
 __all__ = ["main", "run"]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="patchcloud")
 @click.option("--debug", is_flag=True, default=False, help="Show the traceback of an unexpected error (a bug) instead of one line.")
 def main(debug: bool) -> None:

@@ -13,7 +13,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
+__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="LENGTH",
@@ -294,6 +294,8 @@ def in_option_words(message: str, command: click.Command | None) -> str:
     '--rs must be smaller than --rl; got --rs 2 m, --rl 0.5 m'
     >>> in_option_words('orient="viewpoint" needs a viewpoint (x, y, z), or None', cmd)
     '--orient viewpoint needs a viewpoint (x, y, z), or not given'
+    >>> in_option_words("orient 'sideways': not a rule", cmd)
+    '--orient sideways: not a rule'
     """
     options = {}
     for param in getattr(command, "params", ()):
@@ -307,6 +309,9 @@ def in_option_words(message: str, command: click.Command | None) -> str:
     # and a Python name (with an underscore) anywhere
     subject = re.compile(rf"(^|[:;] )({names})(?= must| needs)")
     message = subject.sub(lambda m: m.group(1) + options[m.group(2)], message)
+    # a message opening with the name and the value given in quotes: "classes 'abc': ..." is "--classes abc: ..."
+    quoted = re.compile(rf"^({names}) '([^']*)'(?=[: ])")
+    message = quoted.sub(lambda m: f"{options[m.group(1)]} {m.group(2)}", message)
     pattern = re.compile(rf'(?<![\w-])({names})(="([^"]*)"|=)|(?<![\w-])(\w+_\w+)(?![\w-])')
 
     def word(m: re.Match) -> str:
@@ -318,6 +323,51 @@ def in_option_words(message: str, command: click.Command | None) -> str:
         return f"{option} "
 
     return re.sub(r"\bor None\b", "or not given", pattern.sub(word, message))
+
+
+class OneLineErrors(click.Group):
+    """A click group whose usage errors (an unknown option, a value click refuses, a missing argument) are one line,
+    ``error: MESSAGE (`COMMAND --help` for help)``, exit status 2, like every other failure; click's own form is
+    four lines (the usage, a hint, a blank line and ``Error: ...``).  Other errors are click's, unchanged."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        try:
+            return super().main(args, prog_name, complete_var, standalone_mode=True, **extra)
+        except _UsageLine as exc:
+            click.echo(f"error: {exc.line}", err=True)
+            sys.exit(exc.exit_code)
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:
+            raise _one_line(exc) from None
+
+    def parse_args(self, ctx, args):
+        try:
+            return super().parse_args(ctx, args)
+        except click.UsageError as exc:
+            raise _one_line(exc) from None
+
+
+def _one_line(exc: click.UsageError) -> Exception:
+    """The error to raise for ``exc``: itself where it is help asked for by giving no arguments, else a _UsageLine."""
+    if isinstance(exc, getattr(click.exceptions, "NoArgsIsHelpError", ())):
+        return exc
+    return _UsageLine(exc)
+
+
+class _UsageLine(Exception):
+    """A click usage error carried past click's own handler to :meth:`OneLineErrors.main`, as one line."""
+
+    def __init__(self, exc: click.UsageError) -> None:
+        path = exc.ctx.command_path if exc.ctx is not None else "patchcloud"
+        message = " ".join(exc.format_message().split())  # click's lists of choices span lines
+        self.line = f"{message.rstrip('.')} (`{path} --help` for help)"
+        self.exit_code = exc.exit_code
+        super().__init__(self.line)
 
 
 def reports_errors(func):

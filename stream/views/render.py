@@ -64,7 +64,7 @@ from patchcloud.stream.views.layout import MIN_WIDTH, FigureLayout, figure_layou
 from patchcloud.stream.views.units import AxisNames, axis_names
 
 __all__ = [
-    "COLOR_MODES", "VIEWS", "AMBIENT", "FLAT_RATIO", "LIGHT", "BACKGROUND", "UNDEFINED", "NO_SEGMENT",
+    "COLOR_MODES", "NO_DATA", "VIEWS", "AMBIENT", "FLAT_RATIO", "LIGHT", "BACKGROUND", "UNDEFINED", "NO_SEGMENT",
     "RenderImage", "RenderSummary", "ZBuffer", "Frame", "render", "render_array", "render_arrays", "render_figure",
     "view_axes", "choose_view", "auto_fill", "MAX_FILL", "MIN_FILL", "FILL_SPACINGS", "FILL_LIMIT", "point_spacing",
     "view_axis_labels", "picture_crs", "WIDTH_OF", "robust_heights", "HEIGHTS", "make_frame", "fill_gaps", "colorize", "lambert", "patch_boundaries", "segment_colours",
@@ -104,6 +104,9 @@ BOUNDARY_DARKEN = 0.5
 PERCENTILES = (2.0, 98.0)
 #: Continuous colour maps (perceptually uniform).
 CMAPS = {"curvature": "viridis", "don": "viridis", "elevation": "cividis", "intensity": "gray"}
+#: Continuous modes whose files hold this value where there is none, shown UNDEFINED: DoN is 0 where a normal at
+#: either scale is undefined (declared as its no-data value; a true 0 would need the same normal at both scales).
+NO_DATA = {"don": 0.0}
 #: Largest image height, in multiples of the width (a very elongated frame gets a coarser pixel instead).
 MAX_ASPECT = 4
 
@@ -496,7 +499,8 @@ def colorize(
         normals: (n + 1) / 2; curvature, DoN: viridis; elevation: cividis;
         intensity: grey; segments: :func:`segment_colours`; patches:
         :func:`patch_colours`; classification: :func:`class_colours`;
-        undefined values UNDEFINED grey.
+        undefined values UNDEFINED grey: NaN, a zero normal, and DoN's
+        no-data 0 (:data:`NO_DATA`), which the colour range leaves out.
     value_range : (low, high) or None
         The range mapped onto the colour map (continuous modes).
     legend : list of (label, rgb, pixels)
@@ -517,9 +521,12 @@ def colorize(
     rng = None
     legend: list = []
     v = values[filled]
+    if color in NO_DATA:  # the value the outputs write where there is none (README: "No NaN, and what a point ...")
+        values = np.where(values == NO_DATA[color], np.nan, values)
+        v = values[filled]
     if color == "normals":
         c = (v + 1.0) / 2.0
-        c[~np.isfinite(c).all(axis=1)] = UNDEFINED
+        c[~np.isfinite(c).all(axis=1) | (v == 0.0).all(axis=1)] = UNDEFINED  # (0, 0, 0): a point left out, no normal
     elif color in CMAPS:
         own = v if drawn is None else values[np.asarray(drawn, dtype=bool) & filled]
         rng = tuple(float(x) for x in value_range) if value_range is not None else robust_range(own)
