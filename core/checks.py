@@ -75,9 +75,9 @@ def check_radius(name: str, value) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise PatchcloudValueError(f"{name} must be a positive number of metres, got {value!r}") from None
+        raise PatchcloudValueError(f"{name} must be a positive length in the coordinates' unit, got {value!r}") from None
     if not np.isfinite(v) or v <= 0:
-        raise PatchcloudValueError(f"{name} must be a positive number of metres, got {value!r}")
+        raise PatchcloudValueError(f"{name} must be a positive length in the coordinates' unit, got {value!r}")
     return v
 
 
@@ -115,7 +115,7 @@ def check_budget(max_error) -> float:
     except (TypeError, ValueError):
         budget = float("nan")
     if not np.isfinite(budget) or budget <= 0:
-        raise PatchcloudValueError(f"max_error must be a positive number of metres, got {max_error!r}")
+        raise PatchcloudValueError(f"max_error must be a positive length in the coordinates' unit, got {max_error!r}")
     return budget
 
 

@@ -36,7 +36,7 @@ and its function (``jobs/normals.py`` is the model), one in
 >>> RunOptions(tile_size=-1)
 Traceback (most recent call last):
 ...
-patchcloud.core.errors.PatchcloudValueError: tile size must be a positive number of metres, got -1
+patchcloud.core.errors.PatchcloudValueError: tile size must be a positive length in the coordinates' unit, got -1
 """
 
 from __future__ import annotations
