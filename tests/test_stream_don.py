@@ -254,3 +254,23 @@ def test_worker_processes_give_identical_files(scene, tmp_path):
     segment(path, tmp_path / "a.las", scheduler="synchronous", **kw)
     segment(path, tmp_path / "b.las", scheduler="processes", workers=2, **kw)
     assert (tmp_path / "a.las").read_bytes() == (tmp_path / "b.las").read_bytes()
+
+
+@pytest.mark.parametrize("job, change", [(don, {"r_small": 0.4}), (segment, {"tolerance": 0.3}), (segment, {"threshold": 0.3})])
+def test_a_kept_store_never_passes_an_output_of_other_parameters_as_this_runs(scene, tmp_path, job, change):
+    """The same output and store, other parameters: the output the first run wrote is not taken as done (it was, with
+    the store's record of it matching): without --overwrite one error line, with it the new values, as a fresh run's."""
+    path, _, _ = scene
+    st, out = tmp_path / "keep.zarr", tmp_path / "out.las"
+    kw = dict(r_small=0.3, r_large=1.5, tile_size=4.0, store=str(st), scheduler="synchronous", quiet=True)
+    if job is segment:
+        kw.update(threshold=0.2, tolerance=0.15, min_cluster=30)
+    job(path, out, **kw)
+    first = out.read_bytes()
+    with pytest.raises(PatchcloudIOError, match="exists"):
+        job(path, out, **{**kw, **change})
+    assert out.read_bytes() == first
+    job(path, out, **{**kw, **change}, overwrite=True)
+    fresh = tmp_path / "fresh.las"
+    job(path, fresh, **{**kw, **change, "store": None})
+    assert out.read_bytes() != first and out.read_bytes() == fresh.read_bytes()

@@ -257,11 +257,13 @@ def _export_routed(store: Store, src, p: int, local: int, first: int, count: int
     return stats, table
 
 
-def output_key(store: Store, columns: list[Column], dims) -> str:
-    """What an output holds, as a short hash: the dimensions added, the columns, and the steps done on the store (with
-    the keys of their resolved parameters), so an output written after other parameters is not taken as this one."""
+def output_key(store: Store, columns: list[Column], dims, provenance: laspy.VLR | None = None) -> str:
+    """What an output holds, as a short hash: the dimensions added, the columns, the steps done on the store (with
+    the keys of their resolved parameters) and the job's parameters as its provenance VLR states them (a DoN radius, a
+    segment tolerance), so an output written after other parameters is not taken as this one."""
     what = dict(dims=[[str(d[0]), np.dtype(d[1]).str] for d in dims], columns=[[c.array, list(c.dims), c.empty] for c in columns],
-                steps=store.attrs.get("steps", {}), params=store.attrs.get("params_key"), selection=store.attrs.get("selection"))
+                steps=store.attrs.get("steps", {}), params=store.attrs.get("params_key"), selection=store.attrs.get("selection"),
+                provenance=None if provenance is None else bytes(provenance.record_data).decode("utf-8", "replace"))
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -306,7 +308,7 @@ def export_columns(
     outputs = [outputs] if isinstance(outputs, (str, os.PathLike)) else list(outputs)
     if len(outputs) != len(cat.sources):
         raise PatchcloudValueError(f"{len(cat.sources)} files in the store {store.url}, {len(outputs)} outputs given")
-    key = output_key(store, columns, dims)
+    key = output_key(store, columns, dims, provenance)
     done = complete_outputs(store, outputs, key)
     outs = [Path(o) if d else check_writable(o, overwrite) for o, d in zip(outputs, done)]
     if all(done):
