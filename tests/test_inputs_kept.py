@@ -30,6 +30,16 @@ def laz(tmp_path):
     ["normals", "{in}", "{dir}/out.laz", "--store", "{in}"],
     ["normals", "{in}", "{dir}/out.laz", "--store", "{dir}/out.laz"],
     ["normals", "{in}", "{dir}/out.laz", "--report", "{in}", "--overwrite"],
+    # a catalog's inputs are the files its directories and globs name
+    ["normals", "{dir}", "--out-dir", "{dir}_out", "--report", "{in}", "--overwrite"],
+    ["normals", "{dir}/*.laz", "--out-dir", "{dir}_out", "--report", "{in}", "--overwrite"],
+    ["segment", "{dir}", "--out-dir", "{dir}_out", "--report", "{in}", "--overwrite"],
+    ["compress", "{dir}", "--out-dir", "{dir}_out", "--report", "{in}", "--overwrite"],
+    # the other files a run writes beside its output
+    ["normals", "{in}", "{dir}/out.laz", "--summary-json", "{in}"],
+    ["normals", "{in}", "{dir}/out.laz", "--summary-json", "{dir}/out.laz"],
+    ["don", "{in}", "{dir}/out.laz", "--profile", "{in}"],
+    ["normals", "{dir}", "--out-dir", "{dir}_out", "--summary-json", "{in}"],
 ])
 def test_an_input_is_never_replaced(laz, tmp_path, args):
     before = laz.read_bytes()
@@ -48,3 +58,12 @@ def test_decompress_does_not_replace_its_pcz(laz, tmp_path):
     before = pcz.read_bytes()
     r = CliRunner().invoke(main, ["decompress", str(pcz), str(pcz), "--overwrite", "-q"])
     assert r.exit_code == 2 and "is the input" in r.output and pcz.read_bytes() == before
+
+
+def test_the_report_of_a_catalog_of_one_file_shows_its_output(laz, tmp_path):
+    """A directory or glob that names one file is a catalog of one: its summary's output is the directory, and its
+    report reads the file written in it (it tried to read the directory)."""
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["normals", str(tmp_path / "in*.laz"), "--out-dir", str(out), "--report", str(tmp_path / "r.html"), "-q"])
+    assert r.exit_code == 0, r.output
+    assert (out / "in.laz").is_file() and "in.laz" in (tmp_path / "r.html").read_text()

@@ -13,7 +13,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
+__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "check_side_files", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="LENGTH",
@@ -199,20 +199,45 @@ def catalog_options(func):
     return func
 
 
-def input_and_output(paths: tuple[str, ...], out_dir: str | None, report: str | None, overwrite: bool):
+def input_and_output(paths: tuple[str, ...], out_dir: str | None, report: str | None, overwrite: bool, profile: str | None = None):
     """The job function's ``input`` and ``output`` from the command's arguments (``IN OUT``, or inputs and ``--out-dir``),
-    after checking ``--report`` can be written (:func:`check_report`)."""
+    after checking the files written beside the output (``--report``, ``--summary-json``, ``--profile``) can be
+    written and replace none of the job's files (:func:`check_side_files`)."""
     from patchcloud.core import PatchcloudValueError
 
     if out_dir is not None:
-        check_report(report, overwrite, *paths)
+        check_side_files(paths, None, report, profile, overwrite)
         return list(paths), None
     if len(paths) == 1:
         raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT file after it, or --out-dir DIR")
     if len(paths) > 2:
         raise PatchcloudValueError(f"{len(paths)} paths given: for a catalog of files give --out-dir DIR (every argument is then an input)")
-    check_report(report, overwrite, *paths)
+    check_side_files(paths[:1], paths[1], report, profile, overwrite)
     return paths[0], paths[1]
+
+
+def check_side_files(inputs, output: str | None, report: str | None, profile: str | None, overwrite: bool) -> None:
+    """Before a job runs: ``--report`` can be written (:func:`check_report`), and neither it, the ``--summary-json``
+    of the running command nor ``--profile`` is one of the job's files: an input (every file a directory or glob of
+    ``inputs`` names) or the output.  A PatchcloudIOError (one error line) if not; ``--overwrite`` changes nothing."""
+    from patchcloud.core import PatchcloudIOError
+    from patchcloud.stream.io.catalog import expand_inputs
+    from patchcloud.stream.io.las import same_file
+
+    try:
+        files = [str(f) for f in expand_inputs(list(inputs))]
+    except PatchcloudIOError:  # the job says what is wrong with its inputs, in its own words
+        files = [str(i) for i in inputs]
+    job_files = files + ([str(output)] if output is not None else [])
+    check_report(report, overwrite, *job_files)
+    ctx = click.get_current_context(silent=True)
+    summary = None if ctx is None else ctx.find_root().meta.get(SUMMARY_JSON_KEY) or ctx.meta.get(SUMMARY_JSON_KEY)
+    for option, path in (("--summary-json", summary), ("--profile", profile)):
+        if path is None:
+            continue
+        for f in job_files:
+            if same_file(f, path):
+                raise PatchcloudIOError(f"{path}: {option} would replace the job's file {f}")
 
 
 def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:

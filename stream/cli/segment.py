@@ -48,7 +48,7 @@ def segment_command(
     from patchcloud.stream import segment
 
     run = options.run_options(run)
-    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite)
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile)
 
     asked = SegmentOptions(
         r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, threshold=threshold, tolerance=tolerance,

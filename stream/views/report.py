@@ -326,7 +326,7 @@ def _value(v) -> str:
 def run_files(summary) -> tuple[list[str], list[str]]:
     """The inputs and outputs of a run: one each, or a catalog's files (``summary.files``: (input, output, points))."""
     files = getattr(summary, "files", None) or []
-    if len(files) > 1:
+    if files:  # a catalog's, even of one file (its summary's output is then the directory)
         return [i for i, _, _ in files], [o for _, o, _ in files]
     return [summary.input], [summary.output]
 
