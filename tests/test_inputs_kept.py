@@ -67,3 +67,30 @@ def test_the_report_of_a_catalog_of_one_file_shows_its_output(laz, tmp_path):
     r = CliRunner().invoke(main, ["normals", str(tmp_path / "in*.laz"), "--out-dir", str(out), "--report", str(tmp_path / "r.html"), "-q"])
     assert r.exit_code == 0, r.output
     assert (out / "in.laz").is_file() and "in.laz" in (tmp_path / "r.html").read_text()
+
+
+def test_a_picture_replaces_only_a_picture(laz, tmp_path):
+    """render and render-tiles write a PNG: never over a LAS/LAZ name (an unquoted ``render tiles/*.laz`` makes the
+    last tile the output), nor over an existing file that is not a PNG (a store's metadata, notes); a PNG is replaced."""
+    other = tmp_path / "other.laz"
+    shutil.copy(laz, other)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    store = tmp_path / "st.zarr"
+    assert CliRunner().invoke(main, ["tile", str(laz), str(store), "-q"]).exit_code == 0
+    meta = (store / "zarr.json").read_bytes()
+    for args, says in [
+        (["render", str(laz), str(other), "--color", "elevation"], "a LAS/LAZ name"),
+        (["render", str(laz), str(tmp_path / "new.copc.laz"), "--color", "elevation"], "a LAS/LAZ name"),
+        (["render", str(laz), str(notes), "--color", "elevation"], "exists and is not a PNG"),
+        (["render-tiles", str(store), str(store / "zarr.json")], "exists and is not a PNG"),
+        (["render-tiles", str(store), str(other)], "a LAS/LAZ name"),
+    ]:
+        r = CliRunner().invoke(main, args + ["-q"])
+        assert r.exit_code == 2 and r.output.count("\n") == 1 and says in r.output, (args, r.output)
+    assert other.read_bytes() == laz.read_bytes() and notes.read_text() == "mine" and (store / "zarr.json").read_bytes() == meta
+    assert not (tmp_path / "new.copc.laz").exists()
+    png = tmp_path / "p.png"
+    for _ in range(2):  # the second run replaces the first's PNG
+        r = CliRunner().invoke(main, ["render", str(laz), str(png), "--color", "elevation", "--width", "200", "-q"])
+        assert r.exit_code == 0, r.output

@@ -111,7 +111,7 @@ def test_colours_of_the_categorical_modes():
 
 def test_continuous_colours_use_the_robust_range_and_grey_for_undefined():
     v = np.array([[0.0, 1.0, 2.0, np.nan]])
-    rgb, rng, _ = colorize("don", v, np.array([[1, 1, 1, 1]], bool), value_range=(0.0, 2.0))
+    rgb, rng, _ = colorize("curvature", v, np.array([[1, 1, 1, 1]], bool), value_range=(0.0, 2.0))
     from matplotlib import colormaps
 
     assert rng == (0.0, 2.0)

@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from patchcloud.stream.jobs.don_scales import ScalesResult
 
-__all__ = ["STYLE", "CMAP", "new_figure", "style_axes", "check_png_path", "save_png", "scale_selection_figure", "shorten"]
+__all__ = ["STYLE", "CMAP", "new_figure", "style_axes", "check_png_path", "PNG_SIGNATURE", "NOT_PICTURE_NAMES", "save_png", "scale_selection_figure", "shorten"]
 
 #: Shared look of every figure: resolution (dots per inch) and font sizes (points).
 STYLE = {"dpi": 150, "title": 10, "label": 9, "tick": 8, "annotation": 7, "suptitle": 11}
@@ -77,16 +77,37 @@ def style_axes(ax: "Axes", title: str | None = None, xlabel: str | None = None, 
     ax.tick_params(labelsize=STYLE["tick"])
 
 
-def check_png_path(path: str | os.PathLike) -> Path:
-    """``path`` as a Path if a PNG can be written there (an existing file is replaced); else a PatchcloudIOError naming it.
+#: The first bytes of every PNG file.
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: Names a picture is not given: a point cloud's (an unquoted glob's last file would be taken as the picture).
+NOT_PICTURE_NAMES = (".las", ".laz")
 
-    Jobs that draw after a long read call it first, so a bad path fails before the work.
+
+def check_png_path(path: str | os.PathLike) -> Path:
+    """``path`` as a Path if a PNG can be written there (an existing PNG is replaced); else a PatchcloudIOError naming it.
+
+    Refused: a directory, a missing directory, a name of a point cloud
+    (:data:`NOT_PICTURE_NAMES`, any case: ``render tiles/*.laz`` unquoted
+    makes the last tile the picture), and an existing file that is not a
+    PNG (a store's metadata, a LAS file, a report): a picture replaces only
+    a picture.  Jobs that draw after a long read call it first, so a bad
+    path fails before the work.
     """
     p = Path(path)
     if p.is_dir():
         raise PatchcloudIOError(f"{p}: is a directory")
     if not p.resolve().parent.exists():
         raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
+    if p.name.lower().endswith(NOT_PICTURE_NAMES):
+        raise PatchcloudIOError(f"{p}: a LAS/LAZ name, not a picture's (a PNG is written; an unquoted glob's last file?)")
+    if p.exists():
+        try:
+            with open(p, "rb") as f:
+                head = f.read(len(PNG_SIGNATURE))
+        except OSError as exc:
+            raise PatchcloudIOError(f"{p}: cannot be read ({exc.strerror or exc})") from None
+        if head != PNG_SIGNATURE:
+            raise PatchcloudIOError(f"{p}: exists and is not a PNG (a picture replaces only a picture)")
     return p
 
 
