@@ -121,7 +121,7 @@ def test_models_do_not_depend_on_input_order(rng):
 
 @pytest.mark.parametrize("bad", [0.0, -0.01, float("nan"), "x"])
 def test_bad_budget(rng, bad):
-    with pytest.raises(PatchcloudValueError, match="max_error must be a positive number"):
+    with pytest.raises(PatchcloudValueError, match="max_error must be a positive length"):
         fit_models(rng.uniform(size=(100, 3)), bad)
 
 

@@ -134,7 +134,7 @@ def test_deterministic_subset_and_other_dimension(labelled, result):
 def test_arguments_are_checked_first(labelled, tmp_path):
     with pytest.raises(PatchcloudValueError, match="at least two distinct"):
         don_scales(labelled, radii=[1.0])
-    with pytest.raises(PatchcloudValueError, match="positive numbers of metres"):
+    with pytest.raises(PatchcloudValueError, match="positive lengths in the file"):
         don_scales(labelled, radii=[0.5, -1])
     with pytest.raises(PatchcloudValueError, match="no pair"):
         scale_pairs(small=[2, 3], large=[1])

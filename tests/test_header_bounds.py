@@ -117,7 +117,7 @@ def test_an_absurd_decompress_density_is_refused_before_writing(scene, tmp_path)
     from patchcloud.stream import compress, decompress
 
     compress(scene, tmp_path / "s.pcz", max_error=0.02, quiet=True)
-    with pytest.raises(PatchcloudValueError, match=r"a density of 1e\+09 per m² would sample about [\d,]+ points, more than 100 "
+    with pytest.raises(PatchcloudValueError, match=r"a density of 1e\+09 per square unit would sample about [\d,]+ points, more than 100 "
                                                    r"times the [\d,]+ the file stands for"):
         decompress(tmp_path / "s.pcz", tmp_path / "back.laz", density=1e9)
     assert not (tmp_path / "back.laz").exists()

@@ -215,9 +215,9 @@ def test_cli_don_and_segment(scene, tmp_path):
     [
         # the Python API's parameter names said as the options the user typed
         (["--rs", "2", "--rl", "0.2"], "--rs must be smaller than --rl; got --rs 2 m, --rl 0.2 m"),
-        (["--rs", "-0.2"], "--rs must be a positive number"),
+        (["--rs", "-0.2"], "--rs must be a positive length"),
         (["--threshold", "1.5"], "--threshold must be a DoN magnitude in [0, 1]"),
-        (["--tolerance", "0"], "--tolerance must be a positive number"),
+        (["--tolerance", "0"], "--tolerance must be a positive length"),
         (["--min-points", "0"], "--min-points must be"),
         (["--min-points", "100", "--max-points", "10"], "no smaller than --min-points (100), or not given; got 10"),
         (["--axis-threshold", "0.2"], "--axis-threshold needs an axis"),

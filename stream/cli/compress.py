@@ -73,7 +73,7 @@ def compress_command(paths, max_error, keep_points, drop, record_source, report,
 @click.command("decompress")
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.argument("output", type=click.Path(dir_okay=False))
-@click.option("--density", type=float, default=None, metavar="PER_M2", help="Points per square metre of each patch.")
+@click.option("--density", type=float, default=None, metavar="PER_AREA", help="Points per square unit of the file's CRS (per square metre in metres, per square foot in feet) of each patch.")
 @click.option("--lod", type=int, default=None, metavar="K", help="Level of detail: each patch's point count / 4**K. Default: the count (K = 0).")
 @click.option("--bbox", type=float, nargs=6, default=None, metavar="XMIN YMIN ZMIN XMAX YMAX ZMAX",
               help="Only this box (file coordinates); only the tiles that meet it are read.")

@@ -27,7 +27,7 @@ from patchcloud.stream.io.las_output import copy_records, legacy_counts, point_s
 from patchcloud.stream.io.las_records import parse_records, provenance_vlr
 from patchcloud.stream.engine.background import stops_what_it_starts
 
-__all__ = ["decompress", "DecompressSummary", "DECOMPRESS_DIMS", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "check_in_tile", "check_box_meets"]
+__all__ = ["decompress", "DecompressSummary", "DECOMPRESS_DIMS", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "MAX_LOD", "check_in_tile", "check_box_meets"]
 
 
 @dataclass
@@ -59,6 +59,8 @@ MAX_UPSAMPLING = 100
 #: Sampled points may lie this share of the tile's edge outside their tile (a patch's extent box, rotated, may poke out
 #: of its cell); beyond, or not finite, the models were damaged or crafted: the file is refused.
 TILE_SLACK = 0.25
+#: The largest ``lod`` that divides a count (a cell holds fewer than 4**31 points): a larger one samples as it does.
+MAX_LOD = 31
 #: Bytes a sampled point takes while its batch is made, besides its record (coordinates, cell, integer coordinates, temporaries):
 #: a batch is checked against the memory budget (``--max-memory``) before it is sampled.
 SAMPLED_POINT_BYTES = 112
@@ -88,13 +90,13 @@ def check_in_tile(path, points: np.ndarray, ijk: np.ndarray, tile_size: float) -
 
 
 def _counts(models, density: float | None, lod: int | None) -> np.ndarray:
-    """Points to sample per cell: its own count, ``density`` per square metre of its occupied extent, or count / 4**lod."""
+    """Points to sample per cell: its own count, ``density`` per square unit (the file's) of its occupied extent, or count / 4**lod."""
     if density is not None:
         e = models.extent
         area = (e[:, 1] - e[:, 0]) * (e[:, 3] - e[:, 2]) * models.occupied() / MASK_SIDE**2
         return np.maximum(np.rint(area * density), 1).astype(np.int64)
-    if lod is not None:
-        return np.maximum(models.count // 4**lod, 1).astype(np.int64)
+    if lod is not None:  # beyond MAX_LOD every cell has one point anyway (and 4**32 is past int64)
+        return np.maximum(models.count // 4 ** min(lod, MAX_LOD), 1).astype(np.int64)
     return models.count.astype(np.int64)
 
 
@@ -210,7 +212,7 @@ def decompress(
         residual point).  Sampled points carry the majority class and
         mean intensity of their patch's points in their octree cell; their other dimensions are 0.
     density : float, optional
-        Points per square metre of each cell's occupied extent; at most
+        Points per square unit of the file's CRS (m² in metres, ft² in feet) of each cell's occupied extent; at most
         :data:`MAX_UPSAMPLING` times the points the file stands for in all
         (checked before anything is written).
     lod : int, optional
@@ -237,7 +239,7 @@ def decompress(
     if density is not None and lod is not None:
         raise PatchcloudValueError("give density or lod, not both")
     if density is not None and (not np.isfinite(density) or density <= 0):
-        raise PatchcloudValueError(f"density must be a positive number of points per square metre, got {density!r}")
+        raise PatchcloudValueError(f"density must be a positive number of points per square unit of the file's CRS, got {density!r}")
     if lod is not None and (not isinstance(lod, (int, np.integer)) or lod < 0):
         raise PatchcloudValueError(f"lod must be a whole number, at least 0; got {lod!r}")
     box = None
@@ -268,17 +270,20 @@ def decompress(
         if not (np.array_equal(scale, header.scales) and np.array_equal(offset, header.offsets)):
             raise PatchcloudIOError(f"{input}: damaged .pcz file (the grid's scale {scale.tolist()} and offset {offset.tolist()} "
                                     f"are not the header's {list(header.scales)} and {list(header.offsets)})")
-        tiles = range(len(f.tiles)) if box is None else f.tiles_in(box[:3] - origin, box[3:] - origin)
+        # a residual point's coded position may lie up to the budget past its tile's faces (it is rounded): a box that
+        # reaches a tile's neighbourhood reads the tile
+        reach = float(f.max_error)
+        tiles = range(len(f.tiles)) if box is None else f.tiles_in(box[:3] - origin - reach, box[3:] - origin + reach)
         L = header.point_format.size
         per_point = SAMPLED_POINT_BYTES + L
         if lod is not None or density is None:  # each cell's own count, or fewer: the largest cell, before writing
-            check_memory(per_point * (f.largest_cell // 4 ** (lod or 0)), f"{input}: a cell of {f.largest_cell:,} points")
+            check_memory(per_point * (f.largest_cell // 4 ** min(lod or 0, MAX_LOD)), f"{input}: a cell of {f.largest_cell:,} points")
         if density is not None:
             want = sum(int(_counts(dequantise_models(f.patches(int(t))[0]), density, None).sum()) for t in tiles)
             have = int(f.attrs["counts"]["points"])
             if want > MAX_UPSAMPLING * have:
                 raise PatchcloudValueError(
-                    f"{input}: a density of {density:g} per m² would sample about {want:,} points, more than {MAX_UPSAMPLING} "
+                    f"{input}: a density of {density:g} per square unit would sample about {want:,} points, more than {MAX_UPSAMPLING} "
                     f"times the {have:,} the file stands for; give a lower density"
                 )
         written = [0, 0]  # sampled, residual

@@ -115,11 +115,11 @@ def check_radii(name: str, values) -> np.ndarray:
         r = np.asarray(values, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
         raise PatchcloudValueError(
-            f"{name} must be positive numbers of metres, e.g. {', '.join(f'{v:g}' for v in DEFAULT_RADII)}; got {values!r}"
+            f"{name} must be positive lengths in the file's unit, e.g. {', '.join(f'{v:g}' for v in DEFAULT_RADII)}; got {values!r}"
         ) from None
     if r.size == 0 or not np.isfinite(r).all() or (r <= 0).any():
         raise PatchcloudValueError(
-            f"{name} must be positive numbers of metres, e.g. {', '.join(f'{v:g}' for v in DEFAULT_RADII)}; got {values!r}"
+            f"{name} must be positive lengths in the file's unit, e.g. {', '.join(f'{v:g}' for v in DEFAULT_RADII)}; got {values!r}"
         )
     return np.unique(r)
 

@@ -188,16 +188,17 @@ def format_info(d: dict) -> str:
             f"({8 * d['bytes'] / n:.2f} bits/point)",
             f"  source       {d['source'].get('path')} ({d['source'].get('point_count', 0):,} points)",
         ]
+        u = d["source"].get("units") or "(the file's unit)"  # recorded since 2026-11-27; older files: not known
         kept = [f"  positions    multiples {', '.join(map(str, d.get('steps', [1, 1, 1])))} of the source's integers",
                 f"  dropped      {', '.join(d.get('dropped') or []) or 'none'}"]
         if d.get("mode") == "points":
             return "\n".join([*head, f"  points       {c['points']:,}, every one in input order, in {c['blocks']:,} blocks",
-                              f"  max error    {d['max_error']:g} m", *kept])
+                              f"  max error    {d['max_error']:g} {u}", *kept])
         return "\n".join([
             *head,
             f"  points       {c['points']:,}: {c['points'] - c['residual']:,} on {c['patches']:,} patches ({c.get('cells', 0):,} octree cells), {c['residual']:,} residual",
-            f"  max error    {d['max_error']:g} m",
-            f"  tiles        {c['tiles']:,} of {d['grid']['tile_size']:g} m",
+            f"  max error    {d['max_error']:g} {u}",
+            f"  tiles        {c['tiles']:,} of {d['grid']['tile_size']:g} {u}",
             *kept,
         ])
     if d["kind"] == "las":
