@@ -294,3 +294,33 @@ def test_a_catalog_stopped_during_its_export_resumes_per_file(cut, tmp_path, mon
     os.utime(out / "tile_1.las", ns=(first[1] + 10**9, first[1] + 10**9))  # touched since: no longer the store's output
     with pytest.raises(PatchcloudIOError, match="tile_1.las: exists"):
         normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, store=store, scheduler="synchronous")
+
+
+def test_a_failed_catalog_run_leaves_no_output_directory_and_assume_crs_holds_for_one_file(cut, tmp_path):
+    """A run refused after its checks (a tile size too small, the store given as the output directory) leaves no empty
+    --out-dir behind; --assume-crs gives one file without a CRS its unit, refuses a file of another CRS, and a
+    missing CRS in a catalog is said with the option named once."""
+    d, _ = cut
+    _cli_fails(["normals", str(d / "in"), "--out-dir", str(tmp_path / "o"), "--tile-size", "0.05"], "--tile-size", tmp_path)
+    _cli_fails(["normals", str(d / "in"), "--out-dir", str(tmp_path / "o"), "--store", str(tmp_path / "o")],
+               "the store (--store) and the output directory (--out-dir) must differ", tmp_path)
+    las = laspy.read(str(d / "in" / "tile_0.las"))
+    _split(las, np.arange(3000), tmp_path / "none.las")
+    _split(las, np.arange(3000), tmp_path / "utm.las", crs="EPSG:32631")
+    r = CliRunner().invoke(main, ["normals", str(tmp_path / "none.las"), str(tmp_path / "o.las"), "--assume-crs", "EPSG:2263"])
+    assert r.exit_code == 0 and "units           us-ft (US survey foot" in r.output, r.output
+    _cli_fails(["normals", str(tmp_path / "utm.las"), str(tmp_path / "u.las"), "--assume-crs", "EPSG:2154"],
+               "its CRS is not the assumed one", tmp_path)
+    _cli_fails(["normals", str(tmp_path / "utm.las"), str(tmp_path / "none.las"), "--out-dir", str(tmp_path / "o")],
+               "has one; give --assume-crs to say which CRS", tmp_path)
+
+
+def test_info_of_a_catalogs_store_counts_every_file(cut, tmp_path):
+    d, merged = cut
+    st = tmp_path / "st.zarr"
+    normals(d / "in", out_dir=str(tmp_path / "out"), tile_size=TILE, store=str(st), quiet=True)
+    r = CliRunner().invoke(main, ["info", str(st)])
+    n = laspy.open(str(merged)).header.point_count
+    assert r.exit_code == 0 and f"source       4 files, tile_0.las to tile_3.las ({n:,} points)" in r.output, r.output
+    shares = [float(ln.split()[-1].rstrip("%")) for ln in r.output.splitlines() if ln.rstrip().endswith("%")]
+    assert shares and abs(sum(shares) - 100.0) < 0.5, r.output  # of the catalog's points, not the first file's

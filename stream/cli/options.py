@@ -192,8 +192,8 @@ def catalog_options(func):
     for option in reversed([
         out_dir,
         click.option("--assume-crs", default=None, metavar="CRS",
-                     help="With --out-dir: the CRS of files that have none (e.g. EPSG:2154); without it such a file among files "
-                     "with a CRS is an error."),
+                     help="The CRS of files that have none (e.g. EPSG:2154), which gives their unit; a file with another CRS is an "
+                     "error. Without it a file without a CRS among files with one is an error."),
     ]):
         func = option(func)
     return func
@@ -321,6 +321,8 @@ def in_option_words(message: str, command: click.Command | None) -> str:
     '--orient viewpoint needs a viewpoint (x, y, z), or not given'
     >>> in_option_words("orient 'sideways': not a rule", cmd)
     '--orient sideways: not a rule'
+    >>> in_option_words("for a smaller ball give --rs R (r_small)", cmd)
+    'for a smaller ball give --rs R'
     """
     options = {}
     for param in getattr(command, "params", ()):
@@ -347,7 +349,9 @@ def in_option_words(message: str, command: click.Command | None) -> str:
             return f"{option} {m.group(3)}"
         return f"{option} "
 
-    return re.sub(r"\bor None\b", "or not given", pattern.sub(word, message))
+    message = re.sub(r"\bor None\b", "or not given", pattern.sub(word, message))
+    # "give --out-dir OUT (out_dir)" named the option twice once out_dir became --out-dir
+    return re.sub(r"(--[\w-]+)((?: [A-Z_]+)?) \(\1\)", r"\1\2", message)
 
 
 class OneLineErrors(click.Group):

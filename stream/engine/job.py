@@ -147,9 +147,10 @@ class RunOptions:
         (``.copc.laz`` becoming ``.laz``).  Made if absent.  The default
         store is then ``OUT_DIR/patchcloud.store``.
     assume_crs : str, optional
-        In a catalog, the CRS of the files that have none (``"EPSG:2154"``,
-        WKT: what pyproj takes); without it a file without a CRS among
-        files with one is an error.
+        The CRS of the files that have none (``"EPSG:2154"``, WKT: what
+        pyproj takes), which gives their unit; a file with another CRS is
+        an error.  Without it a file without a CRS among files with one is
+        an error (one file alone is taken in metres, or ``units``).
     classes : tuple of int or str, optional
         Which points take part (:mod:`patchcloud.stream.io.classes`): only
         those of these ASPRS classes ("2,6" or ``(2, 6)``) are computed and
@@ -520,7 +521,8 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
             raise PatchcloudValueError(f"{output}: an output's name ends in {kinds}, any case")
         check_las_output(output)
         check_writable(output, overwrite=True)  # its directory; whether it may be replaced once the store is known
-        catalog = Catalog.of(open_source(input))
+        # assume_crs: the CRS of a file without one (its units), or a check of the file's
+        catalog = Catalog.of(open_source(input)) if run.assume_crs is None else open_catalog(input, run.assume_crs)
         catalog_units(catalog, run)
         _check_inputs_kept(catalog, [output], run.store)
         check_laz_keeps(catalog.sources[0], output)
@@ -539,8 +541,9 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
     _check_inputs_kept(catalog, outs, run.store)
     for src, o in zip(catalog.sources, outs):
         check_laz_keeps(src, o)
+    if run.store is not None and "://" not in run.store and Path(run.store).resolve() == out_dir.resolve():
+        raise PatchcloudValueError(f"{run.store}: the store (--store) and the output directory (--out-dir) must differ")
     url, in_memory = _store_url(run, catalog, str(out_dir / "patchcloud.store"))
-    out_dir.mkdir(exist_ok=True)
     return catalog, outs, out_dir, url, in_memory
 
 
@@ -575,15 +578,26 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
 def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     """run_job, within :func:`~patchcloud.stream.engine.background.stops_what_it_starts`."""
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
+    made = run.out_dir is not None and not out.exists()  # a catalog's output directory, made for this run
+    if made:
+        out.mkdir()
     locked = [out if run.out_dir is None else out / "patchcloud"]  # a catalog: OUT_DIR/patchcloud.lock
     if run.store is not None and "://" not in run.store:
         locked.append(run.store)
-    with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
-        ours = _left_complete(catalog, outs, url, in_memory)
-        outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours, _tiles_selection(job, run).to_json())
-        if any(ours):  # written by a run killed while removing its store: written again, the same bytes
-            run = dataclasses.replace(run, overwrite=True)
-        return _run_locked(job, catalog, outs, out, url, in_memory, run)
+    try:
+        with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
+            ours = _left_complete(catalog, outs, url, in_memory)
+            outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours, _tiles_selection(job, run).to_json())
+            if any(ours):  # written by a run killed while removing its store: written again, the same bytes
+                run = dataclasses.replace(run, overwrite=True)
+            return _run_locked(job, catalog, outs, out, url, in_memory, run)
+    except BaseException:
+        if made:  # a run that failed before writing anything there leaves no empty directory behind
+            try:
+                out.rmdir()
+            except OSError:  # not empty: an output or a kept store is in it
+                pass
+        raise
 
 
 def _tiles_selection(job: Job, run: RunOptions) -> Selection:

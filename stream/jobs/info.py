@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import zipfile
+from pathlib import Path
 
 import laspy
 import numpy as np
@@ -117,6 +118,7 @@ def info(path: str | os.PathLike) -> dict:
             "steps": a.get("steps", {}), "tiles_done": done, "parameters": a.get("params"),
             "classes": a.get("classes"), "selection": a.get("selection"), "left_out": a.get("left_out"),
             "crs_info": _crs_info((a.get("catalog") or {}).get("crs") or (a.get("source") or {}).get("crs")),
+            "files": [dict(path=f.get("path"), point_count=int(f.get("point_count", 0))) for f in (a.get("catalog") or {}).get("sources", [])],
         }
     raise PatchcloudIOError(f"{p}: neither a LAS/LAZ file nor a patchcloud store")
 
@@ -219,16 +221,20 @@ def format_info(d: dict) -> str:
     src = d["source"] or {}
     steps = ", ".join(d["steps"]) or "none"
     done = ", ".join(f"{k} {v}/{d['tiles']}" for k, v in sorted(d["tiles_done"].items())) or "none"
+    files = d.get("files") or []
+    total = sum(f["point_count"] for f in files) if files else int(src.get("point_count", 0))
+    where = (f"{len(files):,} files, {Path(files[0]['path']).name} to {Path(files[-1]['path']).name}" if len(files) > 1
+             else src.get("path"))
     lines = [
         f"{d['url']}: patchcloud store",
-        f"  source       {src.get('path')} ({src.get('point_count', 0):,} points)",
+        f"  source       {where} ({total:,} points)",
         f"  points       {d['points']:,} in {d['tiles']:,} tiles of {g.get('tile_size', 0):g} m (min/median/max per tile {d['points_per_tile']})",
         f"  origin       {g.get('origin')}",
         f"  CRS          {crs_line(d.get('crs_info'))}",
         f"  steps done   {steps}",
         f"  tiles done   {done}",
     ]
-    lines += _class_lines(d.get("classes"), int(src.get("point_count", 0)) or d["points"])
+    lines += _class_lines(d.get("classes"), total or d["points"])
     if d.get("selection") is not None:
         left = d.get("left_out") or {}
         lines.append(f"  points of    {Selection.from_json(d['selection']).describe()}; left out "
