@@ -110,10 +110,11 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
 @options.summary_json
 @options.reports_errors
 def render_tiles_command(store, output, by, step, quiet):
-    """A PNG of the tile grid of STORE from above: which tiles are done, partly done or pending, and points per tile.
+    """A PNG of the tile grid of STORE from above: which tiles are done, partly done, pending or failed, and points per tile.
 
-    Tiles stacked in z are one column: done only if all its tiles are.  The
-    store does not record failures: a tile whose task failed stays pending.
+    Tiles stacked in z are one column: done only if all its tiles are.  A
+    tile whose task failed (the store records its error until the task
+    succeeds) is failed, in red, and the summary lists the errors.
     """
     from patchcloud.stream.views.render_tiles import render_tiles
 
