@@ -7,7 +7,7 @@ working for callers who do not know patchcloud.
 
 from __future__ import annotations
 
-__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError", "PatchcloudNotImplementedError", "PatchcloudMemoryError", "os_error_line"]
+__all__ = ["PatchcloudError", "PatchcloudValueError", "PatchcloudIOError", "PatchcloudExistsError", "PatchcloudNotImplementedError", "PatchcloudMemoryError", "os_error_line"]
 
 
 class PatchcloudError(Exception):
@@ -20,6 +20,10 @@ class PatchcloudValueError(PatchcloudError, ValueError):
 
 class PatchcloudIOError(PatchcloudError, OSError):
     """A file or store cannot be read or written; the message names it."""
+
+
+class PatchcloudExistsError(PatchcloudIOError, FileExistsError):
+    """An output exists and ``overwrite`` (``--overwrite``) was not given; the message names it."""
 
 
 class PatchcloudNotImplementedError(PatchcloudError, NotImplementedError):

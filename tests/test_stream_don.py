@@ -267,7 +267,7 @@ def test_a_kept_store_never_passes_an_output_of_other_parameters_as_this_runs(sc
         kw.update(threshold=0.2, tolerance=0.15, min_cluster=30)
     job(path, out, **kw)
     first = out.read_bytes()
-    with pytest.raises(PatchcloudIOError, match="exists"):
+    with pytest.raises(PatchcloudIOError, match="exists .* is kept: the same command with --overwrite resumes from it"):
         job(path, out, **{**kw, **change})
     assert out.read_bytes() == first
     job(path, out, **{**kw, **change}, overwrite=True)

@@ -53,7 +53,7 @@ from pathlib import Path
 from typing import Any
 
 
-from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with, os_error_line
+from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with, os_error_line
 from patchcloud.stream.engine.background import stops_what_it_starts
 from patchcloud.stream.engine.compiling import CompileClock, announce_on_stderr, compiling_line, merge_intervals, seconds_within
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
@@ -635,8 +635,8 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
         if not keep:
             Store.discard(url)
         raise
-    except PatchcloudError as exc:
-        raise type(exc)(f"{exc}{kept_store_note(url)}") from exc
+    except PatchcloudError as exc:  # (an output that exists: the same command resumes once it says --overwrite)
+        raise type(exc)(f"{exc}{kept_store_note(url, overwrite=isinstance(exc, PatchcloudExistsError))}") from exc
     except OSError as exc:  # disk full, permission, read-only file system: named, and the store said
         line = os_error_line(exc) if exc.filename else f"{url}: {os_error_line(exc)}"
         raise PatchcloudIOError(f"{line}{kept_store_note(url)}") from exc
@@ -647,12 +647,14 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     return summary
 
 
-def kept_store_note(url: str) -> str:
-    """What a failed or interrupted run says of its store: where it is, how big, and that the same command resumes from it."""
+def kept_store_note(url: str, overwrite: bool = False) -> str:
+    """What a failed or interrupted run says of its store: where it is, how big, and that the same command (with
+    ``--overwrite`` where ``overwrite``: an output exists) resumes from it."""
     if "://" in url or not Store.exists(url):
         return ""
     size = sum(f.stat().st_size for f in Path(url).rglob("*") if f.is_file())
-    return f" (the store {url}, {size / 2**20:,.0f} MiB, is kept: the same command resumes from it; remove it to start over)"
+    again = "the same command with --overwrite" if overwrite else "the same command"
+    return f" (the store {url}, {size / 2**20:,.0f} MiB, is kept: {again} resumes from it; remove it to start over)"
 
 
 def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep: bool, run: RunOptions) -> Any:

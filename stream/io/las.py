@@ -22,7 +22,7 @@ import lazrs
 import numpy as np
 from laspy.vlrs.known import ExtraBytesStruct
 
-from patchcloud.core import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core import PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
 from .las_records import (
     EVLR_BYTES, VLR_BYTES, RawRecord, as_vlr, ascii_text, file_records, header_record_fields, is_extra_bytes, kept, software_version,
@@ -764,7 +764,7 @@ def check_writable(path: str | os.PathLike, overwrite: bool) -> Path:
     """``path`` as a Path, after checking an output can be written there: absent (or ``overwrite``), its directory there."""
     p = Path(path)
     if p.exists() and not overwrite:
-        raise PatchcloudIOError(f"{p}: exists (use --overwrite to replace it)")
+        raise PatchcloudExistsError(f"{p}: exists (use --overwrite to replace it)")
     if not p.parent.exists():
         raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
     return p

@@ -87,7 +87,7 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec
 
-from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
+from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
 from .budget import check_memory
 from .layered import LAYERED, from_layered, layered_format, layered_size, to_layered
@@ -209,7 +209,7 @@ def _building(path: str | os.PathLike, overwrite: bool):
     """
     out = Path(path)
     if out.exists() and not overwrite:
-        raise PatchcloudIOError(f"{out}: exists (use --overwrite to replace it)")
+        raise PatchcloudExistsError(f"{out}: exists (use --overwrite to replace it)")
     if not out.parent.exists():
         raise PatchcloudIOError(f"{out}: the directory {out.parent} does not exist")
     work = out.with_name(out.name + ".build")  # a fixed name (the run holds OUT's lock): a killed run's is removed here

@@ -46,7 +46,7 @@ import laspy
 import numpy as np
 from matplotlib.figure import Figure
 
-from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError
+from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
 from patchcloud.stream.io.las import atomic_output, open_source, read_chunks, same_file
 from patchcloud.stream.views.plots import CMAP, STYLE, new_figure, style_axes
@@ -159,7 +159,7 @@ def check_report_path(path: str | os.PathLike, *, overwrite: bool = False, other
         if same_file(o, p):
             raise PatchcloudIOError(f"{p}: the report would replace the job's file {o}")
     if p.exists() and not overwrite:
-        raise PatchcloudIOError(f"{p}: exists (use --overwrite to replace it)")
+        raise PatchcloudExistsError(f"{p}: exists (use --overwrite to replace it)")
     return p
 
 
