@@ -81,7 +81,7 @@ def knn_normals(
     -------
     normals : (M, 3) float64, unit, unoriented (``n . (0.001, 0.01, 1) >= 0``)
     sigma3 : (M,) surface variation of the neighbourhood
-    k1, k2 : (M,) principal curvatures of the neighbourhood quadric (1/metre),
+    k1, k2 : (M,) principal curvatures of the neighbourhood quadric (1/unit of the coordinates),
         "convex positive" with respect to ``normals``
     dir1 : (M, 3) direction of ``k1``
     neighbours : (M, k) int64 indices of the neighbours

@@ -74,7 +74,7 @@ class NormalsResult:
         faces, or of its k neighbours for ``Method.KNN`` points.  This is
         what PDAL and PCL call "curvature".
     k1, k2 : (N,) float32
-        Principal curvatures ``k1 >= k2`` (1/metre) of the fitted quadric at
+        Principal curvatures ``k1 >= k2`` (1/unit of the coordinates) of the fitted quadric at
         the point, positive where the surface is convex seen from the side the
         normal points to (a sphere with outward normals has ``+1/R``).
     dir1 : (N, 3) float32
@@ -106,7 +106,7 @@ class NormalsResult:
 
     @property
     def mean_curvature(self) -> np.ndarray:
-        """(N,) ``(k1 + k2) / 2`` (1/metre)."""
+        """(N,) ``(k1 + k2) / 2`` (1/unit of the coordinates)."""
         return 0.5 * (self.k1.astype(np.float64) + self.k2)
 
     @property

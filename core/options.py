@@ -113,9 +113,11 @@ class NormalsOptions:
         leaves, 3 to :data:`MAX_K_FALLBACK` (a plane needs 3 points; more than
         a thousand is no longer a local normal, and the search slows as k^2).
     orient : {"up", "viewpoint", "outward", "none"}
-        Which side normals face: +Z (aerial and mobile LiDAR), ``viewpoint``,
-        away from the cloud's centroid (closed objects), or no rule
-        (consistent but arbitrary sign).
+        Which side normals face: +Z (aerial and mobile LiDAR), ``viewpoint``
+        (every normal faces it, point by point, as PDAL's ``viewpoint``: the
+        side a scanner at that point saw), away from the cloud's centroid
+        (closed objects), or no rule (consistent but arbitrary sign).  The
+        other rules decide for whole groups of linked patches.
     viewpoint : (3,) float, optional
         Required with ``orient="viewpoint"`` (the points' coordinates).
     blend : bool

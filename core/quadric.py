@@ -133,7 +133,7 @@ def surface_curvatures(points, centroid, frame, coeffs) -> tuple[np.ndarray, np.
     Returns
     -------
     k1, k2 : (N,) float64
-        Principal curvatures, ``k1 >= k2`` (1/metre).
+        Principal curvatures, ``k1 >= k2`` (1/unit of the coordinates).
     dir1 : (N, 3) float64
         Unit tangent direction of ``k1``.
     """

@@ -383,6 +383,10 @@ def finish_tile(
     orienting = _Orienting(points, votes_all, voters_all, SIGN_REACH * d_min, orient, tree.local, vp, ctr)
     _moment_fallback(tree, normals, scalars, dir1, method, points, min_sigma2, orienting, todo)
     _fallback(tree, normals, scalars, dir1, method, points, k_fallback, orienting, todo, grid=skin is None)
+    if orient == "viewpoint" and vp is not None:  # PDAL's viewpoint: at the end, every normal faces it, point by point
+        rows = np.flatnonzero(method > 0)
+        facing = np.einsum("ij,ij->i", normals[rows], vp - tree.local[rows])
+        _turn(normals, scalars, dir1, rows, np.where(facing < 0, -1.0, 1.0))
     if only is None:
         return TileNormals(normals, scalars, dir1, method, tree.point_leaf(), oriented)
     return TileNormals(normals[only], scalars[only], dir1[only], method[only], tree.point_leaf()[only], oriented)

@@ -128,3 +128,12 @@ def test_root_grid_gives_the_commands_normals_in_memory(tmp_path):
     assert np.mean(np.abs(other.normals - cli).max(axis=1) > 1e-3) > 0.5
     with pytest.raises(PatchcloudValueError, match="root must be \\(corner, edge\\), 'grid' or None; got 'tiles'"):
         estimate_normals(np.column_stack([las.x, las.y, las.z]), root="tiles")
+
+
+def test_always_up_and_a_viewpoint_are_not_both_taken(tmp_path):
+    """Each turns every normal its own way (PDAL's viewpoint overrides its always_up): both asked for is one error."""
+    src = tmp_path / "in.las"
+    write_scene(src, n=2_000, seed=1)
+    r = CliRunner().invoke(main, ["normals", str(src), str(tmp_path / "o.laz"), "--viewpoint", "0", "0", "100", "--always-up"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "--always-up turns every normal up and a viewpoint" in r.output
+    assert not (tmp_path / "o.laz").exists()

@@ -72,6 +72,22 @@ def test_viewpoint_orientation(rng):
     assert np.all(res.normals[:, 2] < -0.9999)
 
 
+def test_a_viewpoint_turns_every_normal_to_face_it_point_by_point(rng):
+    """PDAL's viewpoint: each normal faces the viewpoint on its own, whatever its patch group says; on a sphere seen
+    from outside, the near side outward and the far side inward, every moment and k-NN normal too."""
+    p, n = synthetic.sphere(rng, 30000)
+    vp = np.array([0.0, 0.0, 30.0])
+    res = estimate_normals(p, orient="viewpoint", viewpoint=vp)
+    facing = np.einsum("ij,ij->i", res.normals.astype(np.float64), vp - p)
+    assert np.all(facing >= 0)
+    view = (vp - p) / np.linalg.norm(vp - p, axis=1)[:, None]
+    cos = np.einsum("ij,ij->i", n, view)  # away from the silhouette, where the side is not in doubt
+    outward = np.einsum("ij,ij->i", res.normals.astype(np.float64), n) > 0
+    assert outward[cos > 0.2].mean() > 0.999 and (~outward[cos < -0.2]).mean() > 0.999
+    up = estimate_normals(p, orient="outward")  # the group rule, for comparison: every normal outward
+    assert (np.einsum("ij,ij->i", up.normals.astype(np.float64), n) > 0).mean() > 0.999
+
+
 def test_orient_none_is_consistent_on_a_sphere(rng):
     p, n = synthetic.sphere(rng, 30000)
     res = estimate_normals(p, orient="none")

@@ -16,7 +16,8 @@ from . import options
 @click.option("--threshold", type=float, default=None, help="Threshold of the criterion. Default: from the scanner noise (rmse), 0.005 (sigma3).")
 @click.option("--orient", type=click.Choice(["up", "viewpoint", "outward", "none"]), default=NormalsOptions.orient, show_default=True,
               help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule. "
-              "The rule orients whole groups of linked patches, so a wall or an overhang keeps the side its neighbours give it.")
+              "up, outward and none orient whole groups of linked patches, so a wall or an overhang keeps the side its neighbours "
+              "give it; viewpoint turns every normal to face the viewpoint, point by point, as PDAL does.")
 @click.option("--always-up", is_flag=True,
               help="PDAL's always_up (filters.normal): after orientation, flip every normal with NormalZ < 0, point by point, "
               "so NormalZ >= 0 everywhere (the principal curvatures follow). Unlike --orient up, which turns whole patch groups. "
@@ -25,10 +26,11 @@ from . import options
               help="Neighbours of the k-NN fallback (3 to 1000): the PCA normal of the points of edge and sparse patches (NormalMethod 3). "
               "Not PDAL's knn, the neighbours of every normal: patchcloud's other normals come from the patches' quadrics.")
 @click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z",
-              help="Normals face this point (file coordinates), as PDAL's viewpoint: it implies --orient viewpoint.")
+              help="Every normal faces this point (file coordinates), point by point, as PDAL's viewpoint: it implies --orient "
+              "viewpoint, and does not go with --always-up (PDAL's viewpoint overrides its always_up).")
 @click.option("--no-blend", is_flag=True, help="Do not blend normals across patch faces.")
 @click.option("--principal-curvatures", is_flag=True,
-              help="Also write PrincipalCurvature1 >= PrincipalCurvature2 (1/m, positive where convex seen from the normal's side) "
+              help="Also write PrincipalCurvature1 >= PrincipalCurvature2 (1/unit of the file's CRS, positive where convex seen from the normal's side) "
               "and the first's direction, PrincipalDirectionX/Y/Z (0 where a point has none).")
 @options.job_options
 @options.catalog_options

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchKind, threshold_from_histograms
+from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchcloudValueError, PatchKind, threshold_from_histograms
 from patchcloud.stream.engine.export import Column
 from patchcloud.stream.engine.job import (
     Job, JobContext, RunOptions, file_lines, left_out_lines, params_key, run_job, split_options, time_and_memory_lines, units_line,
@@ -154,6 +154,9 @@ class NormalsJob(Job):
     name = "normals"
 
     def __init__(self, options: NormalsOptions, principal_curvatures: bool = False, always_up: bool = False) -> None:
+        if always_up and options.orient == "viewpoint":  # each would turn every normal its own way
+            raise PatchcloudValueError("always_up turns every normal up and a viewpoint turns it towards the viewpoint: give one "
+                                       "(PDAL's viewpoint overrides its always up)")
         self.options = options
         self.principal_curvatures = bool(principal_curvatures)
         self.always_up = bool(always_up)
@@ -267,7 +270,7 @@ def normals(
         scheduler, workers, store, overwrite, quiet).
     principal_curvatures : bool
         Also write :data:`PRINCIPAL_DIMS`: PrincipalCurvature1 >= PrincipalCurvature2
-        (1/metre, of the fitted quadric at the point's projection, or of its
+        (1/unit of the file's CRS, of the fitted quadric at the point's projection, or of its
         neighbourhood's for k-NN points; positive where the surface is
         convex seen from the side the oriented normal points to) and the unit
         direction of the first (PrincipalDirectionX/Y/Z; the second is
