@@ -38,7 +38,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.patchmodel': ('MASK_SIDE', 'ModelFit', 'PatchModels', 'QuantisedModels', 'dequantise_models', 'fit_models', 'patch_distances', 'quantise_models', 'sample_models'),
     '.quadric': ('fit_nodes', 'surface_normals'),
     '.checks': ('MODES',),
-    '.radius': ('check_points', 'default_viewpoint', 'halo_width', 'radius_normals'),
+    '.radius': ('check_points', 'default_viewpoint', 'grid_origin', 'halo_width', 'radius_normals'),
     '.threads': ('single_threaded',),
     '.tiles': ('SKIN_HALO', 'Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
 }
@@ -57,6 +57,7 @@ __all__ = [
     "PatchTable",
     "PatchKind",
     "radius_normals",
+    "grid_origin",
     "default_viewpoint",
     "difference_of_normals",
     "don_magnitude",

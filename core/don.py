@@ -16,7 +16,7 @@ from .checks import check_cluster_sizes, check_radius
 from .cluster import euclidean_clusters
 from .errors import PatchcloudValueError
 from .options import AXES, DonOptions, check_threshold
-from .radius import check_points, default_viewpoint, radius_normals
+from .radius import check_points, default_viewpoint, grid_origin, radius_normals
 
 __all__ = ["difference_of_normals", "don_magnitude", "don_mask", "segment_don"]
 
@@ -30,6 +30,7 @@ def difference_of_normals(
     resolution: int = 4,
     min_points: int = 3,
     at: np.ndarray | None = None,
+    origin=None,
 ) -> np.ndarray:
     """The DoN vector of every point.
 
@@ -44,8 +45,10 @@ def difference_of_normals(
         (:func:`patchcloud.core.radius.default_viewpoint`).
     mode, resolution, min_points :
         As :class:`patchcloud.core.DonOptions` (which checks all of these).
-    at :
-        As :func:`patchcloud.core.radius_normals`.
+    at, origin :
+        As :func:`patchcloud.core.radius_normals` (``origin``: where fast
+        mode's voxels are laid from; by default as ``patchcloud don`` lays
+        them, so the whole file's DoN is the command's).
 
     Returns
     -------
@@ -64,7 +67,8 @@ def difference_of_normals(
     pts = check_points(points)
     o = DonOptions(r_small, r_large, mode=mode, viewpoint=viewpoint, resolution=resolution, min_points=min_points)
     vp = default_viewpoint(pts) if o.viewpoint is None else np.asarray(o.viewpoint)
-    kw = dict(viewpoint=vp, mode=o.mode, resolution=o.resolution, min_points=o.min_points, at=at)
+    kw = dict(viewpoint=vp, mode=o.mode, resolution=o.resolution, min_points=o.min_points, at=at,
+              origin=grid_origin(pts) if origin is None else origin)
     return (radius_normals(pts, o.r_small, **kw) - radius_normals(pts, o.r_large, **kw)) / 2.0
 
 

@@ -42,8 +42,9 @@ from . import _radius_kernels as _rk
 from .checks import check_indices, check_mode, check_positive, check_radius, check_viewpoint, coordinates
 from .errors import PatchcloudValueError
 from .grid import CellGrid
+from .points import GRID_ANCHOR
 
-__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "check_points"]
+__all__ = ["radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "check_points", "grid_origin"]
 
 def check_points(points, name: str = "points") -> np.ndarray:
     """``points`` (an array, or a ``laspy.LasData``: :func:`~patchcloud.core.checks.coordinates`) as a C-contiguous
@@ -133,14 +134,28 @@ def uses_voxels(radius: float, resolution: int, density: float) -> bool:
     return density * (h / e) ** 2 > 3.0
 
 
+def grid_origin(points: np.ndarray) -> np.ndarray:
+    """(3,) the multiple of :data:`~patchcloud.core.points.GRID_ANCHOR` at or below the points' smallest coordinates:
+    where a tiled run's store frame starts, and so where the cells and voxels of these functions are laid from.
+
+    >>> grid_origin(np.array([[650012.5, 6860001.0, -3.0]])).tolist()
+    [647168.0, 6856704.0, -4096.0]
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return np.floor(p.min(axis=0) / GRID_ANCHOR) * GRID_ANCHOR if p.shape[0] else np.zeros(3)
+
+
 def radius_moments(
     points: np.ndarray, radius: float, *, mode: str = "fast", resolution: int = 4, at: np.ndarray | None = None,
-    density: float | None = None,
+    density: float | None = None, origin=None,
 ) -> np.ndarray:
     """Count and moments of the points within ``radius`` of each query point (the PCA's input).
 
     ``density``: fast mode's :func:`cell_density` at the voxel edge
     (default: from ``points``; the stream passes the whole file's).
+    ``origin``: the cells (fast mode's voxels) lie at multiples of their
+    edge from it (default :func:`grid_origin` of ``points``, as in a tiled
+    run's store frame; the stream, in that frame, passes 0).
 
     Returns
     -------
@@ -152,6 +167,9 @@ def radius_moments(
     r = check_radius("radius", radius)
     check_mode(mode, resolution, 3)
     at = None if at is None else check_indices(at, pts.shape[0])
+    shift = grid_origin(pts) if origin is None else check_viewpoint(origin)
+    if np.any(shift != 0):  # offsets from each query point: the frame changes where the cells lie, and the roundings
+        pts = pts - shift
     q = pts if at is None else pts[at]
     out = np.zeros((q.shape[0], 10))
     if q.shape[0] == 0:
@@ -203,6 +221,7 @@ def radius_normals(
     at: np.ndarray | None = None,
     density: float | None = None,
     return_variation: bool = False,
+    origin=None,
 ):
     """Unit normals from the PCA of all points within ``radius`` of each point.
 
@@ -234,6 +253,12 @@ def radius_normals(
         ``points``; give the whole cloud's when ``points`` is a part of it).
     return_variation : bool
         Also return the surface variation l3 / (l1 + l2 + l3) of each ball.
+    origin : (3,) float, optional
+        Fast mode's voxels lie at multiples of their edge from this point
+        (default: :func:`grid_origin` of ``points``, where a tiled run's
+        frame starts, so the whole file's values are those of
+        ``patchcloud don``; moving the origin by a fraction of a voxel moves
+        fast-mode values a little, exact ones only by rounding).
 
     Returns
     -------
@@ -262,7 +287,7 @@ def radius_normals(
     vp = default_viewpoint(pts) if viewpoint is None else check_viewpoint(viewpoint)
     at = None if at is None else check_indices(at, pts.shape[0])
     q = pts if at is None else pts[at]
-    mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at, density=density)
+    mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at, density=density, origin=origin)
     normals = np.empty((q.shape[0], 3))
     variation = np.empty(q.shape[0])
     if q.shape[0]:

@@ -94,3 +94,18 @@ def test_a_picture_replaces_only_a_picture(laz, tmp_path):
     for _ in range(2):  # the second run replaces the first's PNG
         r = CliRunner().invoke(main, ["render", str(laz), str(png), "--color", "elevation", "--width", "200", "-q"])
         assert r.exit_code == 0, r.output
+
+
+@pytest.mark.parametrize("extra, says", [
+    (["--table", "{in}"], "a LAS/LAZ name, not a table's"),
+    (["--table", "{dir}/copy.txt", "--summary-json", "{in}"], "would replace the job's file"),
+    (["--plot", "{in}"], "a LAS/LAZ name, not a picture's"),
+    (["--table", "{dir}/t.png", "--plot", "{dir}/t.png"], "--plot and --table name the same file"),
+])
+def test_don_scales_never_replaces_its_input_nor_writes_two_files_in_one(laz, tmp_path, extra, says):
+    before = laz.read_bytes()
+    files = sorted(p.name for p in tmp_path.iterdir())
+    args = [a.format(**{"in": str(laz), "dir": str(tmp_path)}) for a in extra]
+    r = CliRunner().invoke(main, ["don-scales", str(laz), "--radii", "0.5,2", "-q", *args])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and says in r.output, r.output
+    assert laz.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == files

@@ -222,6 +222,9 @@ def test_cli_don_and_segment(scene, tmp_path):
         (["--min-points", "100", "--max-points", "10"], "no smaller than --min-points (100), or not given; got 10"),
         (["--axis-threshold", "0.2"], "--axis-threshold needs an axis"),
         (["--tile-size", "-4"], "tile size must be a positive"),
+        # wider than the cloud: every ball the whole cloud (it took minutes and gigabytes, then hours)
+        (["--rl", "1e9"], "--rl 1e+09 is wider than the cloud"),
+        (["--tolerance", "1e6"], "--tolerance 1e+06 is wider than the cloud"),
     ],
 )
 def test_cli_bad_parameters(scene, tmp_path, args, words):
@@ -274,3 +277,43 @@ def test_a_kept_store_never_passes_an_output_of_other_parameters_as_this_runs(sc
     fresh = tmp_path / "fresh.las"
     job(path, fresh, **{**kw, **change, "store": None})
     assert out.read_bytes() != first and out.read_bytes() == fresh.read_bytes()
+
+
+def test_a_halo_wider_than_the_grid_finds_the_same_neighbours_at_once(tmp_path):
+    """map_tiles' neighbours within a halo of a thousand tiles (8e9 slots) are the store's other tiles, found by
+    filtering the tiles, in the order of the offsets, as a halo that just covers the grid gives them."""
+    from patchcloud.stream import map_tiles, tile
+
+    path = tmp_path / "s.las"
+    write_las(path, street(np.random.default_rng(3))[0][:20000])
+    st = tmp_path / "st.zarr"
+    tile(path, str(st), tile_size=4.0, quiet=True)
+    store = Store.open(str(st))
+
+    def neighbours_of(url, ijk, neighbours=()):
+        return list(neighbours)
+
+    small = map_tiles(neighbours_of, store, halo=max(np.ptp(np.asarray(store.tiles), axis=0)) + 1)
+    huge = map_tiles(neighbours_of, store, halo=1000)
+    assert small == huge and all(len(v) == len(store.tiles) - 1 for v in huge.values())
+
+
+def test_the_api_on_the_files_own_coordinates_gives_the_commands_dons(scene, tmp_path):
+    """difference_of_normals on the file's coordinates (projected, 650 km east) lays fast mode's voxels where the
+    command does (from the grid origin, a multiple of 4096 m), with radii whose voxels do not divide 4096 m
+    (1.25 / 4 and 3 / 4 m): the command's DoN within a float32 ulp (bit for bit in the store's frame, tested above; it
+    differed on 99.9 % of a St-Barth crop's points, by up to 0.33, when the voxels were laid from the frame's zero)."""
+    path, _, _ = scene
+    out = tmp_path / "d.las"
+    kw = dict(r_small=1.25, r_large=3.0, mode="fast")
+    don(path, out, tile_size=4.0, scheduler="synchronous", quiet=True, **kw)
+    las = laspy.read(str(path))
+    pts = np.column_stack([las.x, las.y, las.z])
+    got = laspy.read(str(out))
+    vp = default_viewpoint_of(open_source(path))
+    d = difference_of_normals(pts, kw["r_small"], kw["r_large"], mode="fast", viewpoint=vp)
+    ref = np.nan_to_num(np.column_stack([np.sqrt((d * d).sum(1)), d])).astype(np.float32)
+    mine = np.column_stack([got.DoN, got.DoNX, got.DoNY, got.DoNZ])
+    assert np.abs(mine - ref).max() <= 1e-7  # the file's coordinates round apart from the store's frame's: a float32 ulp
+    other = difference_of_normals(pts, kw["r_small"], kw["r_large"], mode="fast", viewpoint=vp, origin=np.zeros(3))
+    assert np.nanmax(np.abs(other - d)) > 1e-3  # voxels laid from elsewhere: another (close) answer

@@ -53,6 +53,28 @@ def _write_text(path: str, text: str) -> None:
         raise PatchcloudIOError(f"{path}: cannot write the table ({exc})") from exc
 
 
+def _check_written(input: str, plot: str | None, table: str | None) -> None:
+    """Before the work: the figure, the table and the --summary-json replace neither the input nor each other, the
+    figure only a PNG (:func:`~patchcloud.stream.views.plots.check_png_path`), the table no LAS/LAZ name."""
+    from patchcloud.stream.io.las import same_file
+    from patchcloud.stream.views.plots import NOT_PICTURE_NAMES, check_png_path
+
+    options.check_side_files([input], None, None, None, overwrite=True)  # the --summary-json
+    ctx = click.get_current_context(silent=True)
+    summary = None if ctx is None else ctx.meta.get(options.SUMMARY_JSON_KEY)
+    if plot is not None:
+        check_png_path(plot)
+    if table is not None and Path(table).name.lower().endswith(NOT_PICTURE_NAMES):
+        raise PatchcloudIOError(f"{table}: a LAS/LAZ name, not a table's (--table writes text)")
+    written = [(o, p) for o, p in (("--plot", plot), ("--table", table), ("--summary-json", summary)) if p is not None]
+    for k, (option, path) in enumerate(written):
+        if same_file(input, path):
+            raise PatchcloudIOError(f"{path}: {option} would replace the input")
+        for other, there in written[k + 1:]:
+            if same_file(path, there):
+                raise PatchcloudIOError(f"{path}: {option} and {other} name the same file")
+
+
 @click.command("don-scales")
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.option("--radii", default="0.1,0.2,0.5,1,2,4", show_default=True, metavar="R1,R2,...",
@@ -111,6 +133,7 @@ def don_scales_command(input, radii, small, large, classes_from, classes, sample
         raise PatchcloudIOError(f"{plot_path}: the directory {Path(plot_path).parent} does not exist")
     if table is not None and not Path(table).resolve().parent.exists():
         raise PatchcloudIOError(f"{table}: the directory {Path(table).parent} does not exist")
+    _check_written(input, plot_path, table)
     say = None if quiet else (lambda msg: click.echo(msg, err=True))
     result = don_scales(
         input, radii=radii_v, small=small_v, large=large_v, classes_from=classes_from, classes=classes_v, sample=sample,

@@ -433,6 +433,10 @@ class Job:
         """The job's steps after ``tile``, in order: (name in the summary's times, function of the context)."""
         return ()
 
+    def check(self, catalog: Catalog) -> None:
+        """Refuse, before anything runs, parameters the input makes meaningless (a radius wider than the cloud, say):
+        a PatchcloudValueError.  Nothing by default."""
+
     def columns(self, ctx: JobContext) -> tuple[list[Column], Sequence[tuple]]:
         """The per-tile arrays written as new dimensions, and those dimensions (name, type, description[, no-data])."""
         raise NotImplementedError(f"{type(self).__name__} writes its output with its own write()")
@@ -578,6 +582,7 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
 def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     """run_job, within :func:`~patchcloud.stream.engine.background.stops_what_it_starts`."""
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
+    job.check(catalog)
     made = run.out_dir is not None and not out.exists()  # a catalog's output directory, made for this run
     if made:
         out.mkdir()

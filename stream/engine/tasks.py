@@ -14,6 +14,8 @@ from collections.abc import Callable, Mapping, Sequence
 from itertools import product
 from typing import Any
 
+import numpy as np
+
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io.store import Store
 
@@ -97,14 +99,11 @@ def map_tiles(
     pieces = dict(pieces or {})
     counts = dict(zip(all_tiles, store.tile_counts.tolist()))
     calls, owner, size = [], [], []
+    grid = np.asarray(all_tiles, dtype=np.int64).reshape(-1, 3)
     for ijk in todo:
         kw = dict(kwargs)
         if halo:
-            r = range(-halo, halo + 1)
-            kw["neighbours"] = [
-                (ijk[0] + a, ijk[1] + b, ijk[2] + c) for a, b, c in product(r, r, r)
-                if (a, b, c) != (0, 0, 0) and (ijk[0] + a, ijk[1] + b, ijk[2] + c) in present
-            ]
+            kw["neighbours"] = _neighbours(ijk, int(halo), grid, present)
         k = int(pieces.get(ijk, 1))
         for j in range(k):
             calls.append(((func, store.url, ijk), dict(kw, piece=(j, k)) if ijk in pieces else kw))
@@ -121,6 +120,20 @@ def map_tiles(
         else:
             out[ijk] = by_call[c]
     return out
+
+
+def _neighbours(ijk: tuple, halo: int, grid: np.ndarray, present: set) -> list[tuple]:
+    """The store's tiles (``grid`` (T, 3), ``present`` the same as a set) within ``halo`` tiles of ``ijk`` per axis, ``ijk``
+    excluded, in the order of the offsets (-halo, -halo, -halo) ... (halo, halo, halo): each slot looked up where there
+    are fewer slots than tiles, else the tiles filtered (a halo of a thousand tiles has 8e9 slots)."""
+    if (2 * halo + 1) ** 3 <= grid.shape[0]:
+        r = range(-halo, halo + 1)
+        return [(ijk[0] + a, ijk[1] + b, ijk[2] + c) for a, b, c in product(r, r, r)
+                if (a, b, c) != (0, 0, 0) and (ijk[0] + a, ijk[1] + b, ijk[2] + c) in present]
+    d = grid - np.asarray(ijk, dtype=np.int64)
+    near = np.flatnonzero(np.all(np.abs(d) <= halo, axis=1) & np.any(d != 0, axis=1))
+    near = near[np.lexsort((d[near, 2], d[near, 1], d[near, 0]))]
+    return [tuple(int(v) for v in grid[t]) for t in near]
 
 
 def pieces_for(counts: Mapping[tuple, int], slots: int, min_points: int | None = None) -> dict[tuple, int]:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from patchcloud.core import DonOptions, halo_width
+from patchcloud.core import DonOptions, PatchcloudValueError, halo_width
 from patchcloud.stream.engine.export import Column
 from patchcloud.stream.engine.job import (
     Job, JobContext, RunOptions, file_lines, left_out_lines, params_key, run_job, split_options, time_and_memory_lines, units_line,
@@ -154,6 +154,23 @@ class DonJob(Job):
 
     def steps(self):
         return [("skin", self.skin), ("don", self.don)]
+
+    def check(self, catalog) -> None:
+        """A radius (or, for segments, a tolerance) wider than the cloud's bounds' diagonal is refused: every ball would
+        hold every point (and each tile's halo the whole cloud).  Bounds of zero width (a header that does not state
+        them) check nothing."""
+        across = float(np.linalg.norm(np.subtract(catalog.maxs, catalog.mins)))
+        if across <= 0 or not np.isfinite(across):
+            return
+        for name, r, meaning in self.lengths():
+            if r > across:
+                raise PatchcloudValueError(f"{name}={r:g} is wider than the cloud ({across:,.4g} across its bounds' diagonal, "
+                                           f"in its unit): {meaning}")
+
+    def lengths(self) -> list[tuple[str, float, str]]:
+        """The lengths :meth:`check` holds to the cloud's size: (parameter name, value, what one wider would mean)."""
+        ball = "every ball would hold every point"
+        return [("r_small", float(self.options.r_small), ball), ("r_large", float(self.options.r_large), ball)]
 
     def resolve(self, ctx: JobContext) -> None:
         """The resolved parameters (viewpoint in the store's frame, densities, halo) and their key."""

@@ -49,6 +49,10 @@ class SegmentJob(DonJob):
     def steps(self):
         return [*super().steps(), ("cluster", self.cluster)]
 
+    def lengths(self) -> list[tuple[str, float, str]]:
+        """The radii and the tolerance: a tolerance wider than the cloud makes one segment of it all."""
+        return [*super().lengths(), ("tolerance", float(self.options.tolerance), "the points kept would all be one segment")]
+
     def selection(self) -> dict:
         o = self.options
         return dict(threshold=o.threshold, axis=o.axis, axis_threshold=o.axis_threshold)
