@@ -188,6 +188,12 @@ def test_tile_and_info_commands(scene_las, tmp_path):
     assert r.exit_code == 0 and "tiles of 16 m" in r.output and "sort" in r.output
     r = CliRunner().invoke(main, ["info", str(path)])
     assert r.exit_code == 0 and f"{len(pts):,}" in r.output
+    # a job on that store without --tile-size works on its tiles (it re-tiled at the default size, silently)
+    before = {t: st.read(t, "rank").tobytes() for t in st.tiles}
+    s = normals(path, tmp_path / "n.las", store=str(tmp_path / "s.zarr"), quiet=True)
+    assert s.tile_size == 16
+    again = Store.open(str(tmp_path / "s.zarr"))
+    assert {t: again.read(t, "rank").tobytes() for t in again.tiles} == before
 
 
 def _expect_error(args, fragment, tmp_path):

@@ -519,7 +519,8 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
 
     ``selection``: the points the tiles hold (default ``Selection()``: noise
     and withheld points left out; :mod:`patchcloud.stream.io.classes`).
-    A store made from the same files on the same grid with the same selection is reused: as it is
+    A store made from the same files on the same grid with the same selection is reused (without a
+    ``tile_size``, on the store's own tile size): as it is
     when complete, else resuming from the parts and tiles done; anything
     else there is replaced.  Steps, all of them tasks on the workers: one
     :func:`scatter_part` per part of the file (``chunk`` points, default
@@ -535,6 +536,10 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
     if Store.exists(url):
         store = Store.open(url)
         a = store.attrs
+        if tile_size is None and a.get("grid") and a.get("catalog") and cat.same_files(a["catalog"]):
+            kept = Grid.from_json(a["grid"])  # no tile size asked for: a store of these files keeps its own (`tile --tile-size`)
+            if (kept.origin, kept.scale, kept.offset) == (grid.origin, grid.scale, grid.offset):
+                grid = kept
         same = (a.get("catalog") and cat.same_files(a["catalog"]) and a.get("grid") == grid.to_json() and "part_points" in a
                 and a.get("selection") == selection.to_json())
         if same and store.step_done("tile"):
