@@ -51,5 +51,6 @@ def test_the_workers_of_a_local_cluster_code_zarr_chunks_on_one_thread():
     from patchcloud.stream.engine.runner import Runner
 
     with Runner("processes", 2) as runner:
+        runner.client.wait_for_workers(2, timeout=120)  # both registered (on a loaded machine the second may lag)
         got = runner.client.run(lambda: __import__("zarr").config.get("threading.max_workers"))
     assert sorted(got.values()) == [1, 1]
