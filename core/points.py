@@ -73,8 +73,9 @@ def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
         Per-axis minimum and maximum of the points (as :func:`validate_points`).
     root : ((3,) float, float), "grid" or None
         Minimum corner and edge of the root cube (a tile of the stream);
-        "grid": the cube the stream's tiles are cells of, a power-of-two
-        edge of at least :data:`GRID_ANCHOR` at a multiple of it; or None
+        "grid": the cube the stream's tiles are cells of, its corner the
+        grid's origin (the multiple of :data:`GRID_ANCHOR` at or below the
+        points), its edge :data:`GRID_ANCHOR` times a power of two; or None
         for the points' bounding cube: centred on the points' box, its
         edge the box's longest side plus a margin of 1e-6 of it (or a tiny
         positive edge when all points coincide).
@@ -103,16 +104,21 @@ def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
     >>> corner, edge = root_cube(np.array([650100.0, 6860200.0, 10.0]), np.array([650900.0, 6860700.0, 90.0]), "grid")
     >>> corner.tolist(), edge
     ([647168.0, 6856704.0, 0.0], 4096.0)
+    >>> corner, edge = root_cube(np.array([-1.0, 5.0, 5.0]), np.array([1.0, 6.0, 6.0]), "grid")  # across 0
+    >>> corner.tolist(), edge
+    ([-4096.0, 0.0, 0.0], 8192.0)
     """
     if isinstance(root, str):
         if root != "grid":
             raise PatchcloudValueError(f"root must be (corner, edge), 'grid' or None; got {root!r}")
-        edge = GRID_ANCHOR  # the smallest cube of a power-of-two edge, at a multiple of it, holding every point
-        while True:
-            corner = np.floor(lo / edge) * edge
-            if np.all(hi < corner + edge):
-                return corner, edge
+        # the smallest cube of a power-of-two multiple of GRID_ANCHOR for an edge, from the grid's origin (the multiple of
+        # GRID_ANCHOR at or below the points, where the stream's tiles start), holding every point: its cells of a tile's
+        # size are the tiles.  (A cube at a multiple of its own edge never held a cloud across 0: 0 is on its face.)
+        corner = np.floor(lo / GRID_ANCHOR) * GRID_ANCHOR
+        edge = GRID_ANCHOR
+        while not np.all(hi < corner + edge):
             edge *= 2.0
+        return corner, edge
     if root is not None:
         corner, edge = root
         corner = np.asarray(corner, dtype=np.float64).reshape(3)

@@ -130,6 +130,26 @@ def test_root_grid_gives_the_commands_normals_in_memory(tmp_path):
         estimate_normals(np.column_stack([las.x, las.y, las.z]), root="tiles")
 
 
+def test_root_grid_holds_a_cloud_across_zero(tmp_path):
+    """A cloud in a sensor's frame, across 0 on x and y (a cube at a multiple of its own edge never held it: the loop
+    looking for one did not end): root="grid" starts at the grid's origin and gives the command's normals."""
+    src = tmp_path / "centred.las"
+    write_scene(src, n=20_000, seed=2)
+    las = laspy.read(str(src))
+    h = laspy.LasHeader(point_format=las.header.point_format.id, version="1.4")
+    h.scales, h.offsets = las.header.scales, np.zeros(3)
+    centred = laspy.LasData(h)
+    centred.x, centred.y, centred.z = las.x - np.mean(las.x), las.y - np.mean(las.y), las.z
+    centred.write(str(src))
+    r = CliRunner().invoke(main, ["normals", str(src), str(tmp_path / "n.las"), "-q"])
+    assert r.exit_code == 0, r.output
+    back, out = laspy.read(str(src)), laspy.read(str(tmp_path / "n.las"))
+    assert back.x.min() < 0 < back.x.max() and back.y.min() < 0 < back.y.max()
+    res = estimate_normals(np.column_stack([back.x, back.y, back.z]), root="grid")
+    assert np.array_equal(res.method, np.asarray(out.NormalMethod))
+    assert np.abs(res.normals - np.column_stack([out.NormalX, out.NormalY, out.NormalZ])).max() < 1e-6
+
+
 def test_always_up_and_a_viewpoint_are_not_both_taken(tmp_path):
     """Each turns every normal its own way (PDAL's viewpoint overrides its always_up): both asked for is one error."""
     src = tmp_path / "in.las"

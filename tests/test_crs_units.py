@@ -114,3 +114,19 @@ def test_a_wkt_is_described_once_and_each_caller_gets_its_own_copy(monkeypatch):
     assert len(searches) == 1 and again["horizontal_unit"][0] == "metre"
     assert again == crs_description(CRS.from_wkt(wkt)) and again["epsg"] == 2154
     assert again["label"] == "EPSG:2154 (RGF93 v1 / Lambert-93 (this test))"
+
+
+def test_reports_and_pcz_info_state_lengths_in_the_files_unit(tmp_path):
+    """A feet file's report says ft where its summary does (tiles, budget, mean error; it said m), and info of its .pcz
+    states the budget and the tile size in ft."""
+    src = _scene(tmp_path / "ft.las", crs="EPSG:2263")  # New York Long Island, US survey feet
+    r = CliRunner().invoke(main, ["normals", str(src), str(tmp_path / "n.las"), "--report", str(tmp_path / "n.html")])
+    assert r.exit_code == 0 and "tiles" in r.output, r.output
+    html = (tmp_path / "n.html").read_text()
+    assert " us-ft</td>" in html and " m</td>" not in html
+    r = CliRunner().invoke(main, ["compress", str(src), str(tmp_path / "c.pcz"), "--max-error", "0.1", "--report", str(tmp_path / "c.html")])
+    assert r.exit_code == 0, r.output
+    html = (tmp_path / "c.html").read_text()
+    assert "<td>0.1 us-ft</td>" in html and " m</td>" not in html and "{'" not in html  # no Python dict either
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "c.pcz")])
+    assert "max error    0.1 us-ft" in r.output and " of " in r.output and "us-ft\n" in r.output, r.output

@@ -2,6 +2,7 @@
 
 import os
 import shutil
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -40,15 +41,23 @@ def laz(tmp_path):
     ["normals", "{in}", "{dir}/out.laz", "--summary-json", "{dir}/out.laz"],
     ["don", "{in}", "{dir}/out.laz", "--profile", "{in}"],
     ["normals", "{dir}", "--out-dir", "{dir}_out", "--summary-json", "{in}"],
+    # nor a catalog's output, named as its input in the output directory (.pcz for compress)
+    ["normals", "{in}", "--out-dir", "{dir}_out", "--report", "{dir}_out/in.laz", "--overwrite"],
+    ["compress", "{in}", "--out-dir", "{dir}_out", "--report", "{dir}_out/in.pcz", "--overwrite"],
+    ["segment", "{in}", "--out-dir", "{dir}_out", "--summary-json", "{dir}_out/in.laz"],
 ])
 def test_an_input_is_never_replaced(laz, tmp_path, args):
     before = laz.read_bytes()
     files = sorted(p.name for p in tmp_path.iterdir())
     args = [a.format(**{"in": str(laz), "link": str(tmp_path / "link.laz"), "dir": str(tmp_path)}) for a in args]
+    Path(f"{tmp_path}_out").mkdir(exist_ok=True)  # a catalog's output directory, there (outside tmp_path)
     r = CliRunner().invoke(main, args + ["-q"])
     assert r.exit_code == 2, r.output
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: ") and ("input" in lines[0] or "job's file" in lines[0]), r.output
+    said = lines[0].replace(str(tmp_path), "DIR")  # (the test's own directory name holds the word "input")
+    refusals = ("input", "job's file", "an output's name ends in", "a LAS/LAZ name", "the store would be the output")
+    assert len(lines) == 1 and lines[0].startswith("error: ") and any(w in said for w in refusals), r.output
+    assert not any(Path(f"{tmp_path}_out").iterdir())
     assert laz.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == files
 
 

@@ -317,3 +317,24 @@ def test_the_api_on_the_files_own_coordinates_gives_the_commands_dons(scene, tmp
     assert np.abs(mine - ref).max() <= 1e-7  # the file's coordinates round apart from the store's frame's: a float32 ulp
     other = difference_of_normals(pts, kw["r_small"], kw["r_large"], mode="fast", viewpoint=vp, origin=np.zeros(3))
     assert np.nanmax(np.abs(other - d)) > 1e-3  # voxels laid from elsewhere: another (close) answer
+
+
+def test_map_tiles_refuses_a_tile_not_in_the_store_and_a_negative_halo(tmp_path):
+    """A tile the store does not hold is an argument error, and the store is left as it was (a task on it wrote its
+    failure into the store, which then read as damaged); a negative halo is refused, not taken as none."""
+    from patchcloud.stream import map_tiles, tile
+
+    path = tmp_path / "s.las"
+    write_las(path, street(np.random.default_rng(3))[0][:5000])
+    st = tmp_path / "st.zarr"
+    store = tile(path, str(st), tile_size=4.0, quiet=True)
+    before = sorted(p.name for p in (st / "tiles").iterdir())
+
+    def count(url, ijk, neighbours=()):
+        return len(neighbours)
+
+    with pytest.raises(PatchcloudValueError, match=r"tiles: \(99, 99, 99\) is not a tile of the store"):
+        map_tiles(count, store, tiles=[(99, 99, 99)])
+    assert sorted(p.name for p in (st / "tiles").iterdir()) == before
+    with pytest.raises(PatchcloudValueError, match="halo must be a whole number of tiles, 0 or more; got -1"):
+        map_tiles(count, store, halo=-1)

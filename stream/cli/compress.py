@@ -54,7 +54,7 @@ def compress_command(paths, max_error, keep_points, drop, record_source, report,
     from patchcloud.stream import compress
 
     run = options.run_options(run)
-    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile)
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile, suffix=".pcz")
     drop = tuple(d.strip() for d in drop.split(",") if d.strip())
     summary = compress(input, output, CompressOptions(max_error=max_error, keep_points=keep_points, drop=drop), run,
                        record_source=record_source)

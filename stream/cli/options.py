@@ -8,6 +8,7 @@ import os
 import re
 import sys
 import warnings
+from pathlib import Path
 
 import click
 
@@ -105,7 +106,6 @@ def _summary_json_path(ctx: click.Context, param: click.Parameter, value: str | 
     """--summary-json's callback: check its directory exists before anything runs, and keep the path for the end."""
     if value is None:
         return
-    from pathlib import Path
 
     if Path(value).is_dir() or not Path(value).resolve().parent.is_dir():
         raise click.BadParameter(f"{value}: is a directory, or its directory does not exist")
@@ -199,14 +199,16 @@ def catalog_options(func):
     return func
 
 
-def input_and_output(paths: tuple[str, ...], out_dir: str | None, report: str | None, overwrite: bool, profile: str | None = None):
+def input_and_output(paths: tuple[str, ...], out_dir: str | None, report: str | None, overwrite: bool, profile: str | None = None,
+                     suffix: str | None = None):
     """The job function's ``input`` and ``output`` from the command's arguments (``IN OUT``, or inputs and ``--out-dir``),
     after checking the files written beside the output (``--report``, ``--summary-json``, ``--profile``) can be
-    written and replace none of the job's files (:func:`check_side_files`)."""
+    written and replace none of the job's files (:func:`check_side_files`).  ``suffix``: a catalog's outputs' (``.pcz``),
+    if not the inputs' own."""
     from patchcloud.core import PatchcloudValueError
 
     if out_dir is not None:
-        check_side_files(paths, None, report, profile, overwrite)
+        check_side_files(paths, None, report, profile, overwrite, out_dir=out_dir, suffix=suffix)
         return list(paths), None
     if len(paths) == 1:
         raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT file after it, or --out-dir DIR")
@@ -216,19 +218,28 @@ def input_and_output(paths: tuple[str, ...], out_dir: str | None, report: str | 
     return paths[0], paths[1]
 
 
-def check_side_files(inputs, output: str | None, report: str | None, profile: str | None, overwrite: bool) -> None:
+def check_side_files(inputs, output: str | None, report: str | None, profile: str | None, overwrite: bool,
+                     out_dir: str | None = None, suffix: str | None = None) -> None:
     """Before a job runs: ``--report`` can be written (:func:`check_report`), and neither it, the ``--summary-json``
     of the running command nor ``--profile`` is one of the job's files: an input (every file a directory or glob of
-    ``inputs`` names) or the output.  A PatchcloudIOError (one error line) if not; ``--overwrite`` changes nothing."""
-    from patchcloud.core import PatchcloudIOError
-    from patchcloud.stream.io.catalog import expand_inputs
+    ``inputs`` names), the output, or a catalog's output in ``out_dir`` (named as the input, or with ``suffix``).  A
+    PatchcloudIOError (one error line) if not; ``--overwrite`` changes nothing."""
+    from patchcloud.core import PatchcloudError, PatchcloudIOError
+    from patchcloud.stream.io.catalog import expand_inputs, output_paths
     from patchcloud.stream.io.las import same_file
 
     try:
-        files = [str(f) for f in expand_inputs(list(inputs))]
+        found = expand_inputs(list(inputs))
     except PatchcloudIOError:  # the job says what is wrong with its inputs, in its own words
-        files = [str(i) for i in inputs]
-    job_files = files + ([str(output)] if output is not None else [])
+        found = [Path(i) for i in inputs]
+    files = [str(f) for f in found]
+    outputs = [] if output is None else [str(output)]
+    if out_dir is not None:
+        try:
+            outputs = [str(o) for o in output_paths(found, out_dir, suffix=suffix)]
+        except PatchcloudError:  # two inputs of one output name: the job says so
+            pass
+    job_files = files + outputs
     check_report(report, overwrite, *job_files)
     ctx = click.get_current_context(silent=True)
     summary = None if ctx is None else ctx.find_root().meta.get(SUMMARY_JSON_KEY) or ctx.meta.get(SUMMARY_JSON_KEY)

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from patchcloud.core import PatchcloudValueError
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io.store import Store
 
@@ -92,10 +93,17 @@ def map_tiles(
     >>> list(result) == store.tiles, [n for _, n in result.values()]
     (True, [3, 3, 3, 3])
     """
+    if isinstance(halo, bool) or not isinstance(halo, (int, np.integer)) or halo < 0:
+        raise PatchcloudValueError(f"halo must be a whole number of tiles, 0 or more; got {halo!r}")
     runner = runner or Runner("synchronous", quiet=True)
     all_tiles = store.tiles
-    todo = list(tiles) if tiles is not None else all_tiles
     present = set(all_tiles)
+    todo = list(tiles) if tiles is not None else all_tiles
+    todo = [tuple(int(v) for v in t) for t in todo]
+    absent = [t for t in todo if t not in present]
+    if absent:  # a task on it would write into the store (its failure) and find it "damaged"
+        raise PatchcloudValueError(f"tiles: {absent[0]} is not a tile of the store {store.url} "
+                                   f"({len(all_tiles):,} tiles, e.g. {all_tiles[0] if all_tiles else 'none'})")
     pieces = dict(pieces or {})
     counts = dict(zip(all_tiles, store.tile_counts.tolist()))
     calls, owner, size = [], [], []

@@ -320,6 +320,8 @@ def _value(v) -> str:
         return f"{v:.6g}"
     if isinstance(v, (list, tuple)):
         return ", ".join(_value(x) for x in v)
+    if isinstance(v, dict):  # units, points left out, the selection: "key value" pairs, not a Python repr
+        return "; ".join(f"{str(k).replace('_', ' ')} {_value(x)}" for k, x in v.items()) or "none"
     return str(v)
 
 
@@ -345,11 +347,17 @@ def file_rows(summary) -> list[tuple[str, str]]:
     return [("files", _n(len(files)))] + [(f"file: {Path(i).name}", f"{_n(n)} points -> {o}") for i, o, n in files]
 
 
+def _unit(summary) -> str:
+    """The symbol of the unit a summary's lengths are in (``m``, ``ft``, ``us-ft``; ``m`` for a summary without one)."""
+    return (getattr(summary, "units", None) or {}).get("symbol", "m")
+
+
 def _job_rows(seconds: dict[str, float], points: int, peak_memory: int, scheduler: str | None, store: str | None) -> list[tuple[str, str]]:
     total = sum(seconds.values())
     rows = [(f"time: {step}", f"{t:.2f} s") for step, t in seconds.items()]
     rows.append(("time: total", f"{total:.2f} s ({points / max(total, 1e-9):,.0f} points/s)"))
-    rows.append(("peak memory", f"{peak_memory / 2**20:,.0f} MiB" + (f" (all processes, scheduler {scheduler})" if scheduler else "")))
+    where = "" if not scheduler else " (one process, in memory)" if scheduler == "in memory" else f" (all processes, scheduler {scheduler})"
+    rows.append(("peak memory", f"{peak_memory / 2**20:,.0f} MiB{where}"))  # as the summary says it
     if store:
         rows.append(("store (kept)", store))
     return rows
@@ -369,7 +377,7 @@ def normals_rows(summary: "NormalsSummary") -> list[tuple[str, str]]:
     s = summary
     k, m = s.patches_by_kind, s.normals_by_method
     rows = [
-        ("input", s.input), ("output", s.output), ("points", _n(s.points)), ("tiles", f"{s.tiles:,} of {s.tile_size:g} m"),
+        ("input", s.input), ("output", s.output), ("points", _n(s.points)), ("tiles", f"{s.tiles:,} of {s.tile_size:g} {_unit(s)}"),
         ("patches", f"{sum(k.values()):,}: " + ", ".join(f"{name} {v:,}" for name, v in k.items())),
     ]
     rows += [(f"normals: {name}", _share(v, s.points)) for name, v in m.items()]
@@ -381,7 +389,7 @@ def don_rows(summary: "DonSummary") -> list[tuple[str, str]]:
     """The summary table of a ``don`` or ``segment`` run: every field of its :class:`DonSummary`, formatted."""
     s = summary
     rows = [
-        ("input", s.input), ("output", s.output), ("points", _n(s.points)), ("tiles", f"{s.tiles:,} of {s.tile_size:g} m"),
+        ("input", s.input), ("output", s.output), ("points", _n(s.points)), ("tiles", f"{s.tiles:,} of {s.tile_size:g} {_unit(s)}"),
         ("DoN defined", _share(s.defined, s.points)),
         ("median DoN magnitude", f"{s.median_magnitude():.2f} (to 1/{len(s.histogram) or 50})"),
     ]
@@ -401,8 +409,8 @@ def compress_rows(summary: "CompressSummary") -> list[tuple[str, str]]:
         ("input", s.input), ("output", s.output), ("points", _n(s.points)),
         ("points on patches", _share(s.points - s.residual, s.points)), ("patches", _n(s.patches)),
         ("residual points", _share(s.residual, s.points)),
-        ("error budget", f"{s.max_error:g} m"),
-        ("mean error of the modelled points", f"{s.mean_error:.4f} m (before quantisation, which adds at most half the budget)"),
+        ("error budget", f"{s.max_error:g} {_unit(s)}"),
+        ("mean error of the modelled points", f"{s.mean_error:.4f} {_unit(s)} (before quantisation, which adds at most half the budget)"),
         ("input size", f"{s.input_bytes:,} bytes ({8 * s.input_bytes / n:.2f} bits/point)"),
         ("output size", f"{s.output_bytes:,} bytes ({8 * s.output_bytes / n:.2f} bits/point)"),
         ("compression ratio", f"{s.input_bytes / max(s.output_bytes, 1):.2f}"),
@@ -811,7 +819,8 @@ def report_normals(
     figures.append(ReportFigure(figure_png(_bars_figure(
         list(m), [v / max(summary.points, 1) * 100 for v in m.values()], title="Points by normal method",
         xlabel="share of the points (%)", fmt="{:.1f} %")),
-        "Where each normal came from: a quadric patch, blended across patch faces, or the k-nearest-neighbour fallback.",
+        "Where each normal came from: a quadric patch, blended across patch faces, the PCA of the octree cells' moments "
+        "around the point (for points no patch models), or the k-nearest-neighbour fallback.",
         "Histograms"))
     return write_report(path, title=f"patchcloud normals: {Path(summary.input).name}", summary_rows=rows, figures=figures, notes=notes)
 
@@ -891,7 +900,7 @@ def report_compress(
                             figures=figures, notes=notes)
     figures.append(ReportFigure(figure_png(_bars_figure(
         ["error budget", "mean error, modelled points", "quantisation, at most"],
-        [s.max_error, s.mean_error, s.max_error / 2], title="Errors (metres)", xlabel="metres", fmt="{:.4f} m")),
+        [s.max_error, s.mean_error, s.max_error / 2], title=f"Errors ({_unit(s)})", xlabel=_unit(s), fmt="{:.4f} " + _unit(s))),
         "The budget the patches fit within (RMS), the mean distance of the modelled points to their patch's surface "
         "before quantisation, and the most quantising the models adds.", "Figures"))
     t = pcz_tiles(s.output)
@@ -931,9 +940,9 @@ def report_compress_catalog(
     rows = [
         ("files", _n(len(summaries))), ("points", _n(points)), ("points on patches", _share(points - residual, points)),
         ("patches", _n(sum(s.patches for s in summaries))), ("residual points (kept exactly)", _share(residual, points)),
-        ("error budget", ", ".join(sorted({f"{s.max_error:g} m" for s in summaries}))),
-        ("mean error of the modelled points", f"{sum(s.mean_error * (s.points - s.residual) for s in summaries) / max(points - residual, 1):.4f} m "
-         "(before quantisation, which adds at most half the budget)"),
+        ("error budget", ", ".join(sorted({f"{s.max_error:g} {_unit(s)}" for s in summaries}))),
+        ("mean error of the modelled points", f"{sum(s.mean_error * (s.points - s.residual) for s in summaries) / max(points - residual, 1):.4f} "
+         f"{_unit(summaries[0])} (before quantisation, which adds at most half the budget)"),
         ("input size", f"{bytes_in:,} bytes ({8 * bytes_in / n:.2f} bits/point)"),
         ("output size", f"{bytes_out:,} bytes ({8 * bytes_out / n:.2f} bits/point)"),
         ("compression ratio", f"{bytes_in / max(bytes_out, 1):.2f}"),
@@ -952,7 +961,7 @@ def report_compress_catalog(
          f"{s.patches:,}", f"{s.output_bytes:,}", f"{8 * s.output_bytes / max(s.points, 1):.2f}", f"{s.mean_error:.4f}")
         for s in summaries
     )
-    tables = [ReportTable("Files", ("input", "output", "points", "on patches", "patches", "bytes", "bits/point", "mean error (m)"),
+    tables = [ReportTable("Files", ("input", "output", "points", "on patches", "patches", "bytes", "bits/point", f"mean error ({_unit(summaries[0])})"),
                           table_rows)]
     return write_report(path, title=f"patchcloud compress: {len(summaries)} files", summary_rows=rows, figures=figures,
                         notes=notes, tables=tables)
