@@ -324,3 +324,38 @@ def test_info_of_a_catalogs_store_counts_every_file(cut, tmp_path):
     assert r.exit_code == 0 and f"source       4 files, tile_0.las to tile_3.las ({n:,} points)" in r.output, r.output
     shares = [float(ln.split()[-1].rstrip("%")) for ln in r.output.splitlines() if ln.rstrip().endswith("%")]
     assert shares and abs(sum(shares) - 100.0) < 0.5, r.output  # of the catalog's points, not the first file's
+
+
+def test_a_compressed_catalog_stopped_part_way_resumes_per_file(cut, tmp_path, monkeypatch):
+    """compress DIR --out-dir: stopped after its first file, the same command keeps that .pcz (unchanged: recorded
+    complete, same parameters, same files) and writes the others, each the bytes of a clean run; with other
+    parameters the kept .pcz is refused unless --overwrite, and the record is gone once every file is written."""
+    from patchcloud.stream import compress
+    from patchcloud.stream.jobs import compress as compress_module
+
+    d, _ = cut
+    clean = tmp_path / "clean"
+    compress(d / "in", out_dir=str(clean), max_error=0.05, tile_size=TILE, quiet=True)
+    real, calls = compress_module.run_job, []
+
+    def stops_at_the_second(*args, **kwargs):
+        calls.append(args[2])
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    out = tmp_path / "out"
+    monkeypatch.setattr(compress_module, "run_job", stops_at_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        compress(d / "in", out_dir=str(out), max_error=0.05, tile_size=TILE, quiet=True)
+    monkeypatch.setattr(compress_module, "run_job", real)
+    first = out / "tile_0.pcz"
+    stamp = first.stat().st_mtime_ns
+    assert (out / compress_module.CATALOG_RECORD).is_file()
+    with pytest.raises(PatchcloudIOError, match="tile_0.pcz: exists"):  # other parameters: not this run's file
+        compress(d / "in", out_dir=str(out), max_error=0.1, tile_size=TILE, quiet=True)
+    summaries = compress(d / "in", out_dir=str(out), max_error=0.05, tile_size=TILE, quiet=True)
+    assert first.stat().st_mtime_ns == stamp and [s.points for s in summaries][0] > 0
+    assert not (out / compress_module.CATALOG_RECORD).exists()
+    for k in range(4):
+        assert (out / f"tile_{k}.pcz").read_bytes() == (clean / f"tile_{k}.pcz").read_bytes()

@@ -38,7 +38,7 @@ from patchcloud.stream.io.las import LasSource, check_not_input, check_writable,
 from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, dropped_fields, keep_only
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format", "RESIDUAL_KEPT"]
+__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format", "RESIDUAL_KEPT"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -338,12 +338,21 @@ def _job(options: CompressOptions, record_source: bool) -> Job:
     return CompressJob(options, record_source)
 
 
+#: A catalog's compression records each ``.pcz`` it finishes here, in the output directory, until the last is written.
+CATALOG_RECORD = "patchcloud-compress.json"
+
+
 def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_source: bool = False) -> list[CompressSummary]:
     """Compress every file ``inputs`` name (paths, directories, globs) to ``run.out_dir``/NAME.pcz, file by file.
 
     Each ``.pcz`` is that of the file compressed alone (patches do not
     cross files, so each decompresses to its own file's points); every
-    input and output is checked before the first is written.
+    input and output is checked before the first is written.  Each file
+    finished is recorded in ``OUT_DIR/``:data:`CATALOG_RECORD` (its input,
+    its ``.pcz``, the parameters, its summary), removed when the last is
+    written: a run stopped part way (Ctrl-C, a failure) is resumed by the
+    same command, which keeps the ``.pcz`` recorded complete whose files
+    are unchanged and writes the others.
     """
     paths = expand_inputs(inputs)
     out_dir = check_out_dir(run.out_dir)
@@ -352,8 +361,58 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
         open_source(p)
     for o in outs:
         check_not_input(o, paths)
+    key = params_key(dict(options=dataclasses.asdict(options), record_source=record_source, tile_size=run.tile_size,
+                          selection=run.selection.to_json(), chunk=run.chunk, units=run.units))
+    record_path = out_dir / CATALOG_RECORD
+    record = _read_record(record_path)
+    done = [_finished(record.get(o.name), key, p, o) for p, o in zip(paths, outs)]
     if out_dir.exists():
-        outs = [check_writable(o, run.overwrite) for o in outs]
+        outs = [o if d else check_writable(o, run.overwrite) for o, d in zip(outs, done)]
     out_dir.mkdir(exist_ok=True)
     one = dataclasses.replace(run, out_dir=None)
-    return [run_job(_job(options, record_source), p, o, one) for p, o in zip(paths, outs)]
+    summaries = []
+    for p, o, d in zip(paths, outs, done):
+        if d:  # finished by a run stopped later: kept as it is
+            summaries.append(CompressSummary(**record[o.name]["summary"]))
+            continue
+        s = run_job(_job(options, record_source), p, o, one)
+        record[o.name] = dict(key=key, input=_file_state(p), output=_file_state(o), summary=dataclasses.asdict(s))
+        _write_record(record_path, record)
+        summaries.append(s)
+    record_path.unlink(missing_ok=True)  # every file written: nothing left to resume
+    return summaries
+
+
+def _file_state(path) -> dict:
+    """What says a file is unchanged: its resolved path, size and modification time."""
+    st = Path(path).stat()
+    return dict(path=str(Path(path).resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns))
+
+
+def _finished(entry: dict | None, key: str, source, output) -> bool:
+    """Whether a catalog's record ``entry`` says ``output`` was written complete from ``source`` with these parameters,
+    both files unchanged since."""
+    if not entry or entry.get("key") != key or not Path(output).is_file() or not Path(source).is_file():
+        return False
+    return entry.get("input") == _file_state(source) and entry.get("output") == _file_state(output)
+
+
+def _read_record(path: Path) -> dict:
+    """A catalog's record (:data:`CATALOG_RECORD`), or nothing where there is none or it cannot be read (then nothing
+    is resumed: the outputs there are refused unless ``overwrite``)."""
+    import json
+
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _write_record(path: Path, record: dict) -> None:
+    """Write a catalog's record under a temporary name, then rename it."""
+    import json
+
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(json.dumps(record, sort_keys=True, default=lambda v: v.item() if hasattr(v, "item") else str(v)))
+    os.replace(tmp, path)
