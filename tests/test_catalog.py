@@ -359,3 +359,29 @@ def test_a_compressed_catalog_stopped_part_way_resumes_per_file(cut, tmp_path, m
     assert not (out / compress_module.CATALOG_RECORD).exists()
     for k in range(4):
         assert (out / f"tile_{k}.pcz").read_bytes() == (clean / f"tile_{k}.pcz").read_bytes()
+
+
+def test_a_catalog_stopped_in_memory_leaves_no_output_and_starts_over(cut, tmp_path, monkeypatch):
+    """In memory there is no store to resume from: a catalog stopped after two of its four outputs removes them and
+    says so, and the same command then runs whole without --overwrite (it found two outputs "exists")."""
+    from patchcloud.stream.io import las_output
+
+    d, _ = cut
+    clean, out = tmp_path / "clean", tmp_path / "out"
+    normals(d / "in", out_dir=str(clean), tile_size=TILE, quiet=True)
+    finish, calls = las_output.finish, []
+
+    def stop_at_the_third(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt("stopped")
+        return finish(*args, **kwargs)
+
+    monkeypatch.setattr(las_output, "finish", stop_at_the_third)
+    with pytest.raises(KeyboardInterrupt, match="the 2 output\\(s\\) it had written are removed; the same command starts over"):
+        normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True)
+    monkeypatch.setattr(las_output, "finish", finish)
+    assert not out.exists()  # the directory it made, empty again, too
+    normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True)
+    for k in range(4):
+        assert (out / f"tile_{k}.las").read_bytes() == (clean / f"tile_{k}.las").read_bytes(), k

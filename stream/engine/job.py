@@ -627,8 +627,14 @@ def _left_complete(catalog: Catalog, outs: list[Path], url: str, in_memory: bool
 def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, in_memory: bool, run: RunOptions) -> Any:
     """run_job once its outputs and store are checked and locked."""
     if in_memory:
+        started = time.time_ns()
         try:
             return _run(job, catalog, outs, out, url, False, dataclasses.replace(run, scheduler="synchronous"))
+        except KeyboardInterrupt:
+            removed = _remove_written(outs, started)
+            raise KeyboardInterrupt(f"interrupted{removed}") from None
+        except PatchcloudError as exc:
+            raise type(exc)(f"{exc}{_remove_written(outs, started)}") from exc
         finally:
             Store.discard(url)
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
@@ -650,6 +656,22 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     if not keep:
         Store.discard(url)
     return summary
+
+
+def _remove_written(outs: list[Path], since_ns: int) -> str:
+    """Remove the outputs a run in memory wrote (complete files, modified since ``since_ns``) before it stopped: with no
+    store, nothing would resume them, and the same command then starts over without --overwrite.  What to say of it."""
+    gone = []
+    for o in outs:
+        try:
+            if o.is_file() and o.stat().st_mtime_ns >= since_ns:
+                o.unlink()
+                gone.append(o)
+        except OSError:  # left as it is
+            pass
+    if not gone:
+        return ""
+    return f" (run in memory, so nothing resumes: the {len(gone)} output(s) it had written are removed; the same command starts over)"
 
 
 def kept_store_note(url: str, overwrite: bool = False) -> str:
