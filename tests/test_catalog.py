@@ -385,3 +385,46 @@ def test_a_catalog_stopped_in_memory_leaves_no_output_and_starts_over(cut, tmp_p
     normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True)
     for k in range(4):
         assert (out / f"tile_{k}.las").read_bytes() == (clean / f"tile_{k}.las").read_bytes(), k
+
+
+def test_review_fixes_glob_with_assume_crs_render_out_dir_and_compress_out_dir(cut, tmp_path):
+    """The one-file form takes one file, --assume-crs or not (a glob ran as a catalog, then failed); render --out-dir
+    checks every picture's path before it draws the first; a refused catalog compress leaves no --out-dir."""
+    import os
+
+    d, _ = cut
+    _cli_fails(["normals", str(d / "in" / "tile_[01].las"), str(tmp_path / "o.las"), "--assume-crs", "EPSG:2154"],
+               "no such file", tmp_path)
+    pics = tmp_path / "pics"
+    pics.mkdir()
+    (pics / "tile_1.png").write_text("notes")
+    _cli_fails(["render", str(d / "in"), "--out-dir", str(pics), "--color", "elevation"], "is not a PNG", tmp_path)
+    assert sorted(os.listdir(pics)) == ["tile_1.png"]
+    _cli_fails(["compress", str(d / "in"), "--out-dir", str(tmp_path / "nd"), "--tile-size", "0.05"], "--tile-size", tmp_path)
+
+
+def test_a_run_in_memory_removes_only_the_outputs_it_wrote(cut, tmp_path, monkeypatch):
+    """What a failed run in memory removes is what it wrote (the files not as they were), whatever the failure (an
+    OSError too); an output it did not touch stays, even one dated in the future."""
+    import os
+
+    from patchcloud.stream.io import las_output
+
+    d, _ = cut
+    out = tmp_path / "out"
+    out.mkdir()
+    future = out / "tile_3.las"
+    future.write_bytes(b"kept")
+    os.utime(future, ns=(4_000_000_000 * 10**9, 4_000_000_000 * 10**9))
+    finish, calls = las_output.finish, []
+
+    def full_disk_at_the_second(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device", str(out / "tile_1.las"))
+        return finish(*args, **kwargs)
+
+    monkeypatch.setattr(las_output, "finish", full_disk_at_the_second)
+    with pytest.raises(PatchcloudIOError, match="No space left on device .*the 1 output\\(s\\) it had written are removed"):
+        normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True, overwrite=True)
+    assert sorted(p.name for p in out.iterdir()) == ["tile_3.las"] and future.read_bytes() == b"kept"

@@ -55,7 +55,8 @@ def test_an_input_is_never_replaced(laz, tmp_path, args):
     assert r.exit_code == 2, r.output
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
     said = lines[0].replace(str(tmp_path), "DIR")  # (the test's own directory name holds the word "input")
-    refusals = ("input", "job's file", "an output's name ends in", "a LAS/LAZ name", "the store would be the output")
+    refusals = ("input", "job's file", "an output's name ends in", "a LAS/LAZ name", "the store would be the output",
+                "is not a JSON file")
     assert len(lines) == 1 and lines[0].startswith("error: ") and any(w in said for w in refusals), r.output
     assert not any(Path(f"{tmp_path}_out").iterdir())
     assert laz.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == files
@@ -107,7 +108,7 @@ def test_a_picture_replaces_only_a_picture(laz, tmp_path):
 
 @pytest.mark.parametrize("extra, says", [
     (["--table", "{in}"], "a LAS/LAZ name, not a table's"),
-    (["--table", "{dir}/copy.txt", "--summary-json", "{in}"], "would replace the job's file"),
+    (["--table", "{dir}/copy.txt", "--summary-json", "{in}"], "exists and is not a JSON file"),
     (["--plot", "{in}"], "a LAS/LAZ name, not a picture's"),
     (["--table", "{dir}/t.png", "--plot", "{dir}/t.png"], "--plot and --table name the same file"),
 ])
@@ -118,3 +119,28 @@ def test_don_scales_never_replaces_its_input_nor_writes_two_files_in_one(laz, tm
     r = CliRunner().invoke(main, ["don-scales", str(laz), "--radii", "0.5,2", "-q", *args])
     assert r.exit_code == 2 and r.output.count("\n") == 1 and says in r.output, r.output
     assert laz.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == files
+
+
+def test_a_json_written_beside_the_work_replaces_only_json_and_never_a_store(laz, tmp_path):
+    """--summary-json and --profile of any command (render, decompress and render-tiles were not checked at all)
+    replace only a JSON file, never write into a zarr store (its metadata is JSON), and never name the --report."""
+    store = tmp_path / "st.zarr"
+    assert CliRunner().invoke(main, ["tile", str(laz), str(store), "-q"]).exit_code == 0
+    meta = (store / "zarr.json").read_bytes()
+    (tmp_path / "old.json").write_text('{"a": 1}')
+    before = laz.read_bytes()
+    for args, says in [
+        (["render", str(laz), str(tmp_path / "p.png"), "--color", "elevation", "--summary-json", str(laz)], "is not a JSON file"),
+        (["render-tiles", str(store), str(tmp_path / "t.png"), "--summary-json", str(store / "zarr.json")], "inside a zarr store"),
+        (["normals", str(laz), str(tmp_path / "n.laz"), "--store", str(store), "--summary-json", str(store / "s.json")],
+         "inside a zarr store"),
+        (["normals", str(laz), str(tmp_path / "n.laz"), "--profile", str(laz)], "is not a JSON file"),
+        (["normals", str(laz), str(tmp_path / "n.laz"), "--report", str(tmp_path / "r"), "--summary-json", str(tmp_path / "r")],
+         "--report and --summary-json name the same file"),
+    ]:
+        r = CliRunner().invoke(main, args + ["-q"])
+        assert r.exit_code == 2 and r.output.count("\n") == 1 and says in r.output, (args, r.output)
+    assert laz.read_bytes() == before and (store / "zarr.json").read_bytes() == meta and not (tmp_path / "n.laz").exists()
+    r = CliRunner().invoke(main, ["render", str(laz), str(tmp_path / "p.png"), "--color", "elevation", "--width", "200",
+                                  "--summary-json", str(tmp_path / "old.json"), "-q"])
+    assert r.exit_code == 0 and '"color": "elevation"' in (tmp_path / "old.json").read_text()  # a JSON file: replaced

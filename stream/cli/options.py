@@ -14,7 +14,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "check_side_files", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
+__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "check_side_files", "check_json_path", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="LENGTH",
@@ -65,8 +65,36 @@ in_memory = click.option(
     "Default: in memory for inputs of up to 2 million points (10 million on a machine of at most 2 cores) when no --store, "
     "--keep-store, --workers or --scheduler is given.",
 )
+def check_json_path(path: str, option: str) -> None:
+    """Before anything runs: a JSON file a command writes beside its work (``--summary-json``, ``--profile``) goes
+    where it replaces nothing but a JSON file, and not into a zarr store (a store's metadata is JSON): a
+    click.BadParameter (one error line) otherwise.  An input, an output or a store would have been lost."""
+    p = Path(path)
+    if p.is_dir() or not p.resolve().parent.is_dir():
+        raise click.BadParameter(f"{path}: is a directory, or its directory does not exist", param_hint=option)
+    if p.name == "zarr.json" or (p.resolve().parent / "zarr.json").exists():
+        raise click.BadParameter(f"{path}: inside a zarr store (a patchcloud store): it would damage it", param_hint=option)
+    if p.exists():
+        import json
+
+        try:
+            with open(p, "rb") as f:
+                head = f.read(1 << 20)
+            if head.strip():
+                json.loads(head)
+        except (OSError, ValueError):
+            raise click.BadParameter(f"{path}: exists and is not a JSON file ({option} replaces only one)", param_hint=option) from None
+
+
+def _profile_path(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """--profile's callback: :func:`check_json_path` before anything runs."""
+    if value is not None:
+        check_json_path(value, "--profile")
+    return value
+
+
 profile = click.option(
-    "--profile", type=click.Path(dir_okay=False), default=None, metavar="PATH",
+    "--profile", type=click.Path(dir_okay=False), default=None, metavar="PATH", callback=_profile_path,
     help="Write the run's task stream there (JSON: each task's step, start, end and worker), e.g. for tools/bench_scale.py.",
 )
 
@@ -106,9 +134,7 @@ def _summary_json_path(ctx: click.Context, param: click.Parameter, value: str | 
     """--summary-json's callback: check its directory exists before anything runs, and keep the path for the end."""
     if value is None:
         return
-
-    if Path(value).is_dir() or not Path(value).resolve().parent.is_dir():
-        raise click.BadParameter(f"{value}: is a directory, or its directory does not exist")
+    check_json_path(value, "--summary-json")
     ctx.meta[SUMMARY_JSON_KEY] = value
 
 
@@ -243,6 +269,11 @@ def check_side_files(inputs, output: str | None, report: str | None, profile: st
     check_report(report, overwrite, *job_files)
     ctx = click.get_current_context(silent=True)
     summary = None if ctx is None else ctx.find_root().meta.get(SUMMARY_JSON_KEY) or ctx.meta.get(SUMMARY_JSON_KEY)
+    written = [(o, p) for o, p in (("--report", report), ("--summary-json", summary), ("--profile", profile)) if p is not None]
+    for k, (option, path) in enumerate(written):
+        for other, there in written[k + 1:]:
+            if same_file(path, there):
+                raise PatchcloudIOError(f"{path}: {option} and {other} name the same file")
     for option, path in (("--summary-json", summary), ("--profile", profile)):
         if path is None:
             continue

@@ -66,6 +66,7 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
     """
     from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
     from patchcloud.stream.io.las import check_not_input
+    from patchcloud.stream.views.plots import check_png_path
     from patchcloud.stream.views.render import check_modes, input_sources, render
 
     from patchcloud.stream.views.layout import MIN_WIDTH
@@ -86,6 +87,8 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
             sources = input_sources(input, assume_crs)[0]
             check_modes(sources, [color], shade)
             check_not_input(output, [s.path for s in sources])
+            if directory.exists():
+                check_png_path(output)  # an existing file there that is not a PNG: refused before the first is drawn
         directory.mkdir(exist_ok=True)
     summaries = []
     for input, output in jobs:

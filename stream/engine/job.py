@@ -526,7 +526,8 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
         check_las_output(output)
         check_writable(output, overwrite=True)  # its directory; whether it may be replaced once the store is known
         # assume_crs: the CRS of a file without one (its units), or a check of the file's
-        catalog = Catalog.of(open_source(input)) if run.assume_crs is None else open_catalog(input, run.assume_crs)
+        src = open_source(input)  # one file (a glob is not one: no such file)
+        catalog = Catalog.of(src) if run.assume_crs is None else open_catalog([src.path], run.assume_crs)
         catalog_units(catalog, run)
         _check_inputs_kept(catalog, [output], run.store)
         check_laz_keeps(catalog.sources[0], output)
@@ -627,14 +628,19 @@ def _left_complete(catalog: Catalog, outs: list[Path], url: str, in_memory: bool
 def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, in_memory: bool, run: RunOptions) -> Any:
     """run_job once its outputs and store are checked and locked."""
     if in_memory:
-        started = time.time_ns()
+        before = [_file_state(o) for o in outs]
         try:
             return _run(job, catalog, outs, out, url, False, dataclasses.replace(run, scheduler="synchronous"))
         except KeyboardInterrupt:
-            removed = _remove_written(outs, started)
-            raise KeyboardInterrupt(f"interrupted{removed}") from None
+            raise KeyboardInterrupt(f"interrupted{_remove_written(outs, before)}") from None
         except PatchcloudError as exc:
-            raise type(exc)(f"{exc}{_remove_written(outs, started)}") from exc
+            raise type(exc)(f"{exc}{_remove_written(outs, before)}") from exc
+        except OSError as exc:  # disk full, permission: named, as on disk
+            line = os_error_line(exc) if exc.filename else str(exc)
+            raise PatchcloudIOError(f"{line}{_remove_written(outs, before)}") from exc
+        except BaseException:  # a bug: its traceback as it is, the outputs removed all the same
+            _remove_written(outs, before)
+            raise
         finally:
             Store.discard(url)
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
@@ -658,15 +664,27 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     return summary
 
 
-def _remove_written(outs: list[Path], since_ns: int) -> str:
-    """Remove the outputs a run in memory wrote (complete files, modified since ``since_ns``) before it stopped: with no
-    store, nothing would resume them, and the same command then starts over without --overwrite.  What to say of it."""
+def _file_state(path: Path) -> tuple | None:
+    """(inode, size, modification time) of a file, or None where there is none: what says a run replaced it."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def _remove_written(outs: list[Path], before: list) -> str:
+    """Remove the outputs a run in memory wrote before it stopped (the files that are not as they were, ``before`` their
+    :func:`_file_state`; each is renamed into place complete): with no store, nothing would resume them, and the same
+    command then starts over without --overwrite.  What to say of it."""
     gone = []
-    for o in outs:
+    for o, was in zip(outs, before):
+        now = _file_state(o)
+        if now is None or now == was:
+            continue
         try:
-            if o.is_file() and o.stat().st_mtime_ns >= since_ns:
-                o.unlink()
-                gone.append(o)
+            o.unlink()
+            gone.append(o)
         except OSError:  # left as it is
             pass
     if not gone:

@@ -368,17 +368,26 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
     done = [_finished(record.get(o.name), key, p, o) for p, o in zip(paths, outs)]
     if out_dir.exists():
         outs = [o if d else check_writable(o, run.overwrite) for o, d in zip(outs, done)]
+    made = not out_dir.exists()
     out_dir.mkdir(exist_ok=True)
     one = dataclasses.replace(run, out_dir=None)
     summaries = []
-    for p, o, d in zip(paths, outs, done):
-        if d:  # finished by a run stopped later: kept as it is
-            summaries.append(CompressSummary(**record[o.name]["summary"]))
-            continue
-        s = run_job(_job(options, record_source), p, o, one)
-        record[o.name] = dict(key=key, input=_file_state(p), output=_file_state(o), summary=dataclasses.asdict(s))
-        _write_record(record_path, record)
-        summaries.append(s)
+    try:
+        for p, o, d in zip(paths, outs, done):
+            if d:  # finished by a run stopped later: kept as it is
+                summaries.append(CompressSummary(**record[o.name]["summary"]))
+                continue
+            s = run_job(_job(options, record_source), p, o, one)
+            record[o.name] = dict(key=key, input=_file_state(p), output=_file_state(o), summary=dataclasses.asdict(s))
+            _write_record(record_path, record)
+            summaries.append(s)
+    except BaseException:
+        if made:  # refused before anything was written there (a tile size, say): no empty directory left
+            try:
+                out_dir.rmdir()
+            except OSError:  # not empty: a .pcz or the record is in it
+                pass
+        raise
     record_path.unlink(missing_ok=True)  # every file written: nothing left to resume
     return summaries
 
