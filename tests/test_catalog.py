@@ -264,14 +264,10 @@ def test_a_catalog_report_has_a_row_per_file_one_map_and_the_merged_run_histogra
     assert cat.count('<img src="data:image/png;base64,') == whole.count('<img src="data:image/png;base64,')  # one map per view
 
 
-def test_a_catalog_stopped_during_its_export_resumes_per_file(cut, tmp_path, monkeypatch):
-    import os
-
+def _stop_at_the_third_output(monkeypatch):
+    """Make the export stop (Ctrl-C) as it finishes its third output file; returns the real finish, to put back."""
     from patchcloud.stream.io import las_output
 
-    d, _ = cut
-    clean, out, store = tmp_path / "clean", tmp_path / "out", str(tmp_path / "s.zarr")
-    normals(d / "in", out_dir=str(clean), tile_size=TILE, quiet=True)
     finish, calls = las_output.finish, []
 
     def stop_at_the_third(*args, **kwargs):
@@ -281,6 +277,18 @@ def test_a_catalog_stopped_during_its_export_resumes_per_file(cut, tmp_path, mon
         return finish(*args, **kwargs)
 
     monkeypatch.setattr(las_output, "finish", stop_at_the_third)
+    return finish
+
+
+def test_a_catalog_stopped_during_its_export_resumes_per_file(cut, tmp_path, monkeypatch):
+    import os
+
+    from patchcloud.stream.io import las_output
+
+    d, _ = cut
+    clean, out, store = tmp_path / "clean", tmp_path / "out", str(tmp_path / "s.zarr")
+    normals(d / "in", out_dir=str(clean), tile_size=TILE, quiet=True)
+    finish = _stop_at_the_third_output(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, store=store, scheduler="synchronous")
     monkeypatch.setattr(las_output, "finish", finish)
@@ -369,15 +377,7 @@ def test_a_catalog_stopped_in_memory_leaves_no_output_and_starts_over(cut, tmp_p
     d, _ = cut
     clean, out = tmp_path / "clean", tmp_path / "out"
     normals(d / "in", out_dir=str(clean), tile_size=TILE, quiet=True)
-    finish, calls = las_output.finish, []
-
-    def stop_at_the_third(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 3:
-            raise KeyboardInterrupt("stopped")
-        return finish(*args, **kwargs)
-
-    monkeypatch.setattr(las_output, "finish", stop_at_the_third)
+    finish = _stop_at_the_third_output(monkeypatch)
     with pytest.raises(KeyboardInterrupt, match="the 2 output\\(s\\) it had written are removed; the same command starts over"):
         normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True)
     monkeypatch.setattr(las_output, "finish", finish)
