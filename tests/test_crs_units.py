@@ -130,3 +130,6 @@ def test_reports_and_pcz_info_state_lengths_in_the_files_unit(tmp_path):
     assert "<td>0.1 us-ft</td>" in html and " m</td>" not in html and "{'" not in html  # no Python dict either
     r = CliRunner().invoke(main, ["info", str(tmp_path / "c.pcz")])
     assert "max error    0.1 us-ft" in r.output and " of " in r.output and "us-ft\n" in r.output, r.output
+    r = CliRunner().invoke(main, ["tile", str(src), str(tmp_path / "st.zarr"), "-q"])
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "st.zarr")])
+    assert r.exit_code == 0 and " us-ft (min/median/max per tile" in r.output, r.output  # a store's tiles too

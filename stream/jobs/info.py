@@ -9,10 +9,10 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import PatchcloudIOError
+from patchcloud.core import PatchcloudError, PatchcloudIOError
 
 from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
-from patchcloud.stream.io.crs import crs_description
+from patchcloud.stream.io.crs import crs_description, units_of
 from patchcloud.stream.io.las import LasSource, open_source, read_chunks
 from patchcloud.stream.io.pcz import open_pcz
 from patchcloud.stream.io.store import Store
@@ -119,8 +119,20 @@ def info(path: str | os.PathLike) -> dict:
             "classes": a.get("classes"), "selection": a.get("selection"), "left_out": a.get("left_out"),
             "crs_info": _crs_info((a.get("catalog") or {}).get("crs") or (a.get("source") or {}).get("crs")),
             "files": [dict(path=f.get("path"), point_count=int(f.get("point_count", 0))) for f in (a.get("catalog") or {}).get("sources", [])],
+            "unit": _store_unit(a),
         }
     raise PatchcloudIOError(f"{p}: neither a LAS/LAZ file nor a patchcloud store")
+
+
+def _store_unit(attrs: dict) -> str:
+    """The symbol of the unit a store's lengths are in, from its files' CRS (as a run finds it; "(the file's unit)"
+    where that cannot be said: a CRS refused without --units)."""
+    src = attrs.get("source") or {}
+    crs = (attrs.get("catalog") or {}).get("crs") or src.get("crs")
+    try:
+        return units_of(crs, src.get("mins", (0.0, 0.0)), src.get("maxs", (0.0, 0.0))).symbol
+    except PatchcloudError:
+        return "(the file's unit)"
 
 
 def _starts_as_zip(path: str) -> bool:
@@ -228,7 +240,7 @@ def format_info(d: dict) -> str:
     lines = [
         f"{d['url']}: patchcloud store",
         f"  source       {where} ({total:,} points)",
-        f"  points       {d['points']:,} in {d['tiles']:,} tiles of {g.get('tile_size', 0):g} m (min/median/max per tile {d['points_per_tile']})",
+        f"  points       {d['points']:,} in {d['tiles']:,} tiles of {g.get('tile_size', 0):g} {d.get('unit', 'm')} (min/median/max per tile {d['points_per_tile']})",
         f"  origin       {g.get('origin')}",
         f"  CRS          {crs_line(d.get('crs_info'))}",
         f"  steps done   {steps}",
@@ -241,5 +253,5 @@ def format_info(d: dict) -> str:
                      + ", ".join(f"{r} {int(left.get(r, 0)):,}" for r in REASONS))
     if d.get("parameters"):
         p = d["parameters"]
-        lines.append(f"  parameters   {p['criterion']} threshold {p['threshold']:.4g}, d_min {p['d_min']:.3g} m, spacing {p['spacing']:.3g} m, orient {p['orient']}")
+        lines.append(f"  parameters   {p['criterion']} threshold {p['threshold']:.4g}, d_min {p['d_min']:.3g} {d.get('unit', 'm')}, spacing {p['spacing']:.3g} {d.get('unit', 'm')}, orient {p['orient']}")
     return "\n".join(lines)
