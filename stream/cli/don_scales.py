@@ -60,19 +60,14 @@ def _check_written(input: str, plot: str | None, table: str | None) -> None:
     from patchcloud.stream.views.plots import NOT_PICTURE_NAMES, check_png_path
 
     options.check_side_files([input], None, None, None, overwrite=True)  # the --summary-json
-    ctx = click.get_current_context(silent=True)
-    summary = None if ctx is None else ctx.meta.get(options.SUMMARY_JSON_KEY)
     if plot is not None:
         check_png_path(plot)
     if table is not None and Path(table).name.lower().endswith(NOT_PICTURE_NAMES):
         raise PatchcloudIOError(f"{table}: a LAS/LAZ name, not a table's (--table writes text)")
-    written = [(o, p) for o, p in (("--plot", plot), ("--table", table), ("--summary-json", summary)) if p is not None]
-    for k, (option, path) in enumerate(written):
-        if same_file(input, path):
+    for option, path in (("--plot", plot), ("--table", table)):
+        if path is not None and same_file(input, path):
             raise PatchcloudIOError(f"{path}: {option} would replace the input")
-        for other, there in written[k + 1:]:
-            if same_file(path, there):
-                raise PatchcloudIOError(f"{path}: {option} and {other} name the same file")
+    options.check_distinct([("--plot", plot), ("--table", table), ("--summary-json", options.summary_json_path())])
 
 
 @click.command("don-scales")

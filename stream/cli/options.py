@@ -14,7 +14,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "check_side_files", "check_json_path", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
+__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "catalog_options", "input_and_output", "check_side_files", "check_distinct", "check_json_path", "summary_json_path", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="LENGTH",
@@ -65,6 +65,8 @@ in_memory = click.option(
     "Default: in memory for inputs of up to 2 million points (10 million on a machine of at most 2 cores) when no --store, "
     "--keep-store, --workers or --scheduler is given.",
 )
+
+
 def check_json_path(path: str, option: str) -> None:
     """Before anything runs: a JSON file a command writes beside its work (``--summary-json``, ``--profile``) goes
     where it replaces nothing but a JSON file, and not into a zarr store (a store's metadata is JSON): a
@@ -130,6 +132,12 @@ report_option = click.option(
 SUMMARY_JSON_KEY = "patchcloud.summary_json"
 
 
+def summary_json_path() -> str | None:
+    """The running command's --summary-json, or None (none given, or no command running)."""
+    ctx = click.get_current_context(silent=True)
+    return None if ctx is None else ctx.find_root().meta.get(SUMMARY_JSON_KEY) or ctx.meta.get(SUMMARY_JSON_KEY)
+
+
 def _summary_json_path(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
     """--summary-json's callback: check its directory exists before anything runs, and keep the path for the end."""
     if value is None:
@@ -187,8 +195,7 @@ def write_summary_json(summary) -> None:
     temporary name, then renamed."""
     import json
 
-    ctx = click.get_current_context(silent=True)
-    path = None if ctx is None else ctx.find_root().meta.get(SUMMARY_JSON_KEY) or ctx.meta.get(SUMMARY_JSON_KEY)
+    path = summary_json_path()
     if path is None:
         return
     tmp = f"{path}.partial"
@@ -267,19 +274,27 @@ def check_side_files(inputs, output: str | None, report: str | None, profile: st
             pass
     job_files = files + outputs
     check_report(report, overwrite, *job_files)
-    ctx = click.get_current_context(silent=True)
-    summary = None if ctx is None else ctx.find_root().meta.get(SUMMARY_JSON_KEY) or ctx.meta.get(SUMMARY_JSON_KEY)
-    written = [(o, p) for o, p in (("--report", report), ("--summary-json", summary), ("--profile", profile)) if p is not None]
-    for k, (option, path) in enumerate(written):
-        for other, there in written[k + 1:]:
-            if same_file(path, there):
-                raise PatchcloudIOError(f"{path}: {option} and {other} name the same file")
+    summary = summary_json_path()
+    check_distinct([("--report", report), ("--summary-json", summary), ("--profile", profile)])
     for option, path in (("--summary-json", summary), ("--profile", profile)):
         if path is None:
             continue
         for f in job_files:
             if same_file(f, path):
                 raise PatchcloudIOError(f"{path}: {option} would replace the job's file {f}")
+
+
+def check_distinct(written) -> None:
+    """Before a job runs: the files a command writes (``written``: (option, path or None) pairs) are distinct, or a
+    PatchcloudIOError naming the two options (the later one would replace the earlier)."""
+    from patchcloud.core import PatchcloudIOError
+    from patchcloud.stream.io.las import same_file
+
+    given = [(option, path) for option, path in written if path is not None]
+    for k, (option, path) in enumerate(given):
+        for other, there in given[k + 1:]:
+            if same_file(path, there):
+                raise PatchcloudIOError(f"{path}: {option} and {other} name the same file")
 
 
 def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:

@@ -50,7 +50,7 @@ from patchcloud.stream.io.las import POSITION_AND_CLASS, check_writable, is_laz_
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store
 
-__all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs"]
+__all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs", "file_record"]
 
 
 @dataclass(frozen=True)
@@ -267,7 +267,8 @@ def output_key(store: Store, columns: list[Column], dims, provenance: laspy.VLR 
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def _file_record(path: Path) -> dict:
+def file_record(path: Path) -> dict:
+    """What says a file is unchanged: its resolved path, size and modification time."""
     st = path.stat()
     return dict(path=str(path.resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns))
 
@@ -280,7 +281,7 @@ def complete_outputs(store: Store, outputs, key: str | None = None) -> list[bool
     for f, o in enumerate(outputs):
         r, p = recorded.get(str(f)), Path(o)
         ok = r is not None and p.is_file() and (key is None or r.get("key") == key)
-        out.append(bool(ok and {k: r.get(k) for k in ("path", "size", "mtime_ns")} == _file_record(p)))
+        out.append(bool(ok and {k: r.get(k) for k in ("path", "size", "mtime_ns")} == file_record(p)))
     return out
 
 
@@ -360,7 +361,7 @@ def export_columns(
                                   source=cat.sources[f].path)
                 # recorded before the rename (which keeps size and modification time): a run killed between the two
                 # finds its output complete, not a file it may not replace
-                store.set_group_attrs("outputs", **{str(f): dict(_file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key)})
+                store.set_group_attrs("outputs", **{str(f): dict(file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key)})
                 Path(tmps[f]).replace(outs[f])
 
         runner.map(export_part, calls, "export", on_result=finish)

@@ -73,7 +73,7 @@ from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store
 
 __all__ = [
     "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
-    "time_and_memory_lines", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines",
+    "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines",
 ]
 
 #: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.97 GiB
@@ -302,9 +302,17 @@ def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: i
         *compiling_line(compile_seconds),
         "  time            " + ", ".join(f"{s} {t:.1f} s" for s, t in seconds.items())
         + f"; total {total:.1f} s ({points / max(total, 1e-9):,.0f} points/s)",
-        f"  peak memory     {peak_memory / 2**20:,.0f} MiB "
-        + ("(one process, in memory)" if scheduler == "in memory" else f"(all processes, scheduler {scheduler})"),
+        f"  peak memory     {peak_memory / 2**20:,.0f} MiB {memory_scope(scheduler)}",
     ]
+
+
+def memory_scope(scheduler: str) -> str:
+    """What a peak memory figure covers, as summaries and reports say it.
+
+    >>> memory_scope("in memory"), memory_scope("processes")
+    ('(one process, in memory)', '(all processes, scheduler processes)')
+    """
+    return "(one process, in memory)" if scheduler == "in memory" else f"(all processes, scheduler {scheduler})"
 
 
 def units_line(units: dict) -> str:

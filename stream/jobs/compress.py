@@ -29,12 +29,13 @@ import numpy as np
 from patchcloud.core import (
     CompressOptions, PatchcloudValueError, PatchModels, QuantisedModels, dequantise_models, fit_models, patch_distances, quantise_models,
 )
+from patchcloud.stream.engine.export import file_record
 from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
 from patchcloud.stream.engine.job import Job, JobContext, RunOptions, left_out_lines, params_key, run_job, split_options, time_and_memory_lines
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
-from patchcloud.stream.io.las import LasSource, check_not_input, check_writable, open_source, raw_header
+from patchcloud.stream.io.las import LasSource, atomic_output, check_not_input, check_writable, open_source, raw_header
 from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, dropped_fields, keep_only
 from patchcloud.stream.io.store import Store
 
@@ -378,7 +379,7 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
                 summaries.append(CompressSummary(**record[o.name]["summary"]))
                 continue
             s = run_job(_job(options, record_source), p, o, one)
-            record[o.name] = dict(key=key, input=_file_state(p), output=_file_state(o), summary=dataclasses.asdict(s))
+            record[o.name] = dict(key=key, input=file_record(Path(p)), output=file_record(Path(o)), summary=dataclasses.asdict(s))
             _write_record(record_path, record)
             summaries.append(s)
     except BaseException:
@@ -392,18 +393,12 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
     return summaries
 
 
-def _file_state(path) -> dict:
-    """What says a file is unchanged: its resolved path, size and modification time."""
-    st = Path(path).stat()
-    return dict(path=str(Path(path).resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns))
-
-
 def _finished(entry: dict | None, key: str, source, output) -> bool:
     """Whether a catalog's record ``entry`` says ``output`` was written complete from ``source`` with these parameters,
     both files unchanged since."""
     if not entry or entry.get("key") != key or not Path(output).is_file() or not Path(source).is_file():
         return False
-    return entry.get("input") == _file_state(source) and entry.get("output") == _file_state(output)
+    return entry.get("input") == file_record(Path(source)) and entry.get("output") == file_record(Path(output))
 
 
 def _read_record(path: Path) -> dict:
@@ -419,9 +414,8 @@ def _read_record(path: Path) -> dict:
 
 
 def _write_record(path: Path, record: dict) -> None:
-    """Write a catalog's record under a temporary name, then rename it."""
+    """Write a catalog's record under a temporary name, then rename it (:func:`~patchcloud.stream.io.las.atomic_output`)."""
     import json
 
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(json.dumps(record, sort_keys=True, default=lambda v: v.item() if hasattr(v, "item") else str(v)))
-    os.replace(tmp, path)
+    with atomic_output(path, overwrite=True) as f:
+        f.write(json.dumps(record, sort_keys=True, default=lambda v: v.item() if hasattr(v, "item") else str(v)).encode())

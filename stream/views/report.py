@@ -48,6 +48,7 @@ from matplotlib.figure import Figure
 
 from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
+from patchcloud.stream.engine.job import memory_scope
 from patchcloud.stream.io.las import atomic_output, open_source, read_chunks, same_file
 from patchcloud.stream.views.plots import CMAP, STYLE, new_figure, style_axes
 
@@ -356,8 +357,8 @@ def _job_rows(seconds: dict[str, float], points: int, peak_memory: int, schedule
     total = sum(seconds.values())
     rows = [(f"time: {step}", f"{t:.2f} s") for step, t in seconds.items()]
     rows.append(("time: total", f"{total:.2f} s ({points / max(total, 1e-9):,.0f} points/s)"))
-    where = "" if not scheduler else " (one process, in memory)" if scheduler == "in memory" else f" (all processes, scheduler {scheduler})"
-    rows.append(("peak memory", f"{peak_memory / 2**20:,.0f} MiB{where}"))  # as the summary says it
+    where = f" {memory_scope(scheduler)}" if scheduler else ""  # as the summary says it
+    rows.append(("peak memory", f"{peak_memory / 2**20:,.0f} MiB{where}"))
     if store:
         rows.append(("store (kept)", store))
     return rows
