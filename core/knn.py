@@ -16,16 +16,17 @@ This replaces scipy's cKDTree, whose import alone (``scipy.spatial``,
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
 from . import _kernels
-from .morton import encode
+from .morton import MAX_DEPTH, encode
 from .threads import parallel_kernel
 
-__all__ = ["PointGrid", "point_grid", "nearest_neighbours", "near_queries"]
+__all__ = ["PointGrid", "point_grid", "sorted_point_grid", "nearest_neighbours", "near_queries"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,11 @@ class PointGrid:
         The cells' edge (the points' unit); the root cube's is ``edge * 2**levels``.
     levels : int
         The cells' level below the root cube (0 to 21).
+    scale : float
+        Cells per unit of length, as the points' cells were found: a point
+        lies in cell ``floor((p - corner) * scale)`` (about ``1 / edge``;
+        the search finds a query's cells the same way, so both agree to the
+        last bit).
     """
 
     points: np.ndarray
@@ -57,6 +63,7 @@ class PointGrid:
     corner: np.ndarray
     edge: float
     levels: int
+    scale: float
 
 
 def _cell_numbers(points: np.ndarray, corner: np.ndarray, span: np.ndarray, edge: float) -> np.ndarray:
@@ -114,13 +121,64 @@ def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> Poi
     edge = max(edge, extent * 2.0 ** -21, np.finfo(np.float64).tiny)
     levels = int(np.clip(np.ceil(np.log2(max(extent, edge) / edge)), 0, 21)) if n else 0
     edge = max(edge, extent / 2.0**levels * (1.0 + 1e-12))  # the root cube holds every point
-    q = np.clip(np.floor((pts - corner) / edge), 0, 2**levels - 1).astype(np.int64) if n else np.zeros((0, 3), np.int64)
+    scale = 1.0 / edge
+    q = np.clip(np.floor((pts - corner) * scale), 0, 2**levels - 1).astype(np.int64) if n else np.zeros((0, 3), np.int64)
     keys = encode(q)
     order = np.argsort(keys, kind="stable")
     keys = keys[order]
     first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if n else np.zeros(0, np.int64)
     return PointGrid(points=pts[order], ids=ids[order], cells=keys[first], starts=np.r_[first, n].astype(np.int64),
-                     corner=corner.astype(np.float64), edge=float(edge), levels=levels)
+                     corner=corner.astype(np.float64), edge=float(edge), levels=levels, scale=scale)
+
+
+def sorted_point_grid(points: np.ndarray, keys: np.ndarray, edge: float, k: int, ids: np.ndarray | None = None) -> PointGrid:
+    """The :class:`PointGrid` of points already sorted by Morton key: no sort, one pass over the keys.
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+        Points relative to the low corner of a cube of ``edge``, sorted by ``keys``
+        (an octree's sorted points, or a subset of them in the same order).
+    keys : (N,) uint64
+        Their depth-21 Morton keys in that cube, as :func:`patchcloud.core.octree.point_keys` gives them, ascending.
+    edge : float
+        The cube's edge.
+    k : int
+        About how many points a cell should hold: the level is the one
+        whose occupied cells hold, on average, nearest to ``k`` points
+        (in ratio).
+    ids : (N,) int64, optional
+        The points' indices to report (default 0 to N-1).
+
+    A point's cell is its key's prefix, and the search finds a query's
+    cell with the same arithmetic as :func:`~patchcloud.core.octree.point_keys`
+    (scaled by a power of two, exactly), so the neighbours are those of a
+    search in a grid of the same cells built by sorting.
+
+    >>> from patchcloud.core.octree import sort_points
+    >>> pts = np.random.default_rng(0).uniform(0, 8, (500, 3))
+    >>> order, keys, _ = sort_points(pts, np.zeros(3), 8.0)
+    >>> g = sorted_point_grid(pts[order], keys, 8.0, k=8, ids=order)
+    >>> q = np.array([[4.0, 4.0, 4.0]])
+    >>> bool((nearest_neighbours(g, q, 5)[1] == nearest_neighbours(point_grid(pts, 8), q, 5)[1]).all())
+    True
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    keys = np.ascontiguousarray(keys, dtype=np.uint64)
+    n = pts.shape[0]
+    ids = np.arange(n, dtype=np.int64) if ids is None else np.ascontiguousarray(ids, dtype=np.int64)
+    level = 0
+    if n:
+        splits = np.zeros(MAX_DEPTH + 1, dtype=np.int64)  # as octree.level_occupancy: occupied cells at levels 0 to 21
+        _kernels.first_split_levels(keys, MAX_DEPTH, splits)
+        occupied = (np.cumsum(splits) + 1).astype(np.float64)
+        level = int(np.argmin(np.abs(np.log(n / occupied) - np.log(max(k, 1)))))
+    shift = np.uint64(3 * (MAX_DEPTH - level))
+    cell_keys = keys >> shift
+    first = np.flatnonzero(np.r_[True, cell_keys[1:] != cell_keys[:-1]]) if n else np.zeros(0, np.int64)
+    scale = (2.0**MAX_DEPTH / edge) * 2.0 ** (level - MAX_DEPTH)  # point_keys' scale, then a power of two: exact
+    return PointGrid(points=pts, ids=ids, cells=cell_keys[first], starts=np.r_[first, n].astype(np.int64),
+                     corner=np.zeros(3), edge=float(edge) / 2.0**level, levels=level, scale=float(scale))
 
 
 def near_queries(points: np.ndarray, queries: np.ndarray, reach: float) -> np.ndarray:
@@ -184,13 +242,16 @@ def _box_cells(pts, lo, hi, reach, dims, out):
 
 
 def nearest_neighbours(
-    grid: PointGrid, queries: np.ndarray, k: int, max_distance: float = np.inf,
+    grid: PointGrid | Sequence[PointGrid], queries: np.ndarray, k: int, max_distance: float = np.inf,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` points of ``grid`` nearest to each query, nearest first (ties: smaller index first).
 
     Parameters
     ----------
-    grid : PointGrid
+    grid : PointGrid, or a sequence of them
+        Several grids are searched as one grid of all their points would
+        be (their ids should then differ): a tile's points, sorted already,
+        and its neighbours' few, say.
     queries : (M, 3) float64
         Anywhere (inside the grid's box or not).
     k : int
@@ -216,12 +277,15 @@ def nearest_neighbours(
     k = int(k)
     if k < 1:
         raise ValueError(f"k must be at least 1; got {k}")
+    grids = [grid] if isinstance(grid, PointGrid) else list(grid)
     dist = np.full((len(q), k), np.inf)
     idx = np.full((len(q), k), -1, dtype=np.int64)
-    if len(q) and len(grid.ids):
-        limit = float(max_distance) ** 2 if np.isfinite(max_distance) else np.inf
-        _search(grid.points, grid.ids, grid.cells, grid.starts, grid.corner, float(grid.edge), grid.levels, q, limit, dist, idx)
-        np.sqrt(dist, out=dist)
+    limit = float(max_distance) ** 2 if np.isfinite(max_distance) else np.inf
+    for g in grids:  # each grid's points offered to the lists the grids before left (the same as one grid of them all)
+        if len(q) and len(g.ids):
+            _search(g.points, g.ids, g.cells, g.starts, g.corner, float(g.edge), float(g.scale), g.levels, q, limit, dist.copy(),
+                    idx.copy(), dist, idx)
+    np.sqrt(dist, out=dist)
     return dist, idx
 
 
@@ -261,13 +325,13 @@ def _offer(points, ids, a, b, qx, qy, qz, limit, bd, bi):
 
 
 @njit(cache=True, nogil=True)
-def _rings(points, ids, cells, starts, corner, edge, level, levels, qx, qy, qz, limit, bd, bi):
-    """Rings 0 to 2 of the cells of ``level`` around the query; True when the lists are final."""
+def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, qy, qz, limit, bd, bi):
+    """Rings 0 to 2 of the cells of ``level`` (edge ``edge``, ``scale`` cells per unit) around the query; True when the lists are final."""
     n = np.int64(1) << np.int64(level)
     shift = np.uint64(3 * (levels - level))
-    fx = (qx - corner[0]) / edge
-    fy = (qy - corner[1]) / edge
-    fz = (qz - corner[2]) / edge
+    fx = (qx - corner[0]) * scale
+    fy = (qy - corner[1]) * scale
+    fz = (qz - corner[2]) * scale
     cx = np.int64(np.floor(fx))
     cy = np.int64(np.floor(fy))
     cz = np.int64(np.floor(fz))
@@ -308,13 +372,13 @@ def _rings(points, ids, cells, starts, corner, edge, level, levels, qx, qy, qz, 
 
 
 @njit(cache=True, nogil=True)
-def _any_near(cells, corner, edge, level, levels, qx, qy, qz):
-    """Whether any point lies in the 27 cells of ``level`` (edge ``edge``) around the query's; its own cell first."""
+def _any_near(cells, corner, scale, level, levels, qx, qy, qz):
+    """Whether any point lies in the 27 cells of ``level`` (``scale`` cells per unit) around the query's; its own cell first."""
     n = np.int64(1) << np.int64(level)
     shift = np.uint64(3 * (levels - level))
-    cx = np.int64(np.floor((qx - corner[0]) / edge))
-    cy = np.int64(np.floor((qy - corner[1]) / edge))
-    cz = np.int64(np.floor((qz - corner[2]) / edge))
+    cx = np.int64(np.floor((qx - corner[0]) * scale))
+    cy = np.int64(np.floor((qy - corner[1]) * scale))
+    cz = np.int64(np.floor((qz - corner[2]) * scale))
     for t in range(27):
         u = (t + 13) % 27  # 13: the query's own cell, (0, 0, 0)
         i, j, z = cx + u // 9 - 1, cy + (u // 3) % 3 - 1, cz + u % 3 - 1
@@ -328,36 +392,42 @@ def _any_near(cells, corner, edge, level, levels, qx, qy, qz):
 
 
 @parallel_kernel
-def _search(points, ids, cells, starts, corner, edge, levels, queries, limit, dist, idx):
+def _search(points, ids, cells, starts, corner, edge, scale, levels, queries, limit, dist0, idx0, dist, idx):
+    # dist0, idx0: the lists before this grid's points (a restart goes back to them); dist, idx: the lists, in place
+    # scale: the grid's cells per unit of length (about 1 / edge), as its points' cells were found
     # with a finite limit: the level whose cells are the smallest at least sqrt(limit) wide, where the 27 cells
     # around a query hold every point within the limit, so a query with none there is done at once
     coarse = -1
-    coarse_edge = edge
-    first, first_edge = levels, edge  # with a finite limit: the finest level whose two rings reach past the limit (no
+    coarse_edge, coarse_scale = edge, scale
+    first, first_edge, first_scale = levels, edge, scale  # with a finite limit: the finest level whose two rings reach past the limit (no
     if limit < np.inf:                # second try on larger cells; the cells of the rings beyond the limit are skipped)
         coarse = levels
         while coarse > 0 and coarse_edge * coarse_edge < limit:
             coarse -= 1
             coarse_edge *= 2.0
+            coarse_scale *= 0.5
         while first > 0 and 4.0 * first_edge * first_edge < limit:
             first -= 1
             first_edge *= 2.0
+            first_scale *= 0.5
     for m in prange(queries.shape[0]):
         bd = dist[m]
         bi = idx[m]
-        if coarse >= 0 and not _any_near(cells, corner, coarse_edge, coarse, levels, queries[m, 0], queries[m, 1], queries[m, 2]):
+        if coarse >= 0 and not _any_near(cells, corner, coarse_scale, coarse, levels, queries[m, 0], queries[m, 1], queries[m, 2]):
             continue
         level = first
         e = first_edge
+        sc = first_scale
         while True:
             if level == 0:  # the root cell: every point
                 _offer(points, ids, 0, points.shape[0], queries[m, 0], queries[m, 1], queries[m, 2], limit, bd, bi)
                 break
-            if _rings(points, ids, cells, starts, corner, e, level, levels, queries[m, 0], queries[m, 1], queries[m, 2],
+            if _rings(points, ids, cells, starts, corner, e, sc, level, levels, queries[m, 0], queries[m, 1], queries[m, 2],
                       limit, bd, bi):
                 break
             # two rings were not enough: start again on cells twice as large (the root cell holds every point)
-            bd[:] = np.inf
-            bi[:] = -1
+            bd[:] = dist0[m]
+            bi[:] = idx0[m]
             level -= 1
             e *= 2.0
+            sc *= 0.5

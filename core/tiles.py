@@ -30,6 +30,7 @@ to the store's origin); tile-local computations subtract the tile corner.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -37,7 +38,7 @@ from . import _kernels
 from .blend import blend_across_faces
 from .moment_normals import moment_normals
 from .fallback import knn_normals
-from .knn import near_queries, nearest_neighbours, point_grid
+from .knn import PointGrid, nearest_neighbours, point_grid, sorted_point_grid
 from .morton import encode
 from .codes import Method, PatchKind
 from .octree import Octree, build_octree, max_level_for, point_keys, sort_points
@@ -380,9 +381,9 @@ def finish_tile(
         method[was] = Method.BLENDED
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64) - corner
     ctr = None if centre is None else np.asarray(centre, dtype=np.float64) - corner
-    orienting = _Orienting(points, votes_all, voters_all, SIGN_REACH * d_min, orient, tree.local, vp, ctr)
+    orienting = _Orienting(points, votes_all, voters_all, SIGN_REACH * d_min, orient, tree.local, tree.keys, edge, vp, ctr)
     _moment_fallback(tree, normals, scalars, dir1, method, points, min_sigma2, orienting, todo)
-    _fallback(tree, normals, scalars, dir1, method, points, k_fallback, orienting, todo, grid=skin is None)
+    _fallback(tree, normals, scalars, dir1, method, points, k_fallback, orienting, todo)
     if orient == "viewpoint" and vp is not None:  # PDAL's viewpoint: at the end, every normal faces it, point by point
         rows = np.flatnonzero(method > 0)
         facing = np.einsum("ij,ij->i", normals[rows], vp - tree.local[rows])
@@ -399,7 +400,8 @@ class _Orienting:
     ``points`` are the tile's sorted points then the skin's; ``votes`` their
     oriented patch normals where ``voters``; ``reach`` (metres) how far a
     patch normal may lie from a point and still orient it; ``local`` the
-    tile's points, for the rule.
+    tile's points, for the rule, ``keys`` their Morton keys in the tile's
+    cube of ``edge``.
     """
 
     points: np.ndarray
@@ -408,14 +410,21 @@ class _Orienting:
     reach: float
     orient: str
     local: np.ndarray
+    keys: np.ndarray
+    edge: float
     viewpoint: np.ndarray | None
     centre: np.ndarray | None
+
+    @cached_property
+    def voter_grids(self) -> list[PointGrid]:
+        """The search index of the voters (ids: their rows of ``points``), built once: the tile's in their sorted order, the skin's."""
+        return tile_grids(self.points, self.keys, self.edge, SIGN_VOTERS, self.voters)
 
     def finish(self, normals, scalars, dir1, rows, nrm, sign, k: int, min_cos: float = 0.0) -> None:
         """Turn the normals of ``rows`` (``nrm``), in place: by ``sign`` where it is not 0, else towards the nearest patch normals, else by the rule."""
         todo = sign == 0
         if todo.any() and self.voters.any():
-            sign[todo] = _nearby_signs(self.points, self.votes, self.voters, self.points[rows[todo]], nrm[todo], k, self.reach, min_cos)
+            sign[todo] = _nearby_signs(self.voter_grids, self.votes, self.points[rows[todo]], nrm[todo], k, self.reach, min_cos)
         done = sign != 0
         _turn(normals, scalars, dir1, rows[done], sign[done])
         rest = rows[~done]  # the global rule, point by point
@@ -444,18 +453,16 @@ def _moment_fallback(tree: Octree, normals, scalars, dir1, method, points, min_s
     orienting.finish(normals, scalars, dir1, rows, nrm, sign, SIGN_VOTERS, SIGN_MIN_COS)
 
 
-def _fallback(tree: Octree, normals, scalars, dir1, method, points, k, orienting: _Orienting, todo, grid: bool) -> None:
+def _fallback(tree: Octree, normals, scalars, dir1, method, points, k, orienting: _Orienting, todo) -> None:
     """k-NN PCA normals for the points where ``todo`` still without one, oriented by patch normals near them, in place.
 
-    With ``grid`` (``points`` are the tile's only) the search runs in the
-    octree's cells around the queries; else (the skin takes part) over all
-    of ``points``.
+    The neighbours are among all of ``points`` (the tile's sorted points,
+    then the skin's), searched in the octree's order (:func:`tile_grids`).
     """
     query = np.flatnonzero((method == 0) & todo)
     if query.size == 0:
         return
-    cells = (tree.q, tree.keys, tree.max_level, tree.edge / 2.0**tree.max_level) if grid else None
-    nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grid=cells, near=None if grid else tree.edge / 2.0**tree.max_level)
+    nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grids=tile_grids(points, tree.keys, tree.edge, k))
     normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])
     # the quadric's k1 direction lies in the quadric's tangent plane at the point;
@@ -479,19 +486,39 @@ def _agreeing_signs(total: np.ndarray, nrm: np.ndarray, min_cos: float = 0.0) ->
     return np.where((length > 0) & (np.abs(dot) >= min_cos * length), np.where(dot < 0, -1.0, 1.0), 0.0)
 
 
-def _nearby_signs(points, votes, voters, where, nrm, k: int, reach: float, min_cos: float = 0.0) -> np.ndarray:
+def _nearby_signs(grids: list[PointGrid], votes, where, nrm, k: int, reach: float, min_cos: float = 0.0) -> np.ndarray:
     """+1/-1 turning each normal ``nrm`` towards the sum of the nearest (at most ``k``) voters' normals within ``reach`` of ``where``.
 
-    0 where there is none, or where their sum is within ``acos(min_cos)`` of perpendicular to the normal.
+    ``grids`` index the voters (:func:`tile_grids`).  0 where there is
+    none, or where their sum is within ``acos(min_cos)`` of perpendicular
+    to the normal.
     """
-    rows = np.flatnonzero(voters)
-    kk = int(min(k, rows.size))
-    if 4 * where.shape[0] < rows.size:  # few queries: only the voters that may be within reach (the same answer, sooner)
-        rows = rows[near_queries(points[rows], where, reach)]  # (many: they reach most voters, the filter costs more than it saves)
-    _, idx = nearest_neighbours(point_grid(points[rows], kk, ids=rows), where, kk, max_distance=reach)
+    kk = int(min(k, sum(g.ids.size for g in grids)))
+    if kk == 0:
+        return np.zeros(where.shape[0])
+    _, idx = nearest_neighbours(grids, where, kk, max_distance=reach)
     total = np.empty((where.shape[0], 3))
     _kernels.summed_votes(np.ascontiguousarray(votes, dtype=np.float64), idx, total)  # idx: rows of votes, -1 where none
     return _agreeing_signs(total, nrm, min_cos)
+
+
+def tile_grids(points: np.ndarray, keys: np.ndarray, edge: float, k: int, where: np.ndarray | None = None) -> list[PointGrid]:
+    """The k-NN search index of a tile's points then its skin's (of those ``where``, default all), ids their rows.
+
+    ``points`` (N + S, 3) are the tile's N points, sorted by their Morton
+    ``keys`` (N,) in the tile's cube of ``edge``, then S skin points: the
+    tile's are indexed in their order, without a sort
+    (:func:`~patchcloud.core.knn.sorted_point_grid`), the skin's by
+    :func:`~patchcloud.core.knn.point_grid`.  The neighbours found are
+    those of one grid over all of them.
+    """
+    n = keys.shape[0]
+    own = np.arange(n) if where is None else np.flatnonzero(where[:n])
+    grids = [sorted_point_grid(points[own], keys[own], edge, k, ids=own)]
+    skin = np.arange(n, points.shape[0]) if where is None else n + np.flatnonzero(where[n:])
+    if skin.size:
+        grids.append(point_grid(points[skin], k, ids=skin))
+    return grids
 
 
 def _turn(normals: np.ndarray, scalars: np.ndarray, dir1: np.ndarray, rows: np.ndarray, sign: np.ndarray) -> None:

@@ -79,44 +79,66 @@ def test_knn_pca_matches_a_direct_pca(rng):
 
 
 @pytest.mark.parametrize("lone", [3, 1500])
-def test_grid_knn_equals_whole_cloud_knn(rng, lone):
-    # isolated points far from the rest force the widening search (1,500: more than the cells around them are searched for)
+def test_sorted_grid_knn_equals_whole_cloud_knn(rng, lone):
+    # isolated points far from the rest force the search up to coarser cells
     p = np.concatenate([rng.uniform(0, 1, (4000, 3)), rng.uniform(2, 7.9, (lone, 3))])
+    from patchcloud.core.knn import sorted_point_grid
     from patchcloud.core.octree import sort_points
 
     order, keys, q = sort_points(p, np.zeros(3), 8.0)
     ps = p[order]
     rank = np.argsort(order)  # where each point of p went
-    # the lone points (every third of the 1,500) and some of the dense ones: at most a tenth of the cloud, or
-    # knn_normals searches the whole cloud and the grid is not used
     query = np.sort(np.r_[rank[4000::1 if lone < 100 else 3], rank[:4000:100]])
-    assert query.size <= len(ps) // 10
-    a = knn_normals(ps, query, 10, grid=(q, keys, 5, 8.0 / 32))[5]
-    b = knn_normals(ps, query, 10)[5]
-    assert np.array_equal(a, b)  # nearest first, ties by index
+    a = knn_normals(ps, query, 10, grids=[sorted_point_grid(ps, keys, 8.0, 10)])
+    b = knn_normals(ps, query, 10)
+    for x, y in zip(a, b):
+        assert np.array_equal(x, y)  # neighbours nearest first, ties by index
 
 
-@pytest.mark.parametrize("near", [0.02, 0.3, 5.0])
-def test_knn_near_the_queries_equals_whole_cloud_knn(rng, near):
-    # a few queries among many points (the k-NN fallback of a tile with its skin), some isolated so the search widens,
-    # points on a grid so that many neighbours tie in distance (ties go to the smaller index in both searches)
-    g = np.arange(0.0, 2.0, 0.02)
-    flat = np.column_stack([a.ravel() for a in np.meshgrid(g, g, [0.0])])
-    p = np.concatenate([flat, rng.uniform(0, 2, (5000, 3)), rng.uniform(5, 6, (3, 3)), [[40.0, 40.0, 40.0]]])
-    query = np.r_[np.arange(0, 10000, 997), 7000, len(p) - 4, len(p) - 1]
-    whole = knn_normals(p, query, 12)
-    near_only = knn_normals(p, query, 12, near=near)
-    for a, b in zip(whole, near_only):
+def _tile_and_skin(p, edge):
+    """A tile's points (in the cube [0, edge)^3, sorted by key) then the others as its skin, with the tile's keys."""
+    from patchcloud.core.octree import sort_points
+
+    inside = np.all((p >= 0) & (p < edge), axis=1)
+    tile = p[inside]
+    order, keys, _ = sort_points(tile, np.zeros(3), edge)
+    return np.concatenate([tile[order], p[~inside]]), keys
+
+
+@pytest.mark.parametrize("k", [3, 12])
+def test_tile_and_skin_grids_find_the_whole_cloud_neighbours(rng, k):
+    # a tile with its skin (the stream's k-NN fallback): the tile's grid without a sort and the skin's searched in turn,
+    # on a lattice (many neighbours tie in distance: ties go to the smaller row in both searches), with isolated points
+    from patchcloud.core.tiles import tile_grids
+
+    g = np.arange(-0.5, 2.5, 0.05)
+    lattice = np.column_stack([a.ravel() for a in np.meshgrid(g, g, [1.0])])
+    p = np.concatenate([lattice, rng.uniform(-0.5, 2.5, (3000, 3)), [[1.0, 1.0, 1.9], [1.99, 0.5, 0.5]], [[9.0, 9.0, 9.0]]])
+    p, keys = _tile_and_skin(p, 2.0)
+    n = keys.size
+    query = np.r_[np.arange(0, n, 7), n - 1, n - 2]
+    grids = tile_grids(p, keys, 2.0, k)
+    assert len(grids) == 2 and grids[0].ids.size == n
+    whole = knn_normals(p, query, k)
+    split = knn_normals(p, query, k, grids=grids)
+    for a, b in zip(whole, split):
         assert np.array_equal(a, b)
 
 
-def test_knn_near_the_queries_widens_past_a_nearer_looking_corner():
-    # the query's 12th neighbour (0.35 m along x) lies outside the box searched first (0.3 m each way), while a farther
-    # point (0.50 m, on the box's diagonal) lies inside it: the search must widen, not take the diagonal point
-    p = np.array([[0.001 * i, 0.0, 0.0] for i in range(11)] + [[0.35, 0.0, 0.0], [0.29, 0.29, 0.29]]
-                 + [[3.0 + 0.01 * i, 3.0, 3.0] for i in range(200)])
-    nb = knn_normals(p, np.array([0]), 12, near=0.3)[5]
-    assert sorted(nb[0].tolist()) == list(range(12))
+def test_a_skin_search_that_widens_keeps_the_tile_neighbours():
+    # a lone tile point whose 6 nearest are 2 tile points and 4 skin points 1.5 m off, beyond two rings of the skin's
+    # fine cells: the skin's search starts again on larger cells and must keep the tile points found before it
+    from patchcloud.core.knn import nearest_neighbours
+    from patchcloud.core.tiles import tile_grids
+
+    dense = np.column_stack([np.arange(200) * 0.01 + 2.2, np.zeros(200), np.zeros(200)])  # the skin: a dense line
+    tile = np.array([[0.5, 0.5, 0.5], [0.52, 0.5, 0.5], [0.5, 0.53, 0.5], [0.1, 1.9, 1.9]])
+    p, keys = _tile_and_skin(np.concatenate([tile, dense, [[0.5, 0.5, 2.1], [0.5, 2.1, 0.5]]]), 2.0)
+    lone = int(np.flatnonzero(np.all(p == [0.5, 0.5, 0.5], axis=1))[0])
+    d, i = nearest_neighbours(tile_grids(p, keys, 2.0, 4), p[[lone]], 6)
+    ref = np.argsort(np.linalg.norm(p - p[lone], axis=1), kind="stable")[:6]
+    assert i[0].tolist() == ref.tolist()
+    assert np.sum(i[0] < keys.size) == 3  # the point itself and the two beside it, with three skin points
 
 
 def test_level_occupancy_counts_the_distinct_cells_of_every_level(rng):

@@ -151,3 +151,23 @@ def test_fallback_points_far_from_every_patch_take_the_global_rule():
     assert (far[:300] == Method.MOMENTS).any() and (far[300:] == Method.KNN).all()
     assert (r.normals[len(plane):, 2] >= 0).all()  # the rule, point by point
     assert (r.method[: len(plane)] != Method.KNN).mean() > 0.9
+
+
+@pytest.mark.parametrize("max_distance", [np.inf, 0.05, 0.3])
+def test_a_grid_of_sorted_points_finds_what_a_sorted_grid_finds(max_distance):
+    # an octree's points indexed in their own order (no sort) and a grid built by sorting: the same neighbours, on a
+    # lattice where distances tie (ties to the smaller id) and with a subset's ids (the voters of a tile)
+    from patchcloud.core.knn import sorted_point_grid
+    from patchcloud.core.octree import sort_points
+
+    rng = np.random.default_rng(5)
+    g = np.arange(0.0, 3.0, 0.05)
+    points = np.concatenate([np.column_stack([a.ravel() for a in np.meshgrid(g, g, [1.5])]), rng.uniform(0, 3, (2000, 3))])
+    order, keys, _ = sort_points(points, np.zeros(3), 4.0)
+    ps = points[order]
+    some = np.flatnonzero(rng.random(len(ps)) < 0.6)
+    queries = np.concatenate([ps[::5], rng.uniform(-1, 5, (50, 3))])
+    for k in (1, 8, 16):
+        a = nearest_neighbours(sorted_point_grid(ps[some], keys[some], 4.0, k, ids=some), queries, k, max_distance=max_distance)
+        b = nearest_neighbours(point_grid(ps[some], k, ids=some), queries, k, max_distance=max_distance)
+        assert np.array_equal(a[1], b[1]) and np.array_equal(a[0], b[0])
