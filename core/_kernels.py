@@ -993,3 +993,57 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
             sgn = _plane_sign(vec)
             normals[m, 0], normals[m, 1], normals[m, 2] = sgn * vec[0, 0], sgn * vec[1, 0], sgn * vec[2, 0]
             dir1[m, 0], dir1[m, 1], dir1[m, 2] = vec[0, 2], vec[1, 2], vec[2, 2]
+
+
+@njit(cache=True, nogil=True)
+def _face_step(k, axis, o1, upper, gs, gt, h):
+    """What a face sample adds to coordinate ``k`` of its cube's low corner: the face's offset, or a grid step."""
+    if k == axis:
+        return upper * h
+    if k == o1:
+        return gs * h
+    return gt * h
+
+
+@parallel_kernel
+def face_votes(lower, edge, a_centroid, a_frames, a_coeffs, a_rmse, i, b_centroid, b_frames, b_coeffs, b_rmse, j, d, g, out):
+    """:func:`patchcloud.core.orient.face_agreement` of the pairs ``(i[e], j[e])``, written to ``out[e]``.
+
+    The face ``d[e]`` of leaf ``i[e]`` (cube ``lower``, ``edge``) is sampled
+    at ``g[s] x g[t]``; each side's patch is ``centroid``, ``frames``,
+    ``coeffs`` and ``rmse`` at its row.  The same operations in the same
+    order as the numpy version, so the same values bit for bit.
+    """
+    m = g.shape[0]
+    for e in prange(i.shape[0]):
+        li, lj = i[e], j[e]
+        axis = d[e] // 2
+        upper = d[e] % 2
+        h = edge[li]
+        o1 = (axis + 1) % 3
+        o2 = (axis + 2) % 3
+        band = 2.0 * max(a_rmse[li], b_rmse[lj])
+        reach = 0.5 * h
+        votes = 0.0
+        voters = 0
+        for s in range(m):
+            for t in range(m):
+                px = lower[li, 0] + _face_step(0, axis, o1, upper, g[s], g[t], h)
+                py = lower[li, 1] + _face_step(1, axis, o1, upper, g[s], g[t], h)
+                pz = lower[li, 2] + _face_step(2, axis, o1, upper, g[s], g[t], h)
+                ui, vi_, wi = _frame_coords(px, py, pz, li, a_centroid, a_frames)
+                uj, vj_, wj = _frame_coords(px, py, pz, lj, b_centroid, b_frames)
+                vi = wi - (a_coeffs[li, 0] * ui * ui + a_coeffs[li, 1] * ui * vi_ + a_coeffs[li, 2] * vi_ * vi_
+                           + a_coeffs[li, 3] * ui + a_coeffs[li, 4] * vi_ + a_coeffs[li, 5])
+                vj = wj - (b_coeffs[lj, 0] * uj * uj + b_coeffs[lj, 1] * uj * vj_ + b_coeffs[lj, 2] * vj_ * vj_
+                           + b_coeffs[lj, 3] * uj + b_coeffs[lj, 4] * vj_ + b_coeffs[lj, 5])
+                if not (abs(vi) > band and abs(vj) > band and abs(vi) <= reach and abs(vj) <= reach):
+                    continue
+                nix, niy, niz, _, _ = _normal_at(ui, vi_, li, a_frames, a_coeffs)
+                njx, njy, njz, _, _ = _normal_at(uj, vj_, lj, b_frames, b_coeffs)
+                dot = nix * njx + niy * njy + niz * njz
+                same = (1.0 if vi > 0 else -1.0) * (1.0 if vj > 0 else -1.0)
+                if abs(dot) > 0.5 and same == (1.0 if dot > 0 else -1.0):
+                    votes += same
+                    voters += 1
+        out[e] = votes / max(voters, 4)

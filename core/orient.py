@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import _kernels
 from .forest import forest_links, kruskal, link_order
 from .graph import connected_components
 from .morton import MAX_DEPTH, containing, encode, key_range
@@ -157,44 +158,18 @@ def face_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray, d: np.n
     sample, -1 when they are opposite at every one.
     """
     E = i.shape[0]
+    out = np.zeros(E)
     if E == 0:
-        return np.zeros(0)
-    axis = d // 2
-    upper = d % 2
-    h = A.edge[i]
-    lo = A.lower[i]
+        return out
     g = (np.arange(samples) + 0.5) / samples
-    gu, gv = np.meshgrid(g, g, indexing="ij")
-    gu, gv = gu.ravel(), gv.ravel()
-    m = gu.size
-    pts = np.repeat(lo, m, axis=0)
-    hh = np.repeat(h, m)
-    ax = np.repeat(axis, m)
-    other1 = (ax + 1) % 3
-    other2 = (ax + 2) % 3
-    rows = np.arange(E * m)
-    pts[rows, ax] += np.repeat(upper, m) * hh
-    pts[rows, other1] += np.tile(gu, E) * hh
-    pts[rows, other2] += np.tile(gv, E) * hh
-    ri, rj = np.repeat(i, m), np.repeat(j, m)
-    patch_i = (A.centroid[ri], A.frame[ri], A.coeffs[ri])  # each side's patch, row by sample
-    patch_j = (B.centroid[rj], B.frame[rj], B.coeffs[rj])
-    vi = implicit_value(pts, *patch_i)
-    vj = implicit_value(pts, *patch_j)
-    band = 2.0 * np.repeat(np.maximum(A.rmse[i], B.rmse[j]), m)
-    reach = 0.5 * hh
-    near = (np.abs(vi) > band) & (np.abs(vj) > band) & (np.abs(vi) <= reach) & (np.abs(vj) <= reach)
-    # a sample also needs the two surfaces to run alike there: where the signs
-    # and the directions of the two normals tell different stories, the
-    # quadrics cross or fold and the sample says nothing
-    ni = surface_normals(pts, *patch_i)
-    nj = surface_normals(pts, *patch_j)
-    dot = np.einsum("ni,ni->n", ni, nj)
-    same = np.sign(vi) * np.sign(vj)
-    near &= (np.abs(dot) > 0.5) & (same == np.sign(dot))
-    vote = (same * near).reshape(E, m)
-    voters = near.reshape(E, m).sum(axis=1)
-    return vote.sum(axis=1) / np.maximum(voters, 4)
+    c = np.ascontiguousarray
+    _kernels.face_votes(
+        c(A.lower, dtype=np.float64), c(A.edge, dtype=np.float64), c(A.centroid, dtype=np.float64), c(A.frame, dtype=np.float64),
+        c(A.coeffs, dtype=np.float64), c(A.rmse, dtype=np.float64), c(i, dtype=np.int64), c(B.centroid, dtype=np.float64),
+        c(B.frame, dtype=np.float64), c(B.coeffs, dtype=np.float64), c(B.rmse, dtype=np.float64), c(j, dtype=np.int64),
+        c(d, dtype=np.int64), g, out,
+    )
+    return out
 
 
 def cross_face_pairs(A, B, axis: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]:
