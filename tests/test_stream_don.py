@@ -270,13 +270,58 @@ def test_a_kept_store_never_passes_an_output_of_other_parameters_as_this_runs(sc
         kw.update(threshold=0.2, tolerance=0.15, min_cluster=30)
     job(path, out, **kw)
     first = out.read_bytes()
-    with pytest.raises(PatchcloudIOError, match="exists .* is kept: the same command with --overwrite resumes from it"):
+    with pytest.raises(PatchcloudIOError, match="exists .*--overwrite"):
         job(path, out, **{**kw, **change})
     assert out.read_bytes() == first
     job(path, out, **{**kw, **change}, overwrite=True)
     fresh = tmp_path / "fresh.las"
     job(path, fresh, **{**kw, **change, "store": None})
     assert out.read_bytes() != first and out.read_bytes() == fresh.read_bytes()
+
+
+@pytest.mark.parametrize("job, change", [(don, {"r_large": 1.2}), (segment, {"min_cluster": 40})])
+def test_a_kept_output_of_other_parameters_is_refused_before_the_computation(scene, tmp_path, monkeypatch, job, change):
+    """Other values of the options given: the kept output is refused before any DoN is computed (it used to be refused
+    only by the export, after the whole computation); the same options resume without recomputing and keep it."""
+    from patchcloud.stream.jobs import don_tiles
+
+    path, _, _ = scene
+    st, out = tmp_path / "keep.zarr", tmp_path / "out.las"
+    kw = dict(r_small=0.3, r_large=1.5, tile_size=4.0, store=str(st), scheduler="synchronous", quiet=True)
+    if job is segment:
+        kw.update(threshold=0.2, tolerance=0.15, min_cluster=30)
+    job(path, out, **kw)
+    first = out.read_bytes()
+    calls = []
+    real = don_tiles.don_tile
+    monkeypatch.setattr(don_tiles, "don_tile", lambda *a, **k: calls.append(1) or real(*a, **k))
+    with pytest.raises(PatchcloudIOError, match="exists .*--overwrite"):
+        job(path, out, **{**kw, **change})
+    assert calls == [] and out.read_bytes() == first
+    job(path, out, **kw)  # the same options: the output kept as it is
+    assert out.read_bytes() == first
+
+
+def test_a_kept_normals_output_of_another_threshold_is_refused_before_the_fit(tmp_path, monkeypatch):
+    from patchcloud.stream import normals
+    from patchcloud.stream.jobs import normals_tiles
+
+    path = tmp_path / "s.las"
+    write_las(path, street(np.random.default_rng(4))[0][:20000])
+    st, out = tmp_path / "keep.zarr", tmp_path / "out.las"
+    kw = dict(tile_size=4.0, store=str(st), scheduler="synchronous", quiet=True)
+    normals(path, out, **kw)
+    first = out.read_bytes()
+    calls = []
+    real = normals_tiles.fit_one_tile
+    monkeypatch.setattr(normals_tiles, "fit_one_tile", lambda *a, **k: calls.append(1) or real(*a, **k))
+    with pytest.raises(PatchcloudIOError, match="exists"):
+        normals(path, out, **kw, threshold=0.05)
+    with pytest.raises(PatchcloudIOError, match="exists"):
+        normals(path, out, **kw, criterion="sigma3")
+    assert calls == [] and out.read_bytes() == first
+    normals(path, out, **kw)
+    assert calls == [] and out.read_bytes() == first
 
 
 def test_a_halo_wider_than_the_grid_finds_the_same_neighbours_at_once(tmp_path):

@@ -50,7 +50,8 @@ from patchcloud.stream.io.las import POSITION_AND_CLASS, check_writable, is_laz_
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store
 
-__all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs", "file_record"]
+__all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs", "file_record",
+           "made_by", "made_as_asked"]
 
 
 @dataclass(frozen=True)
@@ -273,16 +274,50 @@ def file_record(path: Path) -> dict:
     return dict(path=str(path.resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns))
 
 
-def complete_outputs(store: Store, outputs, key: str | None = None) -> list[bool]:
+def complete_outputs(store: Store, outputs, key: str | None = None, asked: tuple[str, dict] | None = None) -> list[bool]:
     """For each output (one per file of the store's catalog): whether the store records it as written completely
-    (with ``key``, when given) and the file is still as it was then (same size and modification time)."""
+    (with ``key``, when given) and the file is still as it was then (same size and modification time).
+
+    ``asked``: (job name, parameters the run was given), checked before the
+    run computes anything: an output whose provenance states another job,
+    or another value of one of these parameters, is not complete for it
+    (:func:`made_as_asked`), so it is refused at once rather than after
+    the computation, when its key would differ."""
     recorded = store.group_attrs("outputs")
     out = []
     for f, o in enumerate(outputs):
         r, p = recorded.get(str(f)), Path(o)
         ok = r is not None and p.is_file() and (key is None or r.get("key") == key)
+        ok = ok and (asked is None or made_as_asked(r.get("made_by"), *asked))
         out.append(bool(ok and {k: r.get(k) for k in ("path", "size", "mtime_ns")} == file_record(p)))
     return out
+
+
+def made_by(provenance: laspy.VLR | None) -> dict | None:
+    """What an output's record keeps of its provenance VLR: the job and its parameters (JSON)."""
+    if provenance is None:
+        return None
+    data = json.loads(bytes(provenance.record_data).decode("utf-8"))
+    return dict(job=data.get("job"), parameters=data.get("parameters", {}))
+
+
+def made_as_asked(made: dict | None, job: str, asked: dict) -> bool:
+    """Whether an output made as ``made`` (:func:`made_by`; None: not recorded, by an older version) may be the output
+    of ``job`` given the parameters ``asked``: the same job and, of each parameter asked, the same value (numbers
+    compared as numbers, the rest as JSON)."""
+    if made is None:
+        return True
+    if made.get("job") != job:
+        return False
+    stated = made.get("parameters") or {}
+    for name, value in asked.items():
+        if name not in stated:
+            continue
+        a, b = json.loads(json.dumps(value, default=str)), stated[name]
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (a, b))
+        if (float(a) != float(b)) if numbers else (a != b):
+            return False
+    return True
 
 
 def export_columns(
@@ -361,7 +396,8 @@ def export_columns(
                                   source=cat.sources[f].path)
                 # recorded before the rename (which keeps size and modification time): a run killed between the two
                 # finds its output complete, not a file it may not replace
-                store.set_group_attrs("outputs", **{str(f): dict(file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key)})
+                store.set_group_attrs("outputs", **{str(f): dict(file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key,
+                                                                 made_by=made_by(provenance))})
                 Path(tmps[f]).replace(outs[f])
 
         runner.map(export_part, calls, "export", on_result=finish)

@@ -459,6 +459,12 @@ class Job:
         """The parameters the outputs' provenance VLR states: the job's resolved ``params`` (none by default)."""
         return dict(getattr(self, "params", None) or {})
 
+    def asked_parameters(self) -> dict:
+        """Those of :meth:`parameters` known before any step runs, with the values they will have (the options given
+        and used as they are).  An output a kept store records as made with another value of one of them is refused
+        at once, without ``overwrite``, instead of once the job has computed its values.  None by default."""
+        return {}
+
     def summarise(self, ctx: JobContext):
         """The job's summary (a dataclass with ``format()``), made after the output is written."""
         raise NotImplementedError
@@ -494,24 +500,26 @@ def _store_url(run: RunOptions, catalog: Catalog, default_store: str) -> tuple[s
     return run.store or default_store, False
 
 
-def _complete(catalog: Catalog, outs: list[Path], url: str, selection: dict | None = None) -> list[bool]:
+def _complete(catalog: Catalog, outs: list[Path], url: str, selection: dict | None = None,
+              asked: tuple[str, dict] | None = None) -> list[bool]:
     """For each output, whether the store at ``url``, made from the same files (and, when given, with the same
-    ``selection`` of points: :meth:`Selection.to_json`), records it as complete and unchanged
+    ``selection`` of points: :meth:`Selection.to_json`), records it as complete and unchanged, and, when ``asked`` (job
+    name, parameters given), made by that job with those values
     (:func:`~patchcloud.stream.engine.export.complete_outputs`)."""
     if Store.exists(url):
         st = Store.open(url, mode="r")
         if (st.attrs.get("catalog") and catalog.same_files(st.attrs["catalog"])
                 and (selection is None or st.attrs.get("selection") == selection)):
-            return complete_outputs(st, outs)
+            return complete_outputs(st, outs, asked=asked)
     return [False] * len(outs)
 
 
 def _writable(catalog: Catalog, outs: list[Path], url: str, in_memory: bool, overwrite: bool, ours: list[bool],
-              selection: dict | None = None) -> list[Path]:
-    """Check each output can be written: absent, or ``overwrite``, or completed by an earlier run on this store
-    (:func:`~patchcloud.stream.engine.export.complete_outputs`: the export then keeps it), or ``ours`` (completed by a run
-    killed while removing its store: written again)."""
-    done = [False] * len(outs) if in_memory else _complete(catalog, outs, url, selection)
+              selection: dict | None = None, asked: tuple[str, dict] | None = None) -> list[Path]:
+    """Check each output can be written: absent, or ``overwrite``, or completed by an earlier run on this store with
+    the parameters ``asked`` (:func:`~patchcloud.stream.engine.export.complete_outputs`: the export then keeps it), or
+    ``ours`` (completed by a run killed while removing its store: written again)."""
+    done = [False] * len(outs) if in_memory else _complete(catalog, outs, url, selection, asked)
     return [Path(o) if d or mine else check_writable(o, overwrite) for o, d, mine in zip(outs, done, ours)]
 
 
@@ -601,7 +609,8 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     try:
         with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
             ours = _left_complete(catalog, outs, url, in_memory)
-            outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours, _tiles_selection(job, run).to_json())
+            outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours, _tiles_selection(job, run).to_json(),
+                             (job.name, job.asked_parameters()))
             if any(ours):  # written by a run killed while removing its store: written again, the same bytes
                 run = dataclasses.replace(run, overwrite=True)
             return _run_locked(job, catalog, outs, out, url, in_memory, run)
