@@ -10,6 +10,12 @@ starts again at the next coarser level, up to the root, which holds every
 point: so an outlier costs a few levels, not a walk through empty cells.
 Neighbours come sorted by distance, ties by index, so the result is one
 answer whatever the order the cells were visited in and the thread count.
+
+An octree's points are already sorted by Morton key, so their index needs
+no sort (:func:`sorted_point_grid`: a cell is a run of the keys' prefixes),
+and several indexes can be searched as one (:func:`nearest_neighbours` of
+a sequence: a tile's own points, then its neighbours' few), each search
+starting from the lists the ones before left.
 This replaces scipy's cKDTree, whose import alone (``scipy.spatial``,
 0.15 s) was a sixth of a whole run on a small file.
 """
