@@ -156,7 +156,7 @@ def test_an_output_is_recorded_before_it_is_renamed(small_las, tmp_path, monkeyp
 
     def spy(self, target):
         if self.name == "out.las.partial":
-            seen.append(Store.open(str(tmp_path / "out.las.store"), mode="r").group_attrs("outputs").get("0"))
+            seen.append(Store.open(str(tmp_path / "out.las.store"), mode="r").group_attrs("outputs").get(str(out.resolve())))
         return replace(self, target)
 
     monkeypatch.setattr(type(out), "replace", spy)

@@ -297,6 +297,10 @@ def test_a_kept_output_of_other_parameters_is_refused_before_the_computation(sce
     monkeypatch.setattr(don_tiles, "don_tile", lambda *a, **k: calls.append(1) or real(*a, **k))
     with pytest.raises(PatchcloudIOError, match="exists .*--overwrite"):
         job(path, out, **{**kw, **change})
+    with pytest.raises(PatchcloudIOError, match="exists .*--overwrite"):
+        job(path, out, **kw, viewpoint=(0.0, 0.0, 30.0))
+    with pytest.raises(PatchcloudIOError, match="exists .*--overwrite"):
+        job(path, out, **{**kw, "tile_size": 8.0})
     assert calls == [] and out.read_bytes() == first
     job(path, out, **kw)  # the same options: the output kept as it is
     assert out.read_bytes() == first
@@ -319,9 +323,39 @@ def test_a_kept_normals_output_of_another_threshold_is_refused_before_the_fit(tm
         normals(path, out, **kw, threshold=0.05)
     with pytest.raises(PatchcloudIOError, match="exists"):
         normals(path, out, **kw, criterion="sigma3")
+    with pytest.raises(PatchcloudIOError, match="exists"):
+        normals(path, out, **kw, viewpoint=(0.0, 0.0, 50.0), orient="viewpoint")
+    with pytest.raises(PatchcloudIOError, match="exists"):
+        normals(path, out, **{**kw, "tile_size": 8.0})  # the store is not tiled again, and the first command still keeps it
     assert calls == [] and out.read_bytes() == first
     normals(path, out, **kw)
     assert calls == [] and out.read_bytes() == first
+    # made with a threshold, rerun without: the threshold would come from the data (another value), refused at once too
+    other = tmp_path / "other.las"
+    normals(path, other, **kw, threshold=0.05)
+    with pytest.raises(PatchcloudIOError, match="exists"):
+        normals(path, other, **kw)
+    assert calls.count(1) == len(Store.open(str(st)).tiles)  # the fit of the threshold 0.05 run only
+
+
+def test_jobs_sharing_a_store_keep_each_others_outputs(scene, tmp_path):
+    """normals, then don, then segment on one kept store: each rerun keeps its own output (the records are by path;
+    the don run used to replace the normals run's record, and its rerun refused its own output as existing)."""
+    from patchcloud.stream import normals
+
+    path, _, _ = scene
+    st = str(tmp_path / "shared.zarr")
+    kw = dict(tile_size=4.0, store=st, scheduler="synchronous", quiet=True)
+    dkw = dict(r_small=0.3, r_large=1.5)
+    outs = {"n": tmp_path / "n.las", "d": tmp_path / "d.las", "g": tmp_path / "g.las"}
+    normals(path, outs["n"], **kw)
+    don(path, outs["d"], **kw, **dkw)
+    segment(path, outs["g"], **kw, **dkw, threshold=0.2, tolerance=0.15, min_cluster=30)
+    before = {k: o.read_bytes() for k, o in outs.items()}
+    normals(path, outs["n"], **kw)
+    don(path, outs["d"], **kw, **dkw)
+    segment(path, outs["g"], **kw, **dkw, threshold=0.2, tolerance=0.15, min_cluster=30)
+    assert {k: o.read_bytes() for k, o in outs.items()} == before
 
 
 def test_a_halo_wider_than_the_grid_finds_the_same_neighbours_at_once(tmp_path):

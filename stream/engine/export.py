@@ -51,7 +51,7 @@ from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store
 
 __all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs", "file_record",
-           "made_by", "made_as_asked"]
+           "output_record_name"]
 
 
 @dataclass(frozen=True)
@@ -274,55 +274,34 @@ def file_record(path: Path) -> dict:
     return dict(path=str(path.resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns))
 
 
-def complete_outputs(store: Store, outputs, key: str | None = None, asked: tuple[str, dict] | None = None) -> list[bool]:
+def complete_outputs(store: Store, outputs, key: str | None = None, request: dict | None = None) -> list[bool]:
     """For each output (one per file of the store's catalog): whether the store records it as written completely
     (with ``key``, when given) and the file is still as it was then (same size and modification time).
 
-    ``asked``: (job name, parameters the run was given), checked before the
-    run computes anything: an output whose provenance states another job,
-    or another value of one of these parameters, is not complete for it
-    (:func:`made_as_asked`), so it is refused at once rather than after
-    the computation, when its key would differ."""
+    ``request``: what the run now was asked (:func:`patchcloud.stream.engine.job.run_request`), checked before it
+    computes anything: an output recorded as written for another request is not complete for this one, so it is
+    refused at once rather than after the computation, when its key would differ.  Outputs are recorded by path, so
+    jobs that share a store keep each other's records.
+    """
     recorded = store.group_attrs("outputs")
     out = []
-    for f, o in enumerate(outputs):
-        r, p = recorded.get(str(f)), Path(o)
+    for o in outputs:
+        p = Path(o)
+        r = recorded.get(output_record_name(p))
         ok = r is not None and p.is_file() and (key is None or r.get("key") == key)
-        ok = ok and (asked is None or made_as_asked(r.get("made_by"), *asked))
+        ok = ok and (request is None or r.get("request") in (None, request))  # (None: recorded before requests were)
         out.append(bool(ok and {k: r.get(k) for k in ("path", "size", "mtime_ns")} == file_record(p)))
     return out
 
 
-def made_by(provenance: laspy.VLR | None) -> dict | None:
-    """What an output's record keeps of its provenance VLR: the job and its parameters (JSON)."""
-    if provenance is None:
-        return None
-    data = json.loads(bytes(provenance.record_data).decode("utf-8"))
-    return dict(job=data.get("job"), parameters=data.get("parameters", {}))
-
-
-def made_as_asked(made: dict | None, job: str, asked: dict) -> bool:
-    """Whether an output made as ``made`` (:func:`made_by`; None: not recorded, by an older version) may be the output
-    of ``job`` given the parameters ``asked``: the same job and, of each parameter asked, the same value (numbers
-    compared as numbers, the rest as JSON)."""
-    if made is None:
-        return True
-    if made.get("job") != job:
-        return False
-    stated = made.get("parameters") or {}
-    for name, value in asked.items():
-        if name not in stated:
-            continue
-        a, b = json.loads(json.dumps(value, default=str)), stated[name]
-        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (a, b))
-        if (float(a) != float(b)) if numbers else (a != b):
-            return False
-    return True
+def output_record_name(path: Path) -> str:
+    """The name of an output's record in the store: its resolved path."""
+    return str(Path(path).resolve())
 
 
 def export_columns(
     store: Store, outputs, columns: list[Column], dims, runner: Runner | None = None, overwrite: bool = False,
-    quiet: bool = False, provenance: laspy.VLR | None = None,
+    quiet: bool = False, provenance: laspy.VLR | None = None, request: dict | None = None,
 ) -> None:
     """Write every file of the store's catalog again, plus ``columns`` as dimensions ``dims``: one output per file.
 
@@ -337,7 +316,9 @@ def export_columns(
     when its last part is written, and recorded in the store; outputs a
     previous run on this store completed (:func:`complete_outputs`) are
     kept as they are.  ``provenance``: a VLR every output carries, saying
-    what made it (:func:`patchcloud.stream.io.las_records.provenance_vlr`).
+    what made it (:func:`patchcloud.stream.io.las_records.provenance_vlr`);
+    ``request``: what the run was asked, recorded with each output
+    (:func:`complete_outputs`).
     """
     runner = runner or Runner("synchronous", quiet=quiet)
     cat = store.catalog
@@ -396,8 +377,8 @@ def export_columns(
                                   source=cat.sources[f].path)
                 # recorded before the rename (which keeps size and modification time): a run killed between the two
                 # finds its output complete, not a file it may not replace
-                store.set_group_attrs("outputs", **{str(f): dict(file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key,
-                                                                 made_by=made_by(provenance))})
+                store.set_group_attrs("outputs", **{output_record_name(outs[f]): dict(
+                    file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key, request=request)})
                 Path(tmps[f]).replace(outs[f])
 
         runner.map(export_part, calls, "export", on_result=finish)

@@ -72,7 +72,7 @@ from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store_dir, removing_path
 
 __all__ = [
-    "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "params_key", "default_store_path", "write_profile",
+    "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "default_store_path", "write_profile",
     "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines",
 ]
 
@@ -266,6 +266,25 @@ def split_options(kwargs: dict, options, kind: type, run: RunOptions | None) -> 
     return own, dataclasses.replace(run or RunOptions(), **how)
 
 
+def run_request(job: "Job", run: RunOptions) -> dict:
+    """What a run was asked that decides its outputs, as JSON: the job, its options as given
+    (:meth:`Job.asked_parameters`), the tile size, the units and CRS assumed and the points taken part.
+
+    Each output's record in the store keeps it; a later run on the store
+    with another request finds the output not complete for it before it
+    computes anything (without ``overwrite``: refused at once, the store
+    untouched).  Options given as they are: an option given with the value
+    its default would resolve to is another request.
+
+    >>> from patchcloud.stream.jobs.don import DonJob
+    >>> from patchcloud.core import DonOptions
+    >>> run_request(DonJob(DonOptions(0.2, 2.0)), RunOptions())["options"]["r_large"]
+    2.0
+    """
+    return json.loads(json.dumps(dict(job=job.name, options=job.asked_parameters(), tile_size=run.tile_size, units=run.units,
+                                      assume_crs=run.assume_crs, selection=run.selection.to_json()), sort_keys=True, default=str))
+
+
 def params_key(values: dict) -> str:
     """A short hash of resolved parameters (JSON-serialisable): what a step records as "done with these".
 
@@ -453,17 +472,18 @@ class Job:
         """Write the output: by default the input's records plus :meth:`columns`, under a temporary name."""
         columns, dims = self.columns(ctx)
         export_columns(ctx.store, ctx.outputs, columns, dims, runner=ctx.runner, overwrite=ctx.run.overwrite, quiet=ctx.run.quiet,
-                       provenance=provenance_vlr(self.name, dict(self.parameters(), units=ctx.units.symbol, **ctx.run.selection.to_json())))
+                       provenance=provenance_vlr(self.name, dict(self.parameters(), units=ctx.units.symbol, **ctx.run.selection.to_json())),
+                       request=run_request(self, ctx.run))
 
     def parameters(self) -> dict:
         """The parameters the outputs' provenance VLR states: the job's resolved ``params`` (none by default)."""
         return dict(getattr(self, "params", None) or {})
 
     def asked_parameters(self) -> dict:
-        """Those of :meth:`parameters` known before any step runs, with the values they will have (the options given
-        and used as they are).  An output a kept store records as made with another value of one of them is refused
-        at once, without ``overwrite``, instead of once the job has computed its values.  None by default."""
-        return {}
+        """The job's options as given (``options``, a dataclass, when the job has one): with the run's own options,
+        what :func:`run_request` records with each output."""
+        options = getattr(self, "options", None)
+        return dataclasses.asdict(options) if dataclasses.is_dataclass(options) else {}
 
     def summarise(self, ctx: JobContext):
         """The job's summary (a dataclass with ``format()``), made after the output is written."""
@@ -501,25 +521,24 @@ def _store_url(run: RunOptions, catalog: Catalog, default_store: str) -> tuple[s
 
 
 def _complete(catalog: Catalog, outs: list[Path], url: str, selection: dict | None = None,
-              asked: tuple[str, dict] | None = None) -> list[bool]:
+              request: dict | None = None) -> list[bool]:
     """For each output, whether the store at ``url``, made from the same files (and, when given, with the same
-    ``selection`` of points: :meth:`Selection.to_json`), records it as complete and unchanged, and, when ``asked`` (job
-    name, parameters given), made by that job with those values
-    (:func:`~patchcloud.stream.engine.export.complete_outputs`)."""
+    ``selection`` of points: :meth:`Selection.to_json`), records it as complete and unchanged, and, when given, written
+    for the same ``request`` (:func:`run_request`; :func:`~patchcloud.stream.engine.export.complete_outputs`)."""
     if Store.exists(url):
         st = Store.open(url, mode="r")
         if (st.attrs.get("catalog") and catalog.same_files(st.attrs["catalog"])
                 and (selection is None or st.attrs.get("selection") == selection)):
-            return complete_outputs(st, outs, asked=asked)
+            return complete_outputs(st, outs, request=request)
     return [False] * len(outs)
 
 
 def _writable(catalog: Catalog, outs: list[Path], url: str, in_memory: bool, overwrite: bool, ours: list[bool],
-              selection: dict | None = None, asked: tuple[str, dict] | None = None) -> list[Path]:
-    """Check each output can be written: absent, or ``overwrite``, or completed by an earlier run on this store with
-    the parameters ``asked`` (:func:`~patchcloud.stream.engine.export.complete_outputs`: the export then keeps it), or
-    ``ours`` (completed by a run killed while removing its store: written again)."""
-    done = [False] * len(outs) if in_memory else _complete(catalog, outs, url, selection, asked)
+              selection: dict | None = None, request: dict | None = None) -> list[Path]:
+    """Check each output can be written: absent, or ``overwrite``, or completed by an earlier run on this store for the
+    same ``request`` (:func:`~patchcloud.stream.engine.export.complete_outputs`: the export then keeps it), or ``ours``
+    (completed by a run killed while removing its store: written again)."""
+    done = [False] * len(outs) if in_memory else _complete(catalog, outs, url, selection, request)
     return [Path(o) if d or mine else check_writable(o, overwrite) for o, d, mine in zip(outs, done, ours)]
 
 
@@ -610,7 +629,7 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
         with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
             ours = _left_complete(catalog, outs, url, in_memory)
             outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours, _tiles_selection(job, run).to_json(),
-                             (job.name, job.asked_parameters()))
+                             run_request(job, run))
             if any(ours):  # written by a run killed while removing its store: written again, the same bytes
                 run = dataclasses.replace(run, overwrite=True)
             return _run_locked(job, catalog, outs, out, url, in_memory, run)

@@ -188,11 +188,6 @@ class DonJob(Job):
         self.params["don_key"] = params_key(self.params)
         self.width = self.params["don_width"]
 
-    def asked_parameters(self) -> dict:
-        o = self.options
-        return dict(r_small=o.r_small, r_large=o.r_large, mode=o.mode, resolution=o.resolution, min_points=o.min_points,
-                    **self.selection())
-
     def selection(self) -> dict:
         """Which points the DoN step marks kept (none here; ``segment`` thresholds)."""
         return dict(threshold=None, axis=None, axis_threshold=None)

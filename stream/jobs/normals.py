@@ -192,13 +192,7 @@ class NormalsJob(Job):
             st.update(finish_key=finish_key)
 
     def asked_parameters(self) -> dict:
-        """The options as :meth:`calibrate` states them, but those resolved from the data when not given."""
-        asked = dataclasses.asdict(self.options)
-        del asked["viewpoint"]  # stated in the store's frame
-        for name in ("d_min", "max_edge", "threshold"):
-            if asked[name] is None:
-                del asked[name]
-        return dict(asked, principal_curvatures=self.principal_curvatures, always_up=self.always_up)
+        return dict(super().asked_parameters(), principal_curvatures=self.principal_curvatures, always_up=self.always_up)
 
     def fit(self, ctx: JobContext) -> None:
         todo = [t for t in ctx.store.tiles if not ctx.store.tile_done(t, "fit")]

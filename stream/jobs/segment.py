@@ -57,10 +57,6 @@ class SegmentJob(DonJob):
         o = self.options
         return dict(threshold=o.threshold, axis=o.axis, axis_threshold=o.axis_threshold)
 
-    def asked_parameters(self) -> dict:
-        o = self.options
-        return dict(super().asked_parameters(), tolerance=o.tolerance, min_cluster=o.min_cluster, max_cluster=o.max_cluster)
-
     def resolve(self, ctx: JobContext) -> None:
         super().resolve(ctx)
         o = self.options
