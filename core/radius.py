@@ -23,7 +23,7 @@ Two modes:
     percentile on the real files (0.12-0.15 with a voxel-centre test),
     and fast-mode |DoN| is within 0.011-0.016 of exact mode's at the 99th
     percentile (tools/bench_don.py).  Where
-    voxels would hold six points or fewer on average (the cloud is sparse
+    voxels would hold five points or fewer on average (the cloud is sparse
     at this radius: :func:`uses_voxels`), or a ball's voxels hold at most
     two each, the points themselves are summed (the exact ball), which is
     then faster.
@@ -126,7 +126,7 @@ def cell_density(points: np.ndarray, edge: float) -> float:
 
 
 #: Fast mode sums voxels only where they hold more than this many points on average (:func:`uses_voxels`).
-VOXEL_MIN_POINTS = 6.0
+VOXEL_MIN_POINTS = 5.0
 
 
 def uses_voxels(radius: float, resolution: int, density: float) -> bool:
@@ -136,11 +136,12 @@ def uses_voxels(radius: float, resolution: int, density: float) -> bool:
     resolution``; scaled from its power-of-two cell to the voxel as a
     surface's count scales (with the area).  Sparser, the voxels cost more
     than the points, and fast mode sums the points (exact) instead.
-    Measured (compute only, 2 cores, both ways on the same cloud and
-    radius): points were faster up to 4.9 points a voxel on every file
-    (1.3-2.3x: St-Barth at 2 m, fusa at 5 m, lone-star at 0.5 m, the
-    synthetic city at 1 m), voxels from 11.5 (1.1-59x); the crossing lies
-    near 5 on the dense scans and 10 on the aerial files.
+    Measured (``python tools/bench_voxels.py``: compute only, 2 cores, both
+    ways on the same cloud and radius): the points were faster up to 4.9
+    points a voxel on every real file (1.7-2x: St-Barth at 2 m, fusa at
+    5 m, lone-star at 0.5 m), the voxels from 5.4 (2x on the synthetic
+    city at 2 m, whose dense facades beside sparse roofs make a mean per
+    occupied cell read low) to 334 (53x).
     """
     h = radius / resolution
     e = 2.0 ** np.floor(np.log2(h))
