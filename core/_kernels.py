@@ -989,7 +989,8 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
             l0, l1, l2 = max(ev[0], 0.0), max(ev[1], 0.0), max(ev[2], 0.0)
             tot = l0 + l1 + l2
             sigma3[m] = l0 / tot if tot > 0 else 0.0
-            sigma2[m] = l1 / tot if tot > 0 else 0.0
+            # coincident points: what is left of their spread is the rounding of the moments (about 1e-16 h^2), no shape
+            sigma2[m] = l1 / tot if tot > 1e-12 * h * h else 0.0
             sgn = _plane_sign(vec)
             normals[m, 0], normals[m, 1], normals[m, 2] = sgn * vec[0, 0], sgn * vec[1, 0], sgn * vec[2, 0]
             dir1[m, 0], dir1[m, 1], dir1[m, 2] = vec[0, 2], vec[1, 2], vec[2, 2]

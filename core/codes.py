@@ -18,7 +18,13 @@ __all__ = ["Method", "PatchKind"]
 
 
 class Method(IntEnum):
-    """Which computation gave a point its normal (the ``NormalMethod`` dimension; 0 is never written)."""
+    """Which computation gave a point its normal (the ``NormalMethod`` dimension).
+
+    0 (not a member) is a point without a normal: left out of every
+    neighbourhood (noise, ``--classes``), or whose k nearest neighbours are
+    all one point (duplicates), which say nothing of a direction
+    (:func:`patchcloud.core.fallback.knn_normals`); its normal is zero.
+    """
 
     #: The quadric of the point's own patch, at the point's projection.
     QUADRIC = 1

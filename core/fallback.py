@@ -15,7 +15,7 @@ import numpy as np
 from . import _kernels
 from .knn import PointGrid, nearest_neighbours, point_grid
 
-__all__ = ["knn_normals"]
+__all__ = ["knn_normals", "coincident", "COINCIDENT"]
 
 
 def knn_normals(
@@ -40,12 +40,25 @@ def knn_normals(
 
     Returns
     -------
-    normals : (M, 3) float64, unit, unoriented (``n . (0.001, 0.01, 1) >= 0``)
+    normals : (M, 3) float64, unit, unoriented (``n . (0.001, 0.01, 1) >= 0``); zeros where not ``defined``
     sigma3 : (M,) surface variation of the neighbourhood
     k1, k2 : (M,) principal curvatures of the neighbourhood quadric (1/unit of the coordinates),
         "convex positive" with respect to ``normals``
     dir1 : (M, 3) direction of ``k1``
     neighbours : (M, k) int64 indices of the neighbours
+    defined : (M,) bool
+        False where the neighbours are coincident (duplicates: their spread
+        is the rounding of their coordinates, :func:`coincident`): they say
+        nothing of a direction, so there is no normal; every output of that
+        row is then zero.  Collinear neighbours (a wire) still give a unit
+        normal perpendicular to their line.
+
+    Examples
+    --------
+    >>> pts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5], [5, 5, 5], [5, 5, 5]])
+    >>> res = knn_normals(pts, np.array([0, 3]), 3)  # point 0 and its nearest: a plane; point 3's: three copies of it
+    >>> res[6].tolist(), res[0][0].round(6).tolist(), res[0][1].tolist()
+    ([True, False], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
     """
     n = points.shape[0]
     k = int(min(k, n))
@@ -56,8 +69,9 @@ def knn_normals(
     k2 = np.zeros(m)
     dir1 = np.zeros((m, 3))
     neighbours = np.zeros((m, k), dtype=np.int64)
+    defined = np.ones(m, dtype=bool)
     if m == 0:
-        return normals, sigma3, k1, k2, dir1, neighbours
+        return normals, sigma3, k1, k2, dir1, neighbours, defined
     if grids is None:
         grids = [point_grid(points, k)]
     for lo in range(0, m, chunk):
@@ -66,4 +80,21 @@ def knn_normals(
         neighbours[lo : lo + chunk] = nb
         hi = lo + qi.size
         _kernels.knn_pca(points, qi, nb, normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
-    return normals, sigma3, k1, k2, dir1, neighbours
+        defined[lo:hi] = ~coincident(points, nb)
+    for out in (normals, sigma3, k1, k2, dir1):
+        out[~defined] = 0.0
+    return normals, sigma3, k1, k2, dir1, neighbours, defined
+
+
+#: Neighbours whose spread is at most this share of their coordinates' size are coincident (duplicates): no normal.
+COINCIDENT = 1e-12
+
+
+def coincident(points: np.ndarray, nb: np.ndarray) -> np.ndarray:
+    """(M,) bool: whether the points ``points[nb[m]]`` ((M, k) indices) are one point, to rounding: the sum of their
+    PCA eigenvalues at most ``COINCIDENT`` squared times their largest coordinate squared."""
+    p = points[nb]
+    d = p - p.mean(axis=1, keepdims=True)
+    total = np.einsum("mki,mki->m", d, d) / nb.shape[1]  # the covariance's trace: the sum of its eigenvalues
+    scale = np.abs(p).max(axis=(1, 2))
+    return ~(total > COINCIDENT**2 * scale * scale)

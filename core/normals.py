@@ -177,8 +177,8 @@ def estimate_normals(
     n_min, min_sigma2, k_fallback, orient, blend = opts.n_min, opts.min_sigma2, opts.k_fallback, opts.orient, opts.blend
     vp = np.asarray(opts.viewpoint, dtype=np.float64) if orient == "viewpoint" else None
     n = pts.shape[0]
-    if n < n_min:
-        raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")
+    if n == 0:
+        raise PatchcloudValueError("the cloud has no points")
 
     clock = _Clock()
     corner, edge = root_cube(lo, hi, root)

@@ -300,7 +300,9 @@ def build_octree(
     count = np.diff(np.r_[start, pts.shape[0]])
     fit = fit_nodes(moments, edge / np.exp2(level + 1))
     kind = np.full(level.shape[0], PatchKind.SURFACE, dtype=np.uint8)
-    kind[~uniform | (fit.sigma2 < min_sigma2)] = PatchKind.EDGE
+    # coincident points (duplicates): what is left of their spread is the rounding of the moments, about 1e-16 h^2, no plane
+    spread = fit.eigenvalues.sum(axis=1) > 1e-12 * (edge / np.exp2(level)) ** 2
+    kind[~uniform | (fit.sigma2 < min_sigma2) | ~spread] = PatchKind.EDGE
     kind[count < n_min] = PatchKind.SPARSE
     return Octree(
         edge=float(edge),

@@ -462,7 +462,11 @@ def _fallback(tree: Octree, normals, scalars, dir1, method, points, k, orienting
     query = np.flatnonzero((method == 0) & todo)
     if query.size == 0:
         return
-    nrm, s3, k1, k2, t1, nb = knn_normals(points, query, k, grids=tile_grids(points, tree.keys, tree.edge, k))
+    nrm, s3, k1, k2, t1, nb, defined = knn_normals(points, query, k, grids=tile_grids(points, tree.keys, tree.edge, k))
+    # coincident neighbours (duplicates): no direction, no normal (NormalMethod 0, zeros), and nothing to orient
+    query, nrm, s3, k1, k2, t1, nb = (a[defined] for a in (query, nrm, s3, k1, k2, t1, nb))
+    if query.size == 0:
+        return
     normals[query] = nrm
     scalars[query] = np.column_stack([s3, k1, k2])
     # the quadric's k1 direction lies in the quadric's tangent plane at the point;

@@ -127,7 +127,7 @@ def test_a_lasdata_without_points_and_a_wrong_argument_are_clear_errors():
     assert patchcloud.difference_of_normals(empty, 1.0, 2.0).shape == (0, 3)
     with pytest.raises(patchcloud.PatchcloudValueError, match=r"points must have shape \(N, 3\), got \(4,\)"):
         patchcloud.estimate_normals(np.zeros(4))
-    with pytest.raises(patchcloud.PatchcloudValueError, match="fewer than n_min"):
+    with pytest.raises(patchcloud.PatchcloudValueError, match="the cloud has no points"):
         patchcloud.estimate_normals(empty)
 
 

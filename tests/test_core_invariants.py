@@ -42,10 +42,11 @@ def test_order_independence_with_duplicate_points(rng):
 
 
 def test_all_points_identical():
+    # one point, 50 times: no direction at all, so no normal (a zero vector, NormalMethod 0), not a PCA of rounding
     p = np.tile([[1.0, 2.0, 3.0]], (50, 1))
     res = estimate_normals(p)
     assert np.all(np.isfinite(res.normals))
-    assert np.allclose(np.linalg.norm(res.normals, axis=1), 1, atol=1e-6)
+    assert not res.normals.any() and (res.method == 0).all()
 
 
 def test_collinear_points_get_perpendicular_unit_normals(rng):
@@ -104,8 +105,7 @@ def test_orient_none_is_consistent_on_a_sphere(rng):
         (np.zeros((20, 3, 1)), r"shape \(N, 3\)"),
         (np.zeros((20, 3), dtype=complex), "real numeric"),
         (np.array([["a", "b", "c"]] * 20), "real numeric"),
-        (np.zeros((5, 3)), "fewer than n_min"),
-        (np.zeros((0, 3)), "fewer than n_min"),
+        (np.zeros((0, 3)), "the cloud has no points"),
     ],
 )
 def test_bad_points_raise_clear_value_errors(points, match):
@@ -169,3 +169,26 @@ def test_result_does_not_depend_on_thread_count(bumpy):
         numba.set_num_threads(before)
     for name in ("normals", "curvature", "k1", "k2", "dir1", "method", "patch"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_coincident_neighbours_get_no_normal():
+    """Neighbours that are all one point (duplicates) say nothing of a direction: no normal (NormalMethod 0, zeros), the
+    same wherever the cloud lies; before, each got an arbitrary unit vector (a PCA of rounding noise), and a shift of the
+    cloud changed it.  (Collinear points still get normals perpendicular to their line: the test above.)"""
+    for where in ([1.0, 2.0, 3.0], [650000.1, 6860000.3, 100.7]):
+        same = estimate_normals(np.repeat([where], 100, axis=0))  # 100 copies of one point
+        assert (same.method == 0).all() and not same.normals.any() and not same.curvature.any()
+    three = np.repeat([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]], 20, axis=0)  # each point's 16 nearest: its own copies
+    for shift in ([0.0, 0, 0], [650000.0, 6860000.0, 100.0]):
+        r = estimate_normals(three + shift)
+        assert (r.method == 0).all() and not r.normals.any()
+
+
+@pytest.mark.parametrize("n", [3, 5, 11])
+def test_a_cloud_smaller_than_a_patch_gets_normals(n):
+    """Fewer points than n_min (no patch can be fitted): the moment or k-NN normals of the plane, as the command gives a
+    file of so few points (the function used to refuse them)."""
+    xy = np.random.default_rng(n).uniform(0, 10, (n, 2))
+    r = estimate_normals(np.column_stack([xy, 0.5 * xy[:, 0]]))
+    assert (r.method > 0).all()
+    assert np.allclose(np.abs(r.normals @ np.array([-0.5, 0.0, 1.0]) / np.hypot(0.5, 1.0)), 1.0, atol=1e-6)

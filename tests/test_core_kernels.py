@@ -65,7 +65,8 @@ def test_knn_pca_matches_a_direct_pca(rng):
     xy = rng.uniform(-1, 1, (3000, 2))
     p = np.column_stack([xy, 0.3 * xy[:, 0] ** 2 + 0.001 * rng.normal(size=3000)])
     query = np.arange(0, 3000, 7)
-    normals, sigma3, k1, k2, dir1, nb = knn_normals(p, query, 20)
+    normals, sigma3, k1, k2, dir1, nb, defined = knn_normals(p, query, 20)
+    assert defined.all()
     from scipy.spatial import cKDTree
 
     _, ref_nb = cKDTree(p).query(p[query], k=20)

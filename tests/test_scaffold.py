@@ -112,7 +112,7 @@ def test_codes_are_defined_once_and_written_as_documented(tmp_path):
     assert dim.description == Method.describe()
     counts = np.bincount(las.NormalMethod, minlength=4)
     assert counts[0] == 0
-    assert s.normals_by_method == {m.name.lower(): int(counts[m]) for m in Method}
+    assert s.normals_by_method == {**{m.name.lower(): int(counts[m]) for m in Method}, "none": 0}
     printed = {"quadric": Method.QUADRIC, "blended": Method.BLENDED, "cell moments": Method.MOMENTS, "k-NN fallback": Method.KNN}
     shares = {name: counts[code] / counts.sum() for name, code in printed.items()}  # every computed point, once
     line = next(x for x in s.format().splitlines() if "normals by" in x)

@@ -97,7 +97,7 @@ class NormalsSummary:
             units_line(self.units),
             f"  patches         {sum(k.values()):,} (surface {k['surface']:,}, edge {k['edge']:,}, sparse {k['sparse']:,})",
             f"  normals by      quadric {m['quadric'] / n:.1%}, blended {m['blended'] / n:.1%}, cell moments {m['moments'] / n:.1%}, "
-            f"k-NN fallback {m['knn'] / n:.1%}",
+            f"k-NN fallback {m['knn'] / n:.1%}" + (f", none {m['none']:,} (a point alone, or copies of one)" if m.get("none") else ""),
             f"  parameters      {self.parameters['criterion']} threshold {self.parameters['threshold']:.4g}, "
             f"d_min {self.parameters['d_min']:.3g} {u}, spacing {self.parameters['spacing']:.3g} {u}, orient {self.parameters['orient']}"
             + (", always up" if self.parameters.get("always_up") else "") + (f", fallback k-NN {self.parameters['k_fallback']}" if "k_fallback" in self.parameters else ""),
@@ -240,7 +240,7 @@ class NormalsJob(Job):
             input=ctx.input_name, output=str(ctx.output), points=ctx.catalog.point_count, tiles=len(st.tiles),
             tile_size=st.grid.tile_size,
             patches_by_kind={k.name.lower(): int(kinds[k]) for k in PatchKind},
-            normals_by_method={m.name.lower(): int(methods[m]) for m in Method},
+            normals_by_method={**{m.name.lower(): int(methods[m]) for m in Method}, "none": int(methods[0])},
             parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler,
             store=ctx.kept_store, files=ctx.files, units=ctx.units.to_json(), left_out=dict(st.attrs.get("left_out", {})),
             selection=st.attrs.get("selection"),
