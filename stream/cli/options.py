@@ -380,6 +380,12 @@ def in_option_words(message: str, command: click.Command | None) -> str:
     '--orient sideways: not a rule'
     >>> in_option_words("for a smaller ball give --rs R (r_small)", cmd)
     'for a smaller ball give --rs R'
+    >>> run = click.Command("normals", params=[click.Option(["--store"]), click.Option(["--keep-store", "keep_store"]),
+    ...                                        click.Option(["--scheduler"]), click.Option(["--in-memory", "in_memory"])])
+    >>> in_option_words("in_memory runs keep no store: leave out store and keep_store, or in_memory", run)
+    '--in-memory runs keep no store: leave out --store and --keep-store, or --in-memory'
+    >>> in_option_words("in_memory runs inline, on no scheduler: leave out scheduler ('processes'), or in_memory", run)
+    '--in-memory runs inline, on no scheduler: leave out --scheduler processes, or --in-memory'
     """
     options = {}
     for param in getattr(command, "params", ()):
@@ -396,6 +402,10 @@ def in_option_words(message: str, command: click.Command | None) -> str:
     # a message opening with the name and the value given in quotes: "classes 'abc': ..." is "--classes abc: ..."
     quoted = re.compile(rf"^({names}) '([^']*)'(?=[: ])")
     message = quoted.sub(lambda m: f"{options[m.group(1)]} {m.group(2)}", message)
+    # what to leave out: "leave out store and keep_store", "leave out scheduler ('processes')"
+    leave = re.compile(rf"(?<=leave out )({names})(?: \('([^']*)'\))?(?: and ({names}))?(?![\w-])")
+    message = leave.sub(lambda m: options[m.group(1)] + (f" {m.group(2)}" if m.group(2) is not None else "")
+                        + (f" and {options[m.group(3)]}" if m.group(3) else ""), message)
     pattern = re.compile(rf'(?<![\w-])({names})(="([^"]*)"|=)|(?<![\w-])(\w+_\w+)(?![\w-])')
 
     def word(m: re.Match) -> str:
