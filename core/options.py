@@ -147,6 +147,9 @@ class NormalsOptions:
         _set(self, "k_fallback", int(k))
         for name in ("threshold", "d_min", "max_edge"):
             _set(self, name, check_positive(name, getattr(self, name)))
+        if self.criterion == "sigma3" and self.threshold is not None and self.threshold >= 1 / 3:  # every leaf would pass
+            raise PatchcloudValueError(f"threshold must be below 1/3 with criterion sigma3 (a surface variation is at most 1/3); "
+                                       f"got {self.threshold:g}")
         if self.d_min is not None and self.max_edge is not None and self.d_min > self.max_edge:
             raise PatchcloudValueError(f"d_min must be at most max_edge; got d_min={self.d_min:g}, max_edge={self.max_edge:g}")
         if not (0 <= self.min_sigma2 < 1 / 3 + 1e-12):

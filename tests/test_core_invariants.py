@@ -192,3 +192,12 @@ def test_a_cloud_smaller_than_a_patch_gets_normals(n):
     r = estimate_normals(np.column_stack([xy, 0.5 * xy[:, 0]]))
     assert (r.method > 0).all()
     assert np.allclose(np.abs(r.normals @ np.array([-0.5, 0.0, 1.0]) / np.hypot(0.5, 1.0)), 1.0, atol=1e-6)
+
+
+def test_a_sigma3_threshold_of_a_third_or_more_is_refused():
+    # a surface variation is at most 1/3: such a threshold passes every leaf, whatever its shape (a sweep ran it silently)
+    pts = np.random.default_rng(0).uniform(0, 10, (500, 3))
+    for t in (1 / 3, 0.34, 5.0):
+        with pytest.raises(PatchcloudValueError, match="below 1/3 with criterion sigma3"):
+            estimate_normals(pts, criterion="sigma3", threshold=t)
+    assert estimate_normals(pts, criterion="sigma3", threshold=0.3).normals.shape == (500, 3)
