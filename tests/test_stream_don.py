@@ -259,17 +259,22 @@ def test_worker_processes_give_identical_files(scene, tmp_path):
     assert (tmp_path / "a.las").read_bytes() == (tmp_path / "b.las").read_bytes()
 
 
+def _kept_run(scene, tmp_path, job):
+    """A run of ``job`` on the scene with a kept store: (input, output, its keyword arguments, the output's bytes)."""
+    path, _, _ = scene
+    out = tmp_path / "out.las"
+    kw = dict(r_small=0.3, r_large=1.5, tile_size=4.0, store=str(tmp_path / "keep.zarr"), scheduler="synchronous", quiet=True)
+    if job is segment:
+        kw.update(threshold=0.2, tolerance=0.15, min_cluster=30)
+    job(path, out, **kw)
+    return path, out, kw, out.read_bytes()
+
+
 @pytest.mark.parametrize("job, change", [(don, {"r_small": 0.4}), (segment, {"tolerance": 0.3}), (segment, {"threshold": 0.3})])
 def test_a_kept_store_never_passes_an_output_of_other_parameters_as_this_runs(scene, tmp_path, job, change):
     """The same output and store, other parameters: the output the first run wrote is not taken as done (it was, with
     the store's record of it matching): without --overwrite one error line, with it the new values, as a fresh run's."""
-    path, _, _ = scene
-    st, out = tmp_path / "keep.zarr", tmp_path / "out.las"
-    kw = dict(r_small=0.3, r_large=1.5, tile_size=4.0, store=str(st), scheduler="synchronous", quiet=True)
-    if job is segment:
-        kw.update(threshold=0.2, tolerance=0.15, min_cluster=30)
-    job(path, out, **kw)
-    first = out.read_bytes()
+    path, out, kw, first = _kept_run(scene, tmp_path, job)
     with pytest.raises(PatchcloudIOError, match="exists .*--overwrite"):
         job(path, out, **{**kw, **change})
     assert out.read_bytes() == first
@@ -285,13 +290,7 @@ def test_a_kept_output_of_other_parameters_is_refused_before_the_computation(sce
     only by the export, after the whole computation); the same options resume without recomputing and keep it."""
     from patchcloud.stream.jobs import don_tiles
 
-    path, _, _ = scene
-    st, out = tmp_path / "keep.zarr", tmp_path / "out.las"
-    kw = dict(r_small=0.3, r_large=1.5, tile_size=4.0, store=str(st), scheduler="synchronous", quiet=True)
-    if job is segment:
-        kw.update(threshold=0.2, tolerance=0.15, min_cluster=30)
-    job(path, out, **kw)
-    first = out.read_bytes()
+    path, out, kw, first = _kept_run(scene, tmp_path, job)
     calls = []
     real = don_tiles.don_tile
     monkeypatch.setattr(don_tiles, "don_tile", lambda *a, **k: calls.append(1) or real(*a, **k))
