@@ -328,6 +328,7 @@ def test_a_kept_normals_output_of_another_threshold_is_refused_before_the_fit(tm
         normals(path, out, **{**kw, "tile_size": 8.0})  # the store is not tiled again, and the first command still keeps it
     assert calls == [] and out.read_bytes() == first
     normals(path, out, **kw)
+    normals(path, out, **{**kw, "tile_size": None})  # no tile size: the store's own tiles, those the output was made on
     assert calls == [] and out.read_bytes() == first
     # made with a threshold, rerun without: the threshold would come from the data (another value), refused at once too
     other = tmp_path / "other.las"

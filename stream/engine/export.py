@@ -51,7 +51,7 @@ from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store
 
 __all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs", "file_record",
-           "output_record_name"]
+           "output_record_name", "same_request"]
 
 
 @dataclass(frozen=True)
@@ -289,9 +289,27 @@ def complete_outputs(store: Store, outputs, key: str | None = None, request: dic
         p = Path(o)
         r = recorded.get(output_record_name(p))
         ok = r is not None and p.is_file() and (key is None or r.get("key") == key)
-        ok = ok and (request is None or r.get("request") in (None, request))  # (None: recorded before requests were)
+        ok = ok and (request is None or same_request(r.get("request"), request))
         out.append(bool(ok and {k: r.get(k) for k in ("path", "size", "mtime_ns")} == file_record(p)))
     return out
+
+
+def same_request(recorded: dict | None, asked: dict) -> bool:
+    """Whether an output recorded for the request ``recorded`` may be this run's, asked ``asked``: the same request, but
+    for a tile size not given now (the run takes the store's own tiles, those the output was made on); None (recorded
+    before requests were) may be.
+
+    >>> same_request({"job": "don", "tile_size": 64.0}, {"job": "don", "tile_size": None})
+    True
+    >>> same_request({"job": "don", "tile_size": 64.0}, {"job": "don", "tile_size": 32.0})
+    False
+    """
+    if recorded is None:
+        return True
+    if asked.get("tile_size") is None:
+        recorded = {k: v for k, v in recorded.items() if k != "tile_size"}
+        asked = {k: v for k, v in asked.items() if k != "tile_size"}
+    return recorded == asked
 
 
 def output_record_name(path: Path) -> str:
