@@ -275,6 +275,10 @@ def test_a_selection_that_leaves_nothing_is_one_clear_error(tmp_path):
     assert not (tmp_path / "o.las").exists()
     with pytest.raises(PatchcloudValueError, match="keep_noise must be True or False"):
         RunOptions(keep_noise="yes")
+    # on disk: the same command would find no point again, so the line does not say it resumes, and no store is left
+    with pytest.raises(PatchcloudValueError, match="no point left to compute on") as info:
+        normals(SAMPLE, tmp_path / "o.las", classes=[9], quiet=True, scheduler="synchronous")
+    assert "resumes" not in str(info.value) and not (tmp_path / "o.las.store").exists()
 
 
 def test_info_lists_classes_and_patchcloud_dims(scenes, tmp_path):

@@ -38,7 +38,7 @@ from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
-    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "FEW_TILES", "TILE_POINT_BYTES", "TileSizeError", "tile_size_for", "tile_size_of_tiles", "part_size", "part_ranges", "catalog_parts", "part_path",
+    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "FEW_TILES", "TILE_POINT_BYTES", "NothingToResumeError", "TileSizeError", "tile_size_for", "tile_size_of_tiles", "part_size", "part_ranges", "catalog_parts", "part_path",
     "scatter_part", "read_part", "route_path", "routes_pay", "part_selection", "store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
@@ -133,7 +133,12 @@ def tile_size_of_tiles(tiles, counts: np.ndarray, t: float) -> float | None:
     return bigger if bigger > t else None
 
 
-class TileSizeError(PatchcloudValueError):
+class NothingToResumeError(PatchcloudValueError):
+    """A refusal found once the points are tiled that the same command would meet again (no point left to compute
+    on, too small a tile size): the run's store is removed (unless named), and the line says nothing of resuming."""
+
+
+class TileSizeError(NothingToResumeError):
     """A tile size that leaves too few points per occupied tile (:func:`check_occupied_tiles`), found once the points
     are tiled: the run's store is removed (unless named), since the same command cannot resume from it."""
 
@@ -418,8 +423,8 @@ def _index_parts(store: Store) -> None:
     rec = np.concatenate(rows)
     kept = int(rec[:, 2].sum())
     classes = {str(c): int(n) for c, n in enumerate(by_class) if n}
-    if kept == 0:
-        raise PatchcloudValueError(
+    if kept == 0:  # the same command would find none again: nothing to resume
+        raise NothingToResumeError(
             f"{cat.path}: no point left to compute on ({store_selection(store).describe()}); the input holds "
             + ", ".join(f"class {c}: {n:,}" for c, n in classes.items())
             + " (--classes chooses the classes, --keep-noise keeps noise and withheld points)"

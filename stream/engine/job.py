@@ -57,7 +57,7 @@ from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIO
 from patchcloud.stream.engine.background import stops_what_it_starts
 from patchcloud.stream.engine.compiling import CompileClock, announce_on_stderr, compiling_line, merge_intervals, seconds_within
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
-from patchcloud.stream.engine.ingest import TileSizeError, check_tile_size, ensure_tiled
+from patchcloud.stream.engine.ingest import NothingToResumeError, check_tile_size, ensure_tiled
 from patchcloud.stream.engine.runner import Runner, check_scheduler
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.crs import UNITS, Units, units_of
@@ -684,7 +684,7 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
         summary = _run(job, catalog, outs, out, url, keep, run)
     except PatchcloudStoreError:
         raise
-    except TileSizeError:  # the same command would fail again: nothing to resume
+    except NothingToResumeError:  # the same command would fail again: nothing to resume (no points, too small tiles)
         if not keep:
             Store.discard(url)
         raise
