@@ -21,12 +21,15 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "CHUNK"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
 #: Rows per chunk of a parallel loop that allocates its scratch once per chunk.
 CHUNK = 1024
+#: Points whose moments about a cell of edge h leave a spread (the sum of their PCA eigenvalues) of at most this times
+#: h^2 are one point (copies): the spread left is the rounding of the moments, about 1e-16 h^2, and has no shape.
+ROUNDING_SPREAD = 1e-12
 
 
 @njit(cache=True, nogil=True)
@@ -989,8 +992,7 @@ def interpolated_pca(queries, h, lo, span, ckeys, cmom, cvotes, normals, sigma2,
             l0, l1, l2 = max(ev[0], 0.0), max(ev[1], 0.0), max(ev[2], 0.0)
             tot = l0 + l1 + l2
             sigma3[m] = l0 / tot if tot > 0 else 0.0
-            # coincident points: what is left of their spread is the rounding of the moments (about 1e-16 h^2), no shape
-            sigma2[m] = l1 / tot if tot > 1e-12 * h * h else 0.0
+            sigma2[m] = l1 / tot if tot > ROUNDING_SPREAD * h * h else 0.0  # coincident points: no shape
             sgn = _plane_sign(vec)
             normals[m, 0], normals[m, 1], normals[m, 2] = sgn * vec[0, 0], sgn * vec[1, 0], sgn * vec[2, 0]
             dir1[m, 0], dir1[m, 1], dir1[m, 2] = vec[0, 2], vec[1, 2], vec[2, 2]

@@ -20,7 +20,7 @@ __all__ = ["knn_normals", "coincident", "COINCIDENT"]
 
 def knn_normals(
     points: np.ndarray, query: np.ndarray, k: int, grids: Sequence[PointGrid] | None = None, chunk: int = 65536,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """k-nearest-neighbour PCA normals of some points of a cloud.
 
     Parameters

@@ -30,6 +30,7 @@ from numba import njit, prange
 
 from . import _kernels
 from .morton import MAX_DEPTH, encode
+from .octree import level_occupancy
 from .threads import parallel_kernel
 
 __all__ = ["PointGrid", "point_grid", "sorted_point_grid", "nearest_neighbours", "near_queries"]
@@ -175,9 +176,7 @@ def sorted_point_grid(points: np.ndarray, keys: np.ndarray, edge: float, k: int,
     ids = np.arange(n, dtype=np.int64) if ids is None else np.ascontiguousarray(ids, dtype=np.int64)
     level = 0
     if n:
-        splits = np.zeros(MAX_DEPTH + 1, dtype=np.int64)  # as octree.level_occupancy: occupied cells at levels 0 to 21
-        _kernels.first_split_levels(keys, MAX_DEPTH, splits)
-        occupied = (np.cumsum(splits) + 1).astype(np.float64)
+        occupied = np.asarray(level_occupancy(keys), dtype=np.float64)  # occupied cells at levels 0 to 21
         level = int(np.argmin(np.abs(np.log(n / occupied) - np.log(max(k, 1)))))
     shift = np.uint64(3 * (MAX_DEPTH - level))
     cell_keys = keys >> shift

@@ -300,8 +300,7 @@ def build_octree(
     count = np.diff(np.r_[start, pts.shape[0]])
     fit = fit_nodes(moments, edge / np.exp2(level + 1))
     kind = np.full(level.shape[0], PatchKind.SURFACE, dtype=np.uint8)
-    # coincident points (duplicates): what is left of their spread is the rounding of the moments, about 1e-16 h^2, no plane
-    spread = fit.eigenvalues.sum(axis=1) > 1e-12 * (edge / np.exp2(level)) ** 2
+    spread = fit.eigenvalues.sum(axis=1) > _kernels.ROUNDING_SPREAD * (edge / np.exp2(level)) ** 2  # else copies of one point
     kind[~uniform | (fit.sigma2 < min_sigma2) | ~spread] = PatchKind.EDGE
     kind[count < n_min] = PatchKind.SPARSE
     return Octree(

@@ -21,7 +21,6 @@ from .graph import connected_components
 from .morton import MAX_DEPTH, containing, encode, key_range
 from .codes import PatchKind
 from .octree import Octree
-from .quadric import implicit_value, surface_normals
 
 __all__ = [
     "DOT_MIN", "MIN_RELIABILITY", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",

@@ -46,7 +46,7 @@ from .grid import CellGrid
 from .points import GRID_ANCHOR
 
 __all__ = [
-    "radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "VOXEL_MIN_POINTS", "check_points",
+    "radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "voxel_points", "VOXEL_MIN_POINTS", "check_points",
     "grid_origin",
 ]
 
@@ -143,9 +143,19 @@ def uses_voxels(radius: float, resolution: int, density: float) -> bool:
     city at 2 m, whose dense facades beside sparse roofs make a mean per
     occupied cell read low) to 334 (53x).
     """
+    return voxel_points(radius, resolution, density) > VOXEL_MIN_POINTS
+
+
+def voxel_points(radius: float, resolution: int, density: float) -> float:
+    """Points a voxel of edge ``radius / resolution`` holds on average: ``density`` (:func:`cell_density` at that edge,
+    on power-of-two cells) scaled to the voxel as a surface's count scales, with the area.
+
+    >>> voxel_points(5.0, 4, 16.0)  # 1.25 m voxels, 16 points a 1 m cell
+    25.0
+    """
     h = radius / resolution
     e = 2.0 ** np.floor(np.log2(h))
-    return density * (h / e) ** 2 > VOXEL_MIN_POINTS
+    return float(density * (h / e) ** 2)
 
 
 def grid_origin(points: np.ndarray) -> np.ndarray:

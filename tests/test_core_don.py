@@ -228,6 +228,18 @@ def test_bad_parameters_are_named(call, words):
         call(p)
 
 
+def test_points_a_voxel_holds_on_a_plane():
+    # a plane on a 0.25 m grid (16 points/m²), in one layer of cells: 0.5 m voxels (r = 2 m) hold 4 points,
+    # 0.25 m voxels (r = 1 m) 1, 1.25 m voxels (r = 5 m: cells of 1 m scaled by 1.25²) 25
+    from patchcloud.core.radius import cell_density, voxel_points
+
+    g = np.arange(0.0, 20.0, 0.25) + 0.125
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    plane = np.column_stack([x, y, np.full(x.size, 0.1)])
+    for r, expected in ((2.0, 4.0), (1.0, 1.0), (5.0, 25.0)):
+        assert voxel_points(r, 4, cell_density(plane, r / 4)) == expected
+
+
 def test_fast_mode_sums_points_up_to_five_a_voxel(rng):
     """About 4.5 points a voxel (a plane of 18 points/m², r = 2 m, voxels of 0.5 m): the points are faster to sum than
     the voxels there (measured: 1.7-2x at 3.6-4.9 points a voxel), so fast mode takes the exact ball, bit for bit."""

@@ -28,14 +28,10 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from bench_don import REAL, city_cloud, real_clouds  # noqa: E402  (tools/ is not a package)
-from patchcloud.core.radius import VOXEL_MIN_POINTS, cell_density, radius_moments, uses_voxels  # noqa: E402
+from patchcloud.core.radius import VOXEL_MIN_POINTS, cell_density, radius_moments, uses_voxels, voxel_points  # noqa: E402
 
-
-def voxel_points(pts: np.ndarray, radius: float, resolution: int = 4) -> float:
-    """Points a voxel of edge ``radius / resolution`` holds on average, as ``uses_voxels`` scales it."""
-    h = radius / resolution
-    e = 2.0 ** np.floor(np.log2(h))
-    return float(cell_density(pts, h) * (h / e) ** 2)
+#: Voxels per radius, as patchcloud don's default --resolution.
+RESOLUTION = 4
 
 
 def best_time(pts: np.ndarray, radius: float, density: float, runs: int = 2) -> float:
@@ -68,9 +64,10 @@ def main() -> None:
     clouds = ([(f"city-{a.city_points // 1000}k", city_cloud(a.city_points)[0])] if a.city_points else [])
     for name, pts in [*clouds, *real_clouds(list(REAL))]:
         for r in a.radii:
-            per_voxel = voxel_points(pts, r)
+            density = cell_density(pts, r / RESOLUTION)
+            per_voxel = voxel_points(r, RESOLUTION, density)
             vox, points = best_time(pts, r, 1e12), best_time(pts, r, 1e-12)
-            chosen = "voxels" if uses_voxels(r, 4, cell_density(pts, r / 4)) else "points"
+            chosen = "voxels" if uses_voxels(r, RESOLUTION, density) else "points"
             right = (chosen == "voxels") == (vox < points)
             line = (f"{name:<22} {len(pts):>9,} {r:>5g} {per_voxel:>9.1f} {vox:>9.3f} {points:>9.3f} {points / vox:>8.2f} "
                     f"{chosen:>7} {'yes' if right else 'no':>8}")

@@ -31,7 +31,9 @@ from patchcloud.core import (
 )
 from patchcloud.stream.engine.export import file_record
 from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
-from patchcloud.stream.engine.job import Job, JobContext, RunOptions, left_out_lines, params_key, run_job, split_options, time_and_memory_lines
+from patchcloud.stream.engine.job import (
+    Job, JobContext, RunOptions, left_out_lines, params_key, run_job, run_request, split_options, time_and_memory_lines,
+)
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
@@ -362,8 +364,8 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
         open_source(p)
     for o in outs:
         check_not_input(o, paths)
-    key = params_key(dict(options=dataclasses.asdict(options), record_source=record_source, tile_size=run.tile_size,
-                          selection=run.selection.to_json(), chunk=run.chunk, units=run.units))
+    # what the run was asked (the same request kept outputs record), the source recording and the parts read
+    key = params_key(dict(run_request(_job(options, record_source), run), record_source=record_source, chunk=run.chunk))
     record_path = out_dir / CATALOG_RECORD
     record = _read_record(record_path)
     done = [_finished(record.get(o.name), key, p, o) for p, o in zip(paths, outs)]
