@@ -319,10 +319,18 @@ class Runner:
         if self._starting is not None:
             self._starting.join()
             self._starting = None
-        if self._client is not None:
-            self._client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+        # the local scheduler runs in this process and logs, at CRITICAL, each message it can no longer send to a
+        # client closed while tasks were finishing (Ctrl-C, SIGTERM, a failed task): the run's one line says it all
+        quiet = logging.getLogger("distributed")
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL + 1)
+        try:
+            if self._client is not None:
+                self._client.close()
+            if self.cluster is not None:
+                self.cluster.close()
+        finally:
+            quiet.setLevel(level)
 
     def __enter__(self) -> "Runner":
         return self
