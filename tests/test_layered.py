@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from patchcloud.stream.io import pcz
+from patchcloud.stream.io.laz_block import records_laz
 from patchcloud.stream.io.layered import LAYERED, from_layered, layered_format, layered_size, to_layered
 
 
@@ -68,10 +69,10 @@ def test_formats_that_have_no_twin_are_stored_as_they_are(rng):
 
 
 @pytest.mark.parametrize("pid", [0, 1, 2, 3])
-def test_a_residual_laz_of_format_0_to_3_is_a_layered_laz_that_reads_back(pid, rng):
+def test_a_records_laz_of_format_0_to_3_is_a_layered_laz_that_reads_back(pid, rng):
     pf = laspy.PointFormat(pid)
     rows = _records(pid, 3000, 0, rng)
-    raw = pcz.residual_laz(rows, pf, "1.2", [0.001] * 3, [0.0] * 3)
+    raw = records_laz(rows, pf, "1.2", [0.001] * 3, [0.0] * 3)
     las = laspy.read(io.BytesIO(raw))
     assert las.header.point_format.id == LAYERED[pid] and las.header.are_points_compressed
     back = from_layered(np.ascontiguousarray(las.points.array).view(np.uint8).reshape(3000, -1), pid)

@@ -143,7 +143,7 @@ def test_a_layered_laz_with_undescribed_bytes_is_copied_to_the_bytes_of_one_code
 
 def test_undescribed_bytes_survive_compress_and_decompress(undescribed, tmp_path):
     """Points mode keeps every byte of every record but X, Y, Z (rounded within the budget), in order; model mode keeps
-    a residual point's position, class, intensity and returns, and writes its other bytes as zeros."""
+    a residual point's position, class and intensity (on 64 levels), one return, and writes its other bytes as zeros."""
     pcz, out, model, back = tmp_path / "c.pcz", tmp_path / "d.las", tmp_path / "m.pcz", tmp_path / "m.las"
     for args in (["compress", str(undescribed), str(pcz), "--keep-points"], ["decompress", str(pcz), str(out)],
                  ["compress", str(undescribed), str(model)], ["decompress", str(model), str(back)]):

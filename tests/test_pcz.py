@@ -10,6 +10,7 @@ import pytest
 from patchcloud.core.errors import PatchcloudIOError
 from patchcloud.core.patchmodel import dequantise_models, fit_models, quantise_models, sample_models
 from patchcloud.stream.io import pcz
+from patchcloud.stream.io.laz_block import records_laz
 
 BUDGET = 0.01
 T = 8.0
@@ -29,7 +30,7 @@ def parts(rng, record_bytes=18):
         C, R = q.count.shape[0], fit.residual.size
         xyz = np.rint(p[fit.residual] / 0.001).astype("<i4")
         records = np.hstack([xyz.view(np.uint8).reshape(R, 12), rng.integers(0, 256, (R, record_bytes)).astype(np.uint8)])
-        laz = pcz.residual_laz(records, laspy.PointFormat(6), "1.4", [0.001] * 3, [0.0] * 3)
+        laz = records_laz(records, laspy.PointFormat(6), "1.4", [0.001] * 3, [0.0] * 3)
         out.append(pcz.TilePart(ijk, q, rng.integers(1, 7, C).astype(np.uint8), rng.integers(0, 60000, C).astype(np.uint16),
                                 R, laz))
         out[-1].__dict__["records"] = records  # what the file must give back (a test-only note on the frozen part)
@@ -107,14 +108,16 @@ def test_never_overwrites_unasked(tmp_path, rng):
     write(tmp_path, rng, overwrite=True)
 
 
-@pytest.mark.parametrize("version", [2, 3, 4])
+@pytest.mark.parametrize("version", [2, 3, 4, 5])
 def test_a_committed_file_of_each_readable_version_reads_back_field_by_field(version):
     """tests/data/pcz-v{N}.pcz was written by tools/make_pcz_fixture.py at version N; the .npz holds what it was given.
     Version 3 stores the residual points' X, Y, Z divided by its steps; version 2 has none (exact).  Version 4's
-    input is of point format 1, its records stored as format 6 (stream.io.layered); 2 and 3 hold format 6 records."""
+    input is of point format 1, its records stored as format 6 (stream.io.layered); 2 and 3 hold format 6 records.
+    Version 5 stores the second tile's intensities (its cells' and residual points') divided by 2**3: they come back
+    multiplied (at most 65535)."""
     from pathlib import Path
 
-    assert pcz.VERSION == 4 and pcz.READABLE == (2, 3, 4)
+    assert pcz.VERSION == 5 and pcz.READABLE == (2, 3, 4, 5)
     data = Path(__file__).parent / "data"
     expected = np.load(data / f"pcz-v{version}.npz", allow_pickle=False)
     steps = expected["steps"] if version >= 3 else np.ones(3, int)
@@ -129,11 +132,18 @@ def test_a_committed_file_of_each_readable_version_reads_back_field_by_field(ver
             m, cls, inten = f.patches(t)
             for name in fields:
                 assert np.array_equal(getattr(m, name), expected[f"{t}/{name}"]), (t, name)
-            assert np.array_equal(cls, expected[f"{t}/classification"]) and np.array_equal(inten, expected[f"{t}/intensity"])
+            shift = int(expected["shifts"][t]) if version >= 5 else 0
+            want_inten = np.minimum(expected[f"{t}/intensity"].astype(np.int64) << shift, 65535)
+            assert np.array_equal(cls, expected[f"{t}/classification"]) and np.array_equal(inten, want_inten)
             xyz, rec = f.residual(t)
             records = expected[f"{t}/records"]
             stored = records[:, :12].copy().view("<i4").reshape(-1, 3)
-            assert np.array_equal(xyz, stored * steps) and np.array_equal(rec, records[:, 12:])
+            want = records[:, 12:].copy()
+            if version >= 5:
+                I = np.minimum(want[:, :2].copy().view("<u2").ravel().astype(np.int64) << shift, 65535)
+                want[:, :2] = I.astype("<u2")[:, None].view(np.uint8)
+                assert f.intensity_shift.tolist() == [0, 3] and (shift == 0 or not np.array_equal(want, records[:, 12:]))
+            assert np.array_equal(xyz, stored * steps) and np.array_equal(rec, want)
         # the plane tile samples back on its plane
         q, _ = sample_models(dequantise_models(f.patches(0)[0]))
         assert len(q) > 1000 and np.abs(q[:, 2] - (0.1 * q[:, 0] + 1.0)).max() <= 0.005
@@ -150,7 +160,7 @@ def test_a_tile_whose_residual_disagrees_with_the_index_is_named_as_the_store_na
 
 
 @pytest.mark.parametrize("point_format", [1, 6])
-def test_residual_laz_is_the_same_bytes_with_lazrs_threads(point_format, rng):
+def test_records_laz_is_the_same_bytes_with_lazrs_threads(point_format, rng):
     """The parallel coder (a run of one task at a time) writes the bytes of the sequential one, so a .pcz does not depend
     on how it was run; and the records read back as given (formats 0-3 pass through their layered twins)."""
     pf = laspy.PointFormat(point_format)
@@ -161,7 +171,7 @@ def test_residual_laz_is_the_same_bytes_with_lazrs_threads(point_format, rng):
     records["intensity"] = rng.integers(0, 65535, n)
     rows = records.view(np.uint8).reshape(n, pf.size)
     args = (rows, pf, "1.4" if point_format >= 6 else "1.2", [0.01, 0.01, 0.01], [0.0, 0.0, 0.0])
-    one, many = pcz.residual_laz(*args), pcz.residual_laz(*args, parallel=True)
+    one, many = records_laz(*args), records_laz(*args, parallel=True)
     assert one == many
     back = laspy.read(io.BytesIO(many))
     for name in ("X", "Y", "Z", "intensity"):

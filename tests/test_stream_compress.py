@@ -9,8 +9,9 @@ from laspy.vlrs.vlrlist import VLRList
 from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import compress, decompress
 from patchcloud.stream.cli import main
-from patchcloud.stream.io.point_coding import coarse_steps, coarsen, refine
+from patchcloud.stream.io.point_coding import coarse_steps
 from patchcloud.stream.io import pcz
+from patchcloud.stream.io.pcz import open_pcz
 
 OFFSET = np.array([650000.0, 6860000.0, 0.0])
 BUDGET = 0.02
@@ -60,6 +61,21 @@ def rows(points):
     return np.ascontiguousarray(a).view(np.dtype((np.void, a.dtype.itemsize)))
 
 
+def coded(src, k, shift):
+    """(N, L) uint8: what model mode gives back of each point of ``src`` were it residual in a tile of intensity ``shift``:
+    X, Y, Z rounded to multiples ``k`` of the file's grid, the class, the intensity rounded to a multiple of 2**shift
+    (at most 65535), return 1 of 1, every other byte zero."""
+    want = laspy.PackedPointRecord.zeros(len(src.points), src.point_format)
+    want["classification"] = src.points["classification"]
+    I = np.asarray(src.points["intensity"], dtype=np.int64)
+    want["intensity"] = np.minimum(((I + (1 << shift >> 1)) >> shift) << shift, 65535)
+    want["return_number"] = want["number_of_returns"] = np.ones(len(src.points), np.uint8)
+    for a, name in enumerate("XYZ"):
+        X = np.asarray(src.points[name], dtype=np.int64)
+        want[name] = (X + k[a] // 2) // k[a] * k[a]
+    return np.ascontiguousarray(want.array.view(np.uint8).reshape(len(src.points), -1))
+
+
 def test_round_trip(las_file, tmp_path):
     src = laspy.read(las_file)
     s = compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True)
@@ -73,19 +89,24 @@ def test_round_trip(las_file, tmp_path):
     rec = np.asarray(out["Reconstructed"])
     assert int((rec == 0).sum()) == s.residual == d.residual
     # residual points come back as records of input points with X, Y, Z rounded to multiples k of the file's grid
-    # (within the budget) and every dimension but class, intensity and returns zero
+    # (within the budget), their class, their intensity on 64 levels of their tile's, one return, every other byte zero
     L = src.points.array.dtype.itemsize
     back = np.ascontiguousarray(out.points.array.view(np.uint8).reshape(len(out.points), -1)[rec == 0, :L])
     k = coarse_steps(BUDGET, src.header.scales)
     assert k == (23, 23, 23)  # the file's grid is 1 mm: 2.3 cm steps, 2 cm at most from each point
-    want = laspy.PackedPointRecord.zeros(len(src.points), src.point_format)
-    for name in ("intensity", "return_number", "number_of_returns", "classification"):
-        want[name] = src.points[name]
-    for a, name in enumerate("XYZ"):
-        want[name] = refine(coarsen(src.points[name], k[a]), k[a])
-    orig = np.ascontiguousarray(want.array.view(np.uint8).reshape(len(src.points), L))
+    with open_pcz(tmp_path / "s.pcz") as f:
+        shifts = set(f.intensity_shift.tolist())
+    # intensities of 0-4000 (12 bits) on 64 levels: multiples of 2**6 (a tile of a few dim points: finer)
+    assert 6 in shifts and min(shifts) >= 1
+    # sampled points carry their cell's mean intensity on the tile's 64 levels (means of uniform 0-4000: about 2000)
+    sampled = np.asarray(out.intensity)[rec == 1].astype(np.int64)
+    assert np.all(sampled % (1 << min(shifts)) == 0) and abs(sampled.mean() - np.asarray(src.intensity).mean()) < 64
     v = np.dtype((np.void, L))
+    orig = np.concatenate([coded(src, k, sh) for sh in shifts])
     assert np.isin(back.view(v).ravel(), orig.view(v).ravel()).all()
+    mine = laspy.PackedPointRecord(back.view(src.point_format.dtype()).ravel(), src.point_format)
+    assert set(np.asarray(mine["return_number"])) == set(np.asarray(mine["number_of_returns"])) == {1}  # one return each
+    assert {5, 6} <= set(np.asarray(mine["classification"]).tolist())  # the bush's class and the box edges', not zeros
     # the bush is residual; the sampled points lie on the ground, the walls and the roof
     xyz = np.column_stack([out.x, out.y, out.z]) - OFFSET
     s_xyz = xyz[rec == 1]

@@ -148,34 +148,30 @@ def _keys(*ints: np.ndarray) -> list[np.ndarray]:
             (x.astype(np.int64) for x in ints)]
 
 
-def coded_records(las, budget: float) -> tuple[np.ndarray, np.ndarray]:
-    """What a model-mode .pcz keeps of each original point were it residual: its coded X, Y, Z (N, 3) and record (N, L) bytes.
-
-    X, Y, Z rounded to multiples of the steps the budget allows
-    (``patchcloud.stream.io.point_coding``), every dimension zero but those
-    ``RESIDUAL_KEPT`` names.
-    """
-    import laspy
-
-    from patchcloud.stream.io.point_coding import coarse_steps, coarsen, refine
-    from patchcloud.stream.jobs.compress import RESIDUAL_KEPT
+def coded_records(las, budget: float, dropped, shifts) -> tuple[np.ndarray, np.ndarray]:
+    """What a model-mode .pcz gives back of each original point were it residual: its coded X, Y, Z (N, 3) and, per
+    intensity shift in ``shifts`` (the tiles'), its record (N, L) bytes, stacked (``patchcloud.stream.io.residual_points``:
+    position within the budget, class, intensity on 64 levels, return 1 of 1, every other byte zero)."""
+    from patchcloud.stream.io.point_coding import coarse_steps
+    from patchcloud.stream.io.residual_points import decoded_records
 
     k = coarse_steps(budget, las.header.scales)
-    rec = laspy.PackedPointRecord.zeros(len(las.points), las.point_format)
-    for name in RESIDUAL_KEPT:
-        rec[name] = las.points[name]
-    for a, name in enumerate("XYZ"):
-        rec[name] = refine(coarsen(las.points[name], k[a]), k[a])
-    xyz = np.column_stack([rec["X"], rec["Y"], rec["Z"]]).astype(np.int64)
-    return xyz, np.ascontiguousarray(rec.array.view(np.uint8).reshape(len(rec), las.point_format.size))
+    recs = [decoded_records(las.points.array, las.point_format, k, dropped, int(sh)) for sh in sorted(set(shifts))]
+    xyz = recs[0][:, :12].copy().view("<i4").reshape(-1, 3).astype(np.int64)
+    return xyz, np.concatenate(recs)
 
 
-def residual_check(orig, recon, budget: float) -> tuple[np.ndarray, float]:
+def residual_check(orig, recon, budget: float, pcz_path, dropped) -> tuple[np.ndarray, float]:
     """Mask of the original points that came back as residual points; share of residual points whose record is that of
-    an original point as a model-mode .pcz codes it (:func:`coded_records`: within the budget, class, intensity, returns).
+    an original point as a model-mode .pcz codes it (:func:`coded_records`: within the budget, class, intensity on 64
+    levels of its tile's, one return).
     """
+    from patchcloud.stream.io.pcz import open_pcz
+
+    with open_pcz(pcz_path) as f:
+        shifts = f.intensity_shift.tolist()
     res = np.asarray(recon["Reconstructed"]) == 0
-    oi, orec = coded_records(orig, budget)
+    oi, orec = coded_records(orig, budget, dropped, shifts)
     ri = np.column_stack([recon.X, recon.Y, recon.Z])[res]
     if not len(ri):
         return np.zeros(len(oi), bool), float("nan")
@@ -385,7 +381,7 @@ def bench_file(name: str, path: Path, budgets, draco: bool, tmp: Path, log) -> d
         rec = laspy.read(out)
         B = np.column_stack([np.asarray(rec.x), np.asarray(rec.y), np.asarray(rec.z)]) - lo
         err = compare(A, nA, treeA, B)
-        is_res, exact = residual_check(las, rec, budget)
+        is_res, exact = residual_check(las, rec, budget, pcz, s.dropped)
         modelled = ~is_res
         parts = _zip_parts(pcz)
         res = np.asarray(rec["Reconstructed"]) == 0
@@ -487,7 +483,7 @@ def file_table(info: dict) -> list[str]:
     fits = [f"{r['budget']:g}: {_cm(r['fit_error'])}" for r in info["rows"]]
     outs = [f"{r['budget']:g}: {r['points_out']:,}" for r in info["rows"]]
     out += ["", f"- residual points whose record is an original record as model mode codes it (position within the budget; "
-            f"class, intensity, returns kept; the rest zero): {', '.join(checks)}",
+            f"class; intensity on 64 levels; return 1 of 1; the rest zero): {', '.join(checks)}",
             f"- compress's own mean distance of the modelled points to their surface (before quantisation), cm: {', '.join(fits)}",
             f"- points decompressed: {', '.join(outs)} (original {n:,})", ""]
     return out

@@ -19,6 +19,7 @@ import numpy as np
 
 from patchcloud.core.patchmodel import fit_models, quantise_models
 from patchcloud.stream.io import pcz
+from patchcloud.stream.io.laz_block import records_laz
 
 BUDGET = 0.01
 T = 4.0
@@ -30,6 +31,8 @@ POINT_FORMAT = 1
 RECORD = laspy.PointFormat(POINT_FORMAT).size
 #: A stand-in for the input's header: the reader reads only its point format (byte 104).
 HEADER = b"LASF" + bytes(100) + bytes([POINT_FORMAT]) + bytes(270)
+#: Per tile, the residual intensities are stored divided by 2**shift (version 5; the reader multiplies them back).
+SHIFTS = (0, 3)
 FIELDS = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask")
 
 
@@ -51,9 +54,9 @@ def parts(rng: np.random.Generator) -> list[pcz.TilePart]:
         C, R = q.count.shape[0], fit.residual.size
         xyz = np.rint(p[fit.residual] / 0.001).astype("<i4")
         records = np.hstack([xyz.view(np.uint8).reshape(R, 12), rng.integers(0, 256, (R, RECORD - 12)).astype(np.uint8)])
-        laz = pcz.residual_laz(records, laspy.PointFormat(POINT_FORMAT), "1.2", [0.001] * 3, [0.0] * 3)
+        laz = records_laz(records, laspy.PointFormat(POINT_FORMAT), "1.2", [0.001] * 3, [0.0] * 3)
         out.append(pcz.TilePart(ijk, q, rng.integers(1, 7, C).astype(np.uint8),
-                                rng.integers(0, 60000, C).astype(np.uint16), R, laz))
+                                rng.integers(0, 60000, C).astype(np.uint16), R, laz, intensity_shift=SHIFTS[t]))
         out[-1].__dict__["records"] = records
     return out
 
@@ -64,7 +67,7 @@ def main(folder: Path) -> None:
     name = folder / f"pcz-v{pcz.VERSION}"
     pcz.write_pcz(name.with_suffix(".pcz"), ps, max_error=BUDGET, grid=grid, header=HEADER,
                   source={"path": "fixture.las"}, record_bytes=RECORD - 12, overwrite=True, steps=STEPS, dropped=DROPPED)
-    arrays = {"steps": np.asarray(STEPS)}
+    arrays = {"steps": np.asarray(STEPS), "shifts": np.asarray(SHIFTS)}
     for t, part in enumerate(ps):
         for f in FIELDS:
             arrays[f"{t}/{f}"] = np.asarray(getattr(part.models, f))

@@ -18,6 +18,8 @@ anywhere: integers, floats, JSON attributes.  Version 4 has two modes.
     tiles/cell_start              (T + 1,) int64 rows of each tile's cells
     tiles/residual_start          (T + 1,) int64 rows of each tile's residual points
     tiles/residual_byte_start     (T + 1,) int64 bytes of each tile's residual LAZ
+    tiles/intensity_shift         (T,) uint8    each tile's intensities (its cells' and its residual points')
+                                  are stored divided by 2**shift, rounded (stream.io.residual_points)
     patches/scale                 (P,) int8     } quantised as
     patches/centroid              (P, 3) int32  } patchcloud.core.patchmodel.QuantisedModels
     patches/rotation              (P, 3) int32  } (steps from max_error and the patch's scale)
@@ -30,12 +32,15 @@ anywhere: integers, floats, JSON attributes.  Version 4 has two modes.
     cells/extent                  (C, 4) int32  (u, v) box of its points, steps of the cell edge / 1024
     cells/mask                    (C,) uint64   8 x 8 occupancy of the (u, v) extent
     cells/classification          (C,) uint8    majority class of the cell's points
-    cells/intensity               (C,) uint16   mean intensity of the cell's points
-    residual/laz                  (S,) uint8    per tile, the residual points' records in input
-                                  order as a LAZ file (lazrs: LAS records compress best with
-                                  LAZ's field-wise predictive coding), X, Y, Z the input's
+    cells/intensity               (C,) uint16   mean intensity of the cell's points (divided by 2**shift)
+    residual/laz                  (S,) uint8    per tile, the residual points' records as a LAZ file
+                                  (lazrs: LAS records compress best with LAZ's field-wise
+                                  predictive coding) in input or Morton order, as
+                                  stream.io.residual_points codes them: X, Y, Z the input's
                                   integers divided by steps (stream.io.point_coding), the
-                                  dropped dimensions zero, every other byte as it was
+                                  classification as it was, the intensity divided by
+                                  2**shift (rounded), return 1 of 1, every other
+                                  dimension (those named by dropped) zero
 
 **Points mode** (``compress --keep-points``: every point, in input order)::
 
@@ -50,7 +55,9 @@ Records of point formats 0-3 are stored as formats 6 and 7
 (:mod:`.layered`: LAZ codes those in fewer bytes) and turned back on
 reading; the LAZ columns are in chunks of 4 MiB.  Version 3 stored them
 in their own format, in chunks of 64 KiB; version 2 is model mode with
-exact residual points (no steps, nothing dropped).  Both are read as such.
+exact residual points (no steps, nothing dropped).  Versions 2 to 4 have no
+``tiles/intensity_shift``: their cells' mean intensities are exact, their
+residual points keep their intensity and returns exactly, in input order.  Every version is read as such.
 
 The file is reproducible: the same input and parameters give the same
 bytes (entries in name order, each dated :data:`ZIP_TIME`; the input
@@ -90,18 +97,19 @@ from zarr.codecs import BloscCodec
 from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
 from .budget import check_memory
-from .layered import LAYERED, from_layered, layered_format, layered_size, to_layered
-from .las import check_header_sizes, check_header_values, laz_backend, undescribed_last, wave_packets_break_laz, writable_version
+from .layered import LAYERED, from_layered, layered_size
+from .las import check_header_sizes, check_header_values
 from .point_coding import refine
+from .residual_points import fine_intensity
 from .store import tile_name
 
 __all__ = ["FORMAT", "VERSION", "READABLE", "ZIP_TIME", "TilePart", "PointsBlock", "write_pcz", "write_points_pcz", "PczFile",
-           "PointsPczFile", "open_pcz", "residual_laz"]
+           "PointsPczFile", "open_pcz"]
 
 FORMAT = "patchcloud-pcz"
-VERSION = 4
-#: The versions this reader reads: 2 (model mode only, residual points exact), 3 and 4.
-READABLE = (2, 3, 4)
+VERSION = 5
+#: The versions this reader reads: 2 (model mode only, residual points exact), 3, 4 and 5.
+READABLE = (2, 3, 4, 5)
 #: The date of every zip entry (the zip format's earliest), so that a ``.pcz`` does not depend on when it was written.
 ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 #: Rows per chunk of every per-patch, per-cell and per-residual-point array.
@@ -148,7 +156,9 @@ class TilePart:
 
     ``models.root_corner``/``root_edge`` must be the tile's cube;
     ``residual_laz`` is a LAZ file of the residual points' records (see
-    :func:`residual_laz`), holding ``residual_count`` points.
+    :func:`~.residual_points.residual_block`), holding ``residual_count``
+    points; its cells' and residual points' intensities are divided by ``2**intensity_shift``
+    (:func:`~.residual_points.coarse_intensity`).
     """
 
     ijk: tuple[int, int, int]
@@ -157,6 +167,7 @@ class TilePart:
     intensity: np.ndarray
     residual_count: int
     residual_laz: bytes
+    intensity_shift: int = 0
 
 
 class _Column:
@@ -252,7 +263,7 @@ def write_pcz(
         cols = {name: _Column(root.require_group(group), name, dt, tail)
                 for group, arrays in (("patches", _PATCH_ARRAYS), ("cells", _CELL_ARRAYS)) for name, dt, tail in arrays}
         laz = _Column(residual, "laz", np.uint8, (), chunk=LAZ_CHUNK, codec=LAZ_CODEC)
-        tiles, pstart, cstart, rstart, bstart = [], [0], [0], [0], [0]
+        tiles, pstart, cstart, rstart, bstart, shifts = [], [0], [0], [0], [0], []
         points = 0
         for part in parts:
             m = part.models
@@ -271,6 +282,7 @@ def write_pcz(
                 col.add(values[name])
             laz.add(np.frombuffer(part.residual_laz, dtype=np.uint8))
             tiles.append(part.ijk)
+            shifts.append(int(part.intensity_shift))
             pstart.append(pstart[-1] + len(m))
             cstart.append(cstart[-1] + m.count.shape[0])
             rstart.append(rstart[-1] + int(part.residual_count))
@@ -284,6 +296,7 @@ def write_pcz(
         t.create_array("cell_start", data=np.asarray(cstart, dtype=np.int64))
         t.create_array("residual_start", data=np.asarray(rstart, dtype=np.int64))
         t.create_array("residual_byte_start", data=np.asarray(bstart, dtype=np.int64))
+        t.create_array("intensity_shift", data=np.asarray(shifts, dtype=np.uint8))
         root.create_array("header", data=np.frombuffer(header, dtype=np.uint8))
         root.create_array("evlrs", data=np.frombuffer(evlrs, dtype=np.uint8))
         counts = dict(tiles=len(tiles), patches=pstart[-1], cells=cstart[-1], residual=rstart[-1], points=points)
@@ -481,6 +494,10 @@ class PczFile(_OpenPcz):
         self.cell_start = root["tiles/cell_start"][...]
         self.residual_start = root["tiles/residual_start"][...]
         self.residual_byte_start = root["tiles/residual_byte_start"][...]
+        #: Per tile, the intensities of its cells and residual points are stored divided by 2**shift (version 5; before,
+        #: exact: 0).
+        self.intensity_shift = (root["tiles/intensity_shift"][...].astype(np.int64) if self.attrs["version"] >= 5
+                               else np.zeros(len(self.tiles), np.int64))
 
     @property
     def tile_size(self) -> float:
@@ -495,7 +512,7 @@ class PczFile(_OpenPcz):
 
     # -- contents -------------------------------------------------------------
     def patches(self, t: int) -> tuple[QuantisedModels, np.ndarray, np.ndarray]:
-        """Tile ``t``'s quantised models (root = the tile), and its cells' classification and intensity."""
+        """Tile ``t``'s quantised models (root = the tile), and its cells' classification and mean intensity."""
         s = slice(int(self.patch_start[t]), int(self.patch_start[t + 1]))
         c = slice(int(self.cell_start[t]), int(self.cell_start[t + 1]))
         check_memory((s.stop - s.start) * PATCH_ROW_BYTES + (c.stop - c.start) * CELL_ROW_BYTES,
@@ -513,7 +530,7 @@ class PczFile(_OpenPcz):
         if int(m.cells.sum()) != m.count.shape[0]:
             raise PatchcloudIOError(f"{self.path}: tile {tile_name(self.tiles[t])}: its patches name {int(m.cells.sum())} cells, "
                                     f"the index says {m.count.shape[0]}")
-        return m, v["classification"], v["intensity"]
+        return m, v["classification"], fine_intensity(v["intensity"], int(self.intensity_shift[t]))
 
     def residual(self, t: int) -> tuple[np.ndarray, np.ndarray]:
         """Tile ``t``'s residual points: LAS integer xyz (R, 3) int32 and the rest of their records (R, B) uint8."""
@@ -522,7 +539,10 @@ class PczFile(_OpenPcz):
         if n == 0:
             B = int(self.attrs["record_bytes"])
             return np.zeros((0, 3), np.int32), np.zeros((0, B), np.uint8)
-        return self._records("residual/laz", s, n, f"the residual points of tile {tile_name(self.tiles[t])}", "their")
+        xyz, rec = self._records("residual/laz", s, n, f"the residual points of tile {tile_name(self.tiles[t])}", "their")
+        if self.intensity_shift[t]:  # intensity: a record's first two bytes after X, Y, Z, in every point format
+            rec[:, :2] = fine_intensity(rec[:, :2].copy().view("<u2").ravel(), int(self.intensity_shift[t])).astype("<u2")[:, None].view(np.uint8)
+        return xyz, rec
 
 
 class PointsPczFile(_OpenPcz):
@@ -701,6 +721,11 @@ def _check_arrays(p: Path, root: zarr.Group, chunks: dict[str, int | None], coun
     for group, arrays in (("patches", _PATCH_ARRAYS), ("cells", _CELL_ARRAYS)):
         for name, dtype, tail in arrays:
             _array(p, root, f"{group}/{name}", dtype, tail, rows[group], chunks)
+    if root.attrs["version"] >= 5:
+        shift = _array(p, root, "tiles/intensity_shift", np.uint8, (), T, chunks)[...]
+        if shift.size and int(shift.max()) > 16:
+            raise PatchcloudIOError(f"{p}: damaged .pcz file (a tile's intensities shifted by {int(shift.max())} bits, "
+                                    "beyond their 16)")
     laz = _array(p, root, "residual/laz", np.uint8, (), None, chunks)
     for name, n, what in (("patch_start", counts["patches"], "patches"), ("cell_start", counts["cells"], "cells"),
                           ("residual_start", counts["residual"], "residual points"),
@@ -755,26 +780,3 @@ def _las_point_count(raw: bytes) -> int:
     if raw[25] >= 4 and len(raw) >= 255:
         return int.from_bytes(raw[247:255], "little") or legacy
     return legacy
-
-
-def residual_laz(records: np.ndarray, point_format: laspy.PointFormat, version: str, scales, offsets, parallel: bool = False) -> bytes:
-    """A LAZ file (bytes) of whole point records ((R, L) uint8 rows in ``point_format``'s layout); LAS where LAZ would
-    not give them back (:func:`~patchcloud.stream.io.las.wave_packets_break_laz`).
-
-    Records of formats 0-3 are stored as their layered twins, 6 or 7
-    (:mod:`~patchcloud.stream.io.layered`); reading turns them back.
-    ``parallel``: compress with lazrs' multi-threaded coder (for tasks
-    run inline, in the client's process; the same bytes as the sequential one).
-    """
-    twin = layered_format(point_format)
-    if twin is not None:  # formats 0-3 as 6 or 7: LAZ's layered compressor takes fewer bytes
-        records, point_format, version = to_layered(records, point_format.id), twin, "1.4"
-    h = laspy.LasHeader(point_format=point_format, version=writable_version(version))
-    h.scales, h.offsets = np.asarray(scales, dtype=np.float64), np.asarray(offsets, dtype=np.float64)
-    las = laspy.LasData(h)
-    rows = np.ascontiguousarray(records, dtype=np.uint8).reshape(-1, point_format.size).view(point_format.dtype()).reshape(-1)
-    las.points = laspy.PackedPointRecord(rows, point_format)
-    undescribed_last(las.header)  # undescribed bytes stay so: laspy cannot read back its own description of them
-    buf = io.BytesIO()
-    las.write(buf, do_compress=not wave_packets_break_laz(las.points), laz_backend=laz_backend(parallel))
-    return buf.getvalue()

@@ -8,8 +8,9 @@ store made by ``normals``, ``don`` or ``segment`` is reused):
    the budget as the RMSE threshold, the tile as the octree's root and the
    whole file's spacing (touching leaves merged into larger patches); the
    models quantised within half the budget; the majority class and mean
-   intensity of the points of each patch's octree cell; the residual
-   points' coordinates and records;
+   intensity of the points of each patch's octree cell (the tile's
+   intensities on 64 levels); the residual points' coordinates and records
+   (:mod:`patchcloud.stream.io.residual_points`);
 3. ``pack`` (the job's write): the tiles' parts into one ``.pcz``
    (:mod:`patchcloud.stream.io.pcz`), tile after tile.
 
@@ -38,7 +39,8 @@ from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
 from patchcloud.stream.io.las import LasSource, atomic_output, check_not_input, check_writable, open_source, raw_header
-from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, dropped_fields, keep_only
+from patchcloud.stream.io.point_coding import coarse_steps, dropped_fields, keep_only
+from patchcloud.stream.io.residual_points import CODING, INTENSITY_BITS, coarse_intensity, intensity_shift, residual_block
 from patchcloud.stream.io.store import Store
 
 __all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format", "RESIDUAL_KEPT"]
@@ -49,8 +51,9 @@ N_MIN = 12
 #: 4 spacings, so decompression does not fill gaps in the data wider than that (with the normals'
 #: 256 spacings, samples landed up to 5.7 m from any original point on a flat IGN tile).
 MAX_EDGE_SPACINGS = 32.0
-#: What a model-mode ``.pcz`` keeps of each residual point besides its position: the cells keep a class and an intensity,
-#: the residual points these and their returns (vegetation's structure); the other dimensions are zero.
+#: What a model-mode ``.pcz`` keeps of each residual point besides its position (:mod:`patchcloud.stream.io.residual_points`):
+#: its class, its intensity (on 64 levels) and its returns (as return 1 of 1, as the sampled points); the other dimensions
+#: are zero.
 RESIDUAL_KEPT = ("intensity", "return_number", "number_of_returns", "classification")
 _PART = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask",
          "classification", "intensity")
@@ -90,6 +93,12 @@ class CompressSummary:
         return (f"  positions       {who} within {self.max_error:g} {u} (on a grid of {grid} {u}: "
                 f"{', '.join(map(str, self.steps))} x the file's)")
 
+    def _residual_kept(self) -> str:
+        kept = [what for name, what in (("classification", "classification exact"),
+                                        ("intensity", f"intensity on {2**INTENSITY_BITS} levels"),
+                                        ("return_number", "one return")) if name not in self.dropped]
+        return ", ".join(kept) or "none kept"
+
     def format(self) -> str:
         n = max(self.points, 1)
         u = self.units["symbol"]
@@ -110,7 +119,7 @@ class CompressSummary:
             f"  error           budget {self.max_error:g} {u}; mean distance of the modelled points to their surface "
             f"{self.mean_error:.4f} {u} (before quantisation, which adds at most half the budget)",
             self._position_line("residual points"),
-            f"  residual dims   zero: {dropped}",
+            f"  residual dims   {self._residual_kept()}; zero: {dropped}",
             size,
             *left_out_lines(self.left_out, self.selection, self.points, "in no model, kept as residual points"),
             *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),
@@ -175,19 +184,19 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
     cls = np.asarray(rec["classification"]).astype(np.int64)[rank]
     votes = np.bincount(cell[on] * 256 + cls[on], minlength=C * 256).reshape(C, 256)
     inten = np.bincount(cell[on], weights=np.asarray(rec["intensity"], dtype=np.float64)[rank][on], minlength=C)
+    shift = intensity_shift(rec["intensity"])  # the tile's intensities, its cells' means and its residual points', on 64 levels
     values = dict(
         scale=q.scale, centroid=q.centroid, rotation=q.rotation, coeffs=q.coeffs, rmse=q.rmse, cells=q.cells,
         level=q.level, ijk=q.ijk, count=q.count, extent=q.extent, mask=q.mask,
-        classification=votes.argmax(axis=1).astype(np.uint8), intensity=np.rint(inten / np.maximum(q.count, 1)).astype(np.uint16),
+        classification=votes.argmax(axis=1).astype(np.uint8), intensity=coarse_intensity(np.rint(inten / np.maximum(q.count, 1)), shift),
     )
     for name in _PART:
         store.write(ijk, "pcz_" + name, values[name])
-    # in input order: LAZ predicts each record from the previous one (scan order: GPS time, returns, intensity)
-    laz = pcz.residual_laz(coarse_records(in_order[np.sort(rank[residual])], pf, params["steps"], params["dropped"]), pf,
-                           params["version"], np.asarray(grid.scale) * params["steps"], grid.offset)
+    laz = residual_block(in_order[np.sort(rank[residual])], pf, params["version"], params["steps"], params["dropped"],
+                         grid.scale, grid.offset, shift)
     store.write(ijk, "pcz_residual_laz", np.frombuffer(laz, dtype=np.uint8))
-    info = dict(patches=len(models), cells=C, residual=int(residual.size), points=int(xyz.shape[0]), abs_error=float(np.abs(err[on]).sum()),
-                left_out=np.bincount(why, minlength=len(REASONS) + 1)[1:].tolist())
+    info = dict(patches=len(models), cells=C, residual=int(residual.size), intensity_shift=shift, points=int(xyz.shape[0]),
+                abs_error=float(np.abs(err[on]).sum()), left_out=np.bincount(why, minlength=len(REASONS) + 1)[1:].tolist())
     store.mark_tile(ijk, "compress", key, compress=info)
     return info
 
@@ -200,8 +209,9 @@ def _parts(st: Store, max_error: float):
             max_error=max_error, root_corner=st.grid.corner(ijk), root_edge=T,
             **{name: v[name] for name in _PART if name not in ("classification", "intensity")},
         )
-        yield pcz.TilePart(ijk, q, v["classification"], v["intensity"], int(st.tile_attrs(ijk)["compress"]["residual"]),
-                           st.read(ijk, "pcz_residual_laz").tobytes())
+        info = st.tile_attrs(ijk)["compress"]
+        yield pcz.TilePart(ijk, q, v["classification"], v["intensity"], int(info["residual"]), st.read(ijk, "pcz_residual_laz").tobytes(),
+                           int(info["intensity_shift"]))
 
 
 class CompressJob(Job):
@@ -241,6 +251,7 @@ class CompressJob(Job):
             extra_dims=[extra_dim(d) for d in pf.extra_dimensions], selection=ctx.run.selection.to_json(),
             steps=list(coarse_steps(self.options.max_error, st.grid.scale)),
             dropped=list(dict.fromkeys(keep_only(pf, RESIDUAL_KEPT) + dropped_fields(pf, self.options.drop, where=src.path))),
+            residual_coding=CODING,
         )
         self.params["key"] = params_key(self.params)
         self.infos = ctx.map_tiles(compress_tile, label="compress", params=self.params)

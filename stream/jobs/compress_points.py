@@ -32,6 +32,7 @@ from patchcloud.core import CompressOptions
 from patchcloud.stream.engine.ingest import part_ranges, part_size
 from patchcloud.stream.engine.job import Job, JobContext
 from patchcloud.stream.io import pcz
+from patchcloud.stream.io.laz_block import records_laz
 from patchcloud.stream.jobs.compress import CompressSummary, pcz_source
 from patchcloud.stream.io.las import LasSource, raw_header, read_range
 from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, dropped_fields, refine
@@ -57,7 +58,7 @@ def encode_block(src: LasSource, first: int, count: int, steps, dropped, folder:
     back = np.column_stack([refine(rows[:, 4 * a : 4 * a + 4].copy().view("<i4").ravel(), k) for a, k in enumerate(steps)])
     bounds = np.r_[back.min(axis=0), back.max(axis=0)].tolist() if len(back) else [0] * 6
     s = np.asarray(src.scale, dtype=np.float64) * np.asarray(steps)
-    raw = pcz.residual_laz(rows, pf, src.version, s, src.offset, parallel=laz_parallel)
+    raw = records_laz(rows, pf, src.version, s, src.offset, parallel=laz_parallel)
     path = Path(folder) / f"{b:06d}.laz"
     tmp = path.with_name(path.name + ".partial")
     tmp.write_bytes(raw)

@@ -41,6 +41,24 @@ CLASS_NAMES = {
 _CHUNK = 1 << 20
 
 
+
+def _span(values) -> list[int]:
+    """The smallest and largest of some integers ([0, 0] for none)."""
+    values = [int(v) for v in values] or [0]
+    return [min(values), max(values)]
+
+
+def _residual_coding(d: dict) -> str:
+    """What a model-mode ``.pcz`` (:func:`describe`'s ``d``) keeps of its residual points' attributes."""
+    if d["version"] < 5:
+        return "every attribute not dropped exact, in input order"
+    lo, hi = d.get("intensity_shifts", [0, 0])
+    kept = [what for name, what in (
+        ("classification", "class exact"),
+        ("intensity", f"intensity on 64 levels (divided by 2**{lo}{'' if lo == hi else f' to 2**{hi}'}, rounded)"),
+        ("return_number", "return 1 of 1")) if name not in d.get("dropped", [])]
+    return ", ".join(kept) or "no attribute"
+
 def class_counts(src: LasSource) -> tuple[dict[int, int], int]:
     """Points of each class present (code: count) and the withheld points of a file, read in chunks of 2^20 points."""
     by_class = np.zeros(MAX_CLASS + 1, dtype=np.int64)
@@ -93,7 +111,8 @@ def info(path: str | os.PathLike) -> dict:
             a = f.attrs
             return {"kind": "pcz", "path": p, "bytes": os.path.getsize(p), "version": a["version"],
                     "mode": a.get("mode", "model"), "max_error": a["max_error"], "counts": a["counts"], "source": a["source"],
-                    "grid": a["grid"], "steps": list(f.steps), "dropped": f.dropped}
+                    "grid": a["grid"], "steps": list(f.steps), "dropped": f.dropped,
+                    **({"intensity_shifts": _span(f.intensity_shift)} if hasattr(f, "intensity_shift") else {})}
     if os.path.isfile(p):
         src = open_source(p)
         with laspy.open(p) as r:
@@ -214,6 +233,7 @@ def format_info(d: dict) -> str:
             f"  max error    {d['max_error']:g} {u}",
             f"  tiles        {c['tiles']:,} of {d['grid']['tile_size']:g} {u}",
             *kept,
+            f"  residual     {_residual_coding(d)}",
         ])
     if d["kind"] == "las":
         lines = [
