@@ -15,7 +15,7 @@ from test_stream import write_scene
 from patchcloud.core import PatchcloudIOError, PatchcloudMemoryError, PatchcloudValueError
 from patchcloud.stream import RunOptions, compress, decompress
 from patchcloud.stream.cli import main
-from patchcloud.stream.io import budget, pcz
+from patchcloud.stream.io import budget, pcz, residual_points
 
 
 @pytest.fixture(scope="module")
@@ -169,19 +169,31 @@ def test_a_zip_bomb_and_a_chunk_claiming_a_huge_size_are_refused_unread(small_pc
     assert pcz._decoded_size(frame) == 24 and pcz._decoded_size(zlib.compress(b"x")) is None
 
 
-def test_a_residual_block_whose_header_disagrees_with_the_index_is_refused(small_pcz, tmp_path):
+@pytest.mark.parametrize("kind", [b"LASF", b"PCZO"])
+def test_a_residual_block_whose_header_disagrees_with_the_index_is_refused(small_pcz, tmp_path, kind, monkeypatch):
+    """A tile's residual block (LAZ, or an octree: stream.io.residual_octree) whose header claims 10**9 points."""
+    if kind == b"LASF":  # the scene's residual points are smaller as octrees: a file of LAZ blocks only
+        monkeypatch.setattr(residual_points, "octree_block", lambda *a: None)
+        compress(small_pcz.with_suffix(".las"), tmp_path / "laz.pcz", max_error=0.05, tile_size=16, quiet=True)
+        small_pcz = tmp_path / "laz.pcz"
     with pcz.open_pcz(small_pcz) as f:
-        t = int(np.flatnonzero(np.diff(f.residual_start))[0])
-        s = slice(int(f.residual_byte_start[t]), int(f.residual_byte_start[t + 1]))
+        blocks = [slice(int(f.residual_byte_start[t]), int(f.residual_byte_start[t + 1])) for t in range(len(f.tiles))]
+        t = next(t for t, s in enumerate(blocks) if s.stop > s.start and f.root["residual/laz"][s][:4].tobytes() == kind)
+    s = blocks[t]
 
     def lie(g):
         raw = g["residual/laz"][s]
-        raw[107:111] = np.frombuffer((10**9).to_bytes(4, "little"), np.uint8)
-        raw[247:255] = np.frombuffer((10**9).to_bytes(8, "little"), np.uint8)
+        if kind == b"LASF":
+            raw[107:111] = np.frombuffer((10**9).to_bytes(4, "little"), np.uint8)
+            raw[247:255] = np.frombuffer((10**9).to_bytes(8, "little"), np.uint8)
+        else:
+            raw[6:10] = np.frombuffer((10**9).to_bytes(4, "little"), np.uint8)
         g["residual/laz"][s] = raw
 
+    said = (r"their LAZ header says 1,000,000,000 points of \d+ bytes, the index says" if kind == b"LASF"
+            else r"lie.pcz: the residual points of tile .*: [\d,]+ bytes cannot hold the 1,000,000,000 points")
     with pcz.open_pcz(edited(small_pcz, tmp_path / "lie.pcz", lie)) as f:
-        with pytest.raises(PatchcloudIOError, match=r"their LAZ header says 1,000,000,000 points of \d+ bytes, the index says"):
+        with pytest.raises(PatchcloudIOError, match=said):
             f.residual(t)
 
 

@@ -13,9 +13,10 @@ thousand), and their records, tile by tile in input order, are coded:
   classification, intensity and returns exact, input order;
 - ``v5 input`` / ``v5 Morton`` / ``v5 columns``: version 5's
   (:mod:`patchcloud.stream.io.residual_points`: the class, the intensity on
-  the tile's 64 levels, return 1 of 1) in input order, in the Morton order
-  of their coded positions, and column by column;
-- ``v5``: the smallest of the three, tile by tile (what ``compress`` stores);
+  the tile's 64 levels, return 1 of 1) as LAZ in input order, in the
+  Morton order of their coded positions, and column by column;
+- ``v5 octree``: the same as an octree block (:mod:`patchcloud.stream.io.residual_octree`);
+- ``v5``: the smallest of the four, tile by tile (what ``compress`` stores);
 - ``v5, no intensity``, ``xyz``: what the intensity and the class cost
   (the same, with those zero; the returns, all 1 of 1, cost nothing);
 - ``numcodecs``: version 5's records in input order under numcodecs'
@@ -44,7 +45,7 @@ from patchcloud.stream import compress
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.laz_block import records_laz
 from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, keep_only
-from patchcloud.stream.io.residual_points import column_order, morton_order, stored_records
+from patchcloud.stream.io.residual_points import column_order, morton_order, octree_block, stored_records
 from patchcloud.stream.jobs.compress import RESIDUAL_KEPT
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -52,7 +53,7 @@ DEFAULT = [SHARED / "lidar-ign-stbarth/St_Barth_RGAF09_UTM20N_IGN_1988_SB_subset
            SHARED / "lidar-ign-lidarhd-tiles/test_data_77055_627760_LA93_IGN69.laz",
            SHARED / "lidar-ign-extrabytes/las_with_several_extra_byte_bloc.laz",
            SHARED / "lidar-lastools/house.laz", SHARED / "lidar-lastools/fusa.laz"]
-VARIANTS = ("v4", "v5 input", "v5 Morton", "v5 columns", "v5", "v5, no intensity", "xyz", "numcodecs")
+VARIANTS = ("v4", "v5 input", "v5 Morton", "v5 columns", "v5 octree", "v5", "v5, no intensity", "xyz", "numcodecs")
 
 
 def residual_records(path: Path, out: Path, budget: float):
@@ -103,14 +104,18 @@ def sizes(path: Path, budget: float) -> dict:
         total["v4"] += laz(coarse_records(rec, pf, steps, v4_drop))
         v5, _ = stored_records(rec, pf, steps, v5_drop, shift)
         a, b, c = laz(v5), laz(v5[morton_order(v5)]), laz(v5[column_order(v5)])
+        octree = octree_block(v5, pf, True)
+        d = len(octree) if octree is not None else a
         total["v5 input"] += a
         total["v5 Morton"] += b
         total["v5 columns"] += c
-        total["v5"] += min(a, b, c)
+        total["v5 octree"] += d
+        total["v5"] += min(a, b, c, d)
         for name, drop in (("v5, no intensity", ("intensity",)),
                            ("xyz", ("intensity", "return_number", "number_of_returns", "classification"))):
             r, _ = stored_records(rec, pf, steps, v5_drop + drop, shift)
-            total[name] += min(laz(r), laz(r[morton_order(r)]), laz(r[column_order(r)]))
+            octree = octree_block(r, pf, "return_number" not in drop)
+            total[name] += min(laz(r), laz(r[morton_order(r)]), laz(r[column_order(r)]), len(octree) if octree else 1 << 62)
         L = pf.size
         total["numcodecs"] += min(len(Blosc(cname="zstd", clevel=9, shuffle=Blosc.SHUFFLE, typesize=L).encode(v5)),
                                   len(Zstd(level=19).encode(np.ascontiguousarray(v5.T))))

@@ -20,6 +20,7 @@ import numpy as np
 from patchcloud.core.patchmodel import fit_models, quantise_models
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.laz_block import records_laz
+from patchcloud.stream.io.residual_points import octree_block
 
 BUDGET = 0.01
 T = 4.0
@@ -37,7 +38,8 @@ FIELDS = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "
 
 
 def parts(rng: np.random.Generator) -> list[pcz.TilePart]:
-    """Two 4 m tiles: a tilted plane with spikes, and a box corner; residual records of random bytes."""
+    """Two 4 m tiles: a tilted plane with spikes, and a box corner; residual records of random bytes (version 5: the
+    second tile's as an octree, of the fields it holds)."""
     out = []
     for t, ijk in enumerate([(0, 0, 0), (1, 0, 0)]):
         corner = np.asarray(ijk, float) * T
@@ -53,8 +55,18 @@ def parts(rng: np.random.Generator) -> list[pcz.TilePart]:
         q = quantise_models(fit.models, BUDGET)
         C, R = q.count.shape[0], fit.residual.size
         xyz = np.rint(p[fit.residual] / 0.001).astype("<i4")
-        records = np.hstack([xyz.view(np.uint8).reshape(R, 12), rng.integers(0, 256, (R, RECORD - 12)).astype(np.uint8)])
-        laz = records_laz(records, laspy.PointFormat(POINT_FORMAT), "1.2", [0.001] * 3, [0.0] * 3)
+        if t == 1 and pcz.VERSION >= 5:  # an octree block (version 5): the records it holds, class, intensity, 1 of 1
+            pf = laspy.PointFormat(POINT_FORMAT)
+            rec = laspy.PackedPointRecord.zeros(R, pf)
+            rec["X"], rec["Y"], rec["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+            rec["classification"] = rng.integers(0, 32, R).astype(np.uint8)
+            rec["intensity"] = rng.integers(0, 200, R).astype(np.uint16)  # levels past 126: escaped
+            rec["return_number"] = rec["number_of_returns"] = np.ones(R, np.uint8)
+            records = np.ascontiguousarray(rec.array).view(np.uint8).reshape(R, RECORD)
+            laz = octree_block(records, pf, True)
+        else:
+            records = np.hstack([xyz.view(np.uint8).reshape(R, 12), rng.integers(0, 256, (R, RECORD - 12)).astype(np.uint8)])
+            laz = records_laz(records, laspy.PointFormat(POINT_FORMAT), "1.2", [0.001] * 3, [0.0] * 3)
         out.append(pcz.TilePart(ijk, q, rng.integers(1, 7, C).astype(np.uint8),
                                 rng.integers(0, 60000, C).astype(np.uint16), R, laz, intensity_shift=SHIFTS[t]))
         out[-1].__dict__["records"] = records

@@ -35,7 +35,9 @@ anywhere: integers, floats, JSON attributes.  Version 4 has two modes.
     cells/intensity               (C,) uint16   mean intensity of the cell's points (divided by 2**shift)
     residual/laz                  (S,) uint8    per tile, the residual points' records as a LAZ file
                                   (lazrs: LAS records compress best with LAZ's field-wise
-                                  predictive coding) in input or Morton order, as
+                                  predictive coding) in input, Morton or column order, or
+                                  (version 5) as an octree block (stream.io.residual_octree,
+                                  starting "PCZO"), whichever is smaller, as
                                   stream.io.residual_points codes them: X, Y, Z the input's
                                   integers divided by steps (stream.io.point_coding), the
                                   classification as it was, the intensity divided by
@@ -103,6 +105,7 @@ from .budget import check_memory
 from .layered import LAYERED, from_layered, layered_size
 from .las import check_header_sizes, check_header_values
 from .point_coding import refine
+from .residual_octree import MAGIC as OCTREE_MAGIC, decode as octree_decode, records_of as octree_records
 from .residual_points import fine_intensity
 from .store import tile_name
 
@@ -456,6 +459,14 @@ class _OpenPcz:
         name = f"{self.path}: {what}"
         check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
         raw = self._read(array, s).tobytes()
+        if self.attrs["version"] >= 5 and raw[:4] == OCTREE_MAGIC:  # an octree of residual points (residual_octree)
+            points = octree_decode(raw, name)
+            if len(points.xyz) != n:
+                raise PatchcloudIOError(f"{name}: {len(points.xyz):,} coded points, the index says {n:,}")
+            rows = octree_records(points, self.input_format_id, B + 12) if self.input_format_id >= 0 else None
+            if rows is None:
+                raise PatchcloudIOError(f"{name}: the input's header has no point format")
+            return _refined(self.path, rows[:, :12].copy().view("<i4").reshape(n, 3), self.steps, what), rows[:, 12:].copy()
         check_header_sizes(name, raw[:375], len(raw))
         said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
         pid = self.input_format_id  # records of formats 0-3 are stored as 6 or 7 (version 4; version 3: as they were)

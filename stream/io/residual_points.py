@@ -18,10 +18,11 @@ Its residual points are summarised the same way, point by point:
 - one return (return 1 of 1, as the sampled points); every other
   dimension zero (and those ``--drop`` names).
 
-A tile's residual points are one LAZ file (:func:`~.laz_block.records_laz`), in
-input order (scan lines), in the Morton order of their coded positions, or
-column by column (:func:`column_order`), whichever LAZ codes in fewer
-bytes: nothing reads them in an order.
+A tile's residual points are one block: a LAZ file
+(:func:`~.laz_block.records_laz`) in input order (scan lines), in the
+Morton order of their coded positions or column by column
+(:func:`column_order`), or an octree (:mod:`.residual_octree`), whichever
+is smallest: nothing reads them in an order.
 
 Measured at 5 cm on real aerial files, bits per point of the whole
 ``.pcz``, version 4 (exact records in input order) -> 5: St-Barth 15.9
@@ -47,15 +48,16 @@ import numpy as np
 from patchcloud.core import MAX_DEPTH, encode
 
 from .laz_block import records_laz
+from .residual_octree import OctreePoints, encode as octree_encode, records_of as octree_records
 from .point_coding import coarse_records, refine
 
 __all__ = ["INTENSITY_BITS", "CODING", "intensity_shift", "coarse_intensity", "fine_intensity", "stored_records", "decoded_records",
-           "residual_block", "morton_order", "column_order", "COLUMN_STEPS"]
+           "residual_block", "octree_block", "morton_order", "column_order", "COLUMN_STEPS"]
 
 #: Levels of a residual point's intensity, in bits: 64 levels below a tile's 99th percentile.
 INTENSITY_BITS = 6
 #: How residual points are coded (a compress run's parameters hold it: a store's tiles coded otherwise are redone).
-CODING = {"version": 5, "intensity_bits": INTENSITY_BITS, "returns": "single", "order": "input, Morton or columns"}
+CODING = {"version": 5, "intensity_bits": INTENSITY_BITS, "returns": "single", "blocks": "LAZ (input, Morton, columns) or octree"}
 #: The width of :func:`column_order`'s columns, in coded steps (2 m at a 5 cm budget on a 1 cm grid): of 16, 32, 64 and
 #: 128, the best on the aerial files of ../shared/data but fusa (whose scan lines are better in input order).
 COLUMN_STEPS = 32
@@ -131,19 +133,37 @@ def decoded_records(records: np.ndarray, pf: laspy.PointFormat, steps, dropped, 
 
 def residual_block(records: np.ndarray, pf: laspy.PointFormat, version: str, steps, dropped, scales, offsets, shift: int,
                    parallel: bool = False) -> bytes:
-    """A tile's residual points as a LAZ file (bytes).
+    """A tile's residual points as one block (bytes): a LAZ file or an octree, whichever is smallest.
 
     ``records`` ((R, L) uint8, in input order), ``steps``, ``dropped`` and
     ``shift`` (the tile's intensity shift) as :func:`stored_records` takes
     them; ``version``: the input's LAS version;
     ``scales``, ``offsets``: the input's (the LAZ file's scales are ``scales
-    * steps``).  The records are stored in whichever order LAZ codes in fewer
-    bytes: input order, :func:`morton_order` or :func:`column_order` (the first of these on a tie).
+    * steps``).  The candidates: LAZ in input order, :func:`morton_order` or
+    :func:`column_order`, and :func:`octree_block` (the first of these on a tie); no bytes for no point.
     """
+    if not len(records):
+        return b""  # no residual point: no block (a reader reads none)
     rows, _ = stored_records(records, pf, steps, dropped, shift)
-    lazs = [records_laz(r, pf, version, np.asarray(scales) * np.asarray(steps), offsets, parallel=parallel)
-            for r in (rows, rows[morton_order(rows)], rows[column_order(rows)])]
-    return min(lazs, key=len)
+    blocks = [records_laz(r, pf, version, np.asarray(scales) * np.asarray(steps), offsets, parallel=parallel)
+              for r in (rows, rows[morton_order(rows)], rows[column_order(rows)])]
+    octree = octree_block(rows, pf, "return_number" not in dropped)
+    if octree is not None:
+        blocks.append(octree)
+    return min(blocks, key=len)
+
+
+def octree_block(rows: np.ndarray, pf: laspy.PointFormat, single_return: bool) -> bytes | None:
+    """Stored records ``rows`` ((R, L) uint8, :func:`stored_records`) as a :mod:`.residual_octree` block; None where
+    that block would not give them back byte for byte (a dimension not zero that it does not hold, a wide span)."""
+    rec = laspy.PackedPointRecord(np.ascontiguousarray(rows).view(pf.dtype()).reshape(-1), pf)
+    xyz = np.column_stack([np.asarray(rec[a], dtype=np.int64) for a in "XYZ"])
+    cls, inten = np.asarray(rec["classification"]), np.asarray(rec["intensity"], dtype=np.int64)
+    block = octree_encode(xyz, cls, inten, single_return)
+    if block is None:
+        return None
+    same = octree_records(OctreePoints(xyz, cls.astype(np.uint8), inten, single_return), pf.id, pf.size)
+    return block if np.array_equal(same, rows) else None
 
 
 def column_order(rows: np.ndarray) -> np.ndarray:
