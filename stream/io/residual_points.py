@@ -26,13 +26,11 @@ is smallest: nothing reads them in an order.
 
 Measured at 5 cm on real aerial files, bits per point of the whole
 ``.pcz``, version 4 (exact records in input order) -> 5: St-Barth 15.9
--> 11.7, LAStools house 20.4 -> 15.3, IGN tile 77055 19.7 -> 16.0, fusa
-11.5 -> 10.6 (``tools/bench_compress.py``); per residual point, each
+-> 10.6, LAStools house 20.4 -> 13.7, IGN tile 77055 19.7 -> 14.6, fusa
+11.5 -> 10.3 (``tools/bench_compress.py``); per residual point, each
 choice (``tools/bench_residual_codec.py``): the intensity on 64 levels
-costs 4-5.5 bits where version 4's exact one and its returns cost 2.5-12
-more; Morton order is smaller than input order on four of five files,
-input order on fusa's scan lines (by 8 %), and columns take 2-3 % off the
-best of those two on three of five.
+costs 3.5-5 bits where version 4's exact one and its returns cost 3-15
+more; the octree is the smallest block on every one of those files.
 
 >>> I = np.array([0, 100, 1000, 30000, 65535])
 >>> s = intensity_shift(I)
