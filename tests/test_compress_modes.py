@@ -180,9 +180,10 @@ def test_points_mode_does_not_depend_on_the_part_size_or_the_scheduler_and_reads
 def test_points_mode_bad_requests_and_damaged_files_are_one_line(tmp_path):
     rng = np.random.default_rng(4)
     src = write_las(tmp_path / "a.las", noisy_scene(rng, 2000))
-    r = CliRunner().invoke(main, ["compress", str(src), str(tmp_path / "x.pcz"), "--keep-points", "--drop", "Colour"])
-    assert r.exit_code != 0 and "cannot drop 'Colour'" in r.output and "GpsTime" in r.output
-    assert not (tmp_path / "x.pcz").exists()
+    for mode in (["--keep-points"], []):  # refused before anything runs: no store left for a typo
+        r = CliRunner().invoke(main, ["compress", str(src), str(tmp_path / "x.pcz"), *mode, "--drop", "Colour"])
+        assert r.exit_code != 0 and "cannot drop 'Colour'" in r.output and "GpsTime" in r.output
+        assert "is kept" not in r.output and sorted(p.name for p in tmp_path.iterdir()) == ["a.las"]
     with pytest.raises(PatchcloudValueError, match="drop must be dimension names"):
         compress(src, tmp_path / "x.pcz", keep_points=True, drop=(3,))
     compress(src, tmp_path / "a.pcz", keep_points=True, quiet=True)

@@ -101,6 +101,20 @@ def test_refuses_what_it_cannot_read(tmp_path, rng, monkeypatch):
         pcz.open_pcz(tmp_path / "next.pcz")
 
 
+@pytest.mark.parametrize("entry", ["tiles/intensity_shift/c/0", "cells/classification/c/0", "patches/centroid/c/0/0"])
+def test_a_chunk_missing_is_damage_not_zeros(tmp_path, rng, entry):
+    """Version 5 writes every chunk, zeros too: a file without one is refused (zarr would read zeros: every intensity
+    unshifted, every class 0; found by a sweep of 2026-11-27)."""
+    write(tmp_path, rng)
+    with zipfile.ZipFile(tmp_path / "c.pcz") as z, zipfile.ZipFile(tmp_path / "cut.pcz", "w") as out:
+        assert entry in z.namelist()
+        for e in z.infolist():
+            if e.filename != entry:
+                out.writestr(e, z.read(e.filename))
+    with pytest.raises(PatchcloudIOError, match=f"cut.pcz: damaged .pcz file \\(chunk {entry} is missing\\)"):
+        pcz.open_pcz(tmp_path / "cut.pcz")
+
+
 def test_never_overwrites_unasked(tmp_path, rng):
     write(tmp_path, rng)
     with pytest.raises(PatchcloudIOError, match="exists"):

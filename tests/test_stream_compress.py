@@ -171,6 +171,29 @@ def test_info_describes_a_pcz(las_file, tmp_path):
         assert r.exit_code == 2 and "not a patchcloud .pcz file (not a zip archive; truncated?)" in r.output, r.output
 
 
+@pytest.mark.parametrize("drop", ["NumberOfReturns", "ReturnNumber", "Intensity,Classification"])
+def test_what_model_mode_keeps_of_a_residual_point_is_what_it_says(las_file, tmp_path, drop):
+    """Either return field dropped drops both (return 1 of 0 is no point); the summary and info say what is kept and
+    what is zero, and the decompressed residual points are so (found by a sweep of 2026-11-27: 'one return' said of
+    points of return 1 of 0)."""
+    s = compress(las_file, tmp_path / "s.pcz", max_error=BUDGET, tile_size=8.0, scheduler="synchronous", quiet=True,
+                 drop=drop.split(","))
+    returns = "NumberOfReturns" in drop or "ReturnNumber" in drop
+    assert ({"return_number", "number_of_returns"} <= set(s.dropped)) == returns
+    text = s.format()
+    info = CliRunner().invoke(main, ["info", str(tmp_path / "s.pcz")]).output
+    assert ("one return" in text) == ("return 1 of 1" in info) == (not returns)
+    assert ("classification exact" in text) == ("class exact" in info) == ("Classification" not in drop)
+    decompress(tmp_path / "s.pcz", tmp_path / "back.las")
+    out = laspy.read(tmp_path / "back.las")
+    res = np.asarray(out["Reconstructed"]) == 0
+    assert res.sum() == s.residual > 0
+    rn, nr = np.asarray(out.return_number)[res], np.asarray(out.number_of_returns)[res]
+    assert set(rn) == set(nr) == ({0} if returns else {1})
+    assert (set(np.asarray(out.intensity)[res]) == {0}) == ("Intensity" in drop)
+    assert (set(np.asarray(out.classification)[res]) == {0}) == ("Classification" in drop)
+
+
 def test_header_vlrs_and_extended_vlrs_survive(tmp_path):
     rng = np.random.default_rng(1)
     xy = rng.uniform(0, 10, (5000, 2))

@@ -44,9 +44,8 @@ from numcodecs import Blosc, Zstd
 from patchcloud.stream import compress
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.laz_block import records_laz
-from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, keep_only
-from patchcloud.stream.io.residual_points import column_order, morton_order, octree_block, stored_records
-from patchcloud.stream.jobs.compress import RESIDUAL_KEPT
+from patchcloud.stream.io.point_coding import coarse_records, coarse_steps
+from patchcloud.stream.io.residual_points import column_order, morton_order, octree_block, residual_dropped, stored_records
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 DEFAULT = [SHARED / "lidar-ign-stbarth/St_Barth_RGAF09_UTM20N_IGN_1988_SB_subset_100m.laz",
@@ -90,7 +89,7 @@ def sizes(path: Path, budget: float) -> dict:
     pf = las.point_format
     rows_all = np.ascontiguousarray(las.points.array).view(np.uint8).reshape(len(las.points), pf.size)
     scales, offsets, version = las.header.scales, las.header.offsets, str(las.header.version)
-    v5_drop = tuple(dict.fromkeys(keep_only(pf, RESIDUAL_KEPT)))
+    v5_drop = residual_dropped(pf)
     v4_drop = v5_drop
     total = dict.fromkeys(VARIANTS, 0)
     n = 0

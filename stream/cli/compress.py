@@ -12,7 +12,9 @@ from . import options
 @click.command("compress")
 @options.paths_argument
 @click.option("--max-error", type=float, default=CompressOptions.max_error, show_default=True, metavar="LENGTH",
-              help="Error budget, in the file's horizontal unit (see --units): patches fit their points within it (RMS); points no patch models within it are kept exactly.")
+              help="Error budget, in the file's horizontal unit (see --units): every point comes back within it, on its patch or "
+              "as a residual point (its position rounded within it; model mode keeps its class, its intensity on 64 levels "
+              "and one return).")
 @click.option("--keep-points", is_flag=True, default=False,
               help="Points mode: every point back in input order, each within --max-error of where it was, every attribute "
               "exact (default: model mode, the patch models).")

@@ -136,6 +136,10 @@ LAZ_CODEC = BloscCodec(cname="zstd", clevel=5, shuffle="noshuffle")
 #: point at level 5, 37.13 at 9, the file 37.15), so level 9 is worth its time.
 LAZ_CODEC_EXACT = BloscCodec(cname="zstd", clevel=9, shuffle="noshuffle")
 
+#: Every chunk is written, zeros too (version 5; zarr leaves out chunks of zeros by default): a chunk missing from a
+#: file is damage, not zeros (a sweep of 2026-11-27 took a file without its tiles' intensity shifts for one whose
+#: intensities were never shifted).
+WRITE_EVERY_CHUNK = {"write_empty_chunks": True}
 #: A compressed zip entry may expand to at most this many times its size, and 1 MiB in any case (a ``.pcz``'s entries
 #: are stored, not compressed; a repacked one's JSON deflates about tenfold): beyond, a zip bomb.
 MAX_ZIP_RATIO = 100
@@ -185,7 +189,7 @@ class _Column:
         # rows of several values are stored column by column (version 5): 6-35 % smaller under Blosc's shuffle
         filters = [TransposeCodec(order=(1, 0))] if len(tail) == 1 else []
         self.array = group.create_array(name, shape=(0,) + tail, dtype=dtype, chunks=(self.chunk,) + tail, compressors=[codec],
-                                        filters=filters)
+                                        filters=filters, config=WRITE_EVERY_CHUNK)
         self.buffer: list[np.ndarray] = []
         self.held = 0
         self.dtype = np.dtype(dtype)
@@ -300,14 +304,14 @@ def write_pcz(
         for col in [*cols.values(), laz]:
             col.close()
         t = root.require_group("tiles")
-        t.create_array("ijk", data=np.asarray(tiles, dtype=np.int64).reshape(-1, 3))
-        t.create_array("patch_start", data=np.asarray(pstart, dtype=np.int64))
-        t.create_array("cell_start", data=np.asarray(cstart, dtype=np.int64))
-        t.create_array("residual_start", data=np.asarray(rstart, dtype=np.int64))
-        t.create_array("residual_byte_start", data=np.asarray(bstart, dtype=np.int64))
-        t.create_array("intensity_shift", data=np.asarray(shifts, dtype=np.uint8))
-        root.create_array("header", data=np.frombuffer(header, dtype=np.uint8))
-        root.create_array("evlrs", data=np.frombuffer(evlrs, dtype=np.uint8))
+        t.create_array("ijk", data=np.asarray(tiles, dtype=np.int64).reshape(-1, 3), config=WRITE_EVERY_CHUNK)
+        t.create_array("patch_start", data=np.asarray(pstart, dtype=np.int64), config=WRITE_EVERY_CHUNK)
+        t.create_array("cell_start", data=np.asarray(cstart, dtype=np.int64), config=WRITE_EVERY_CHUNK)
+        t.create_array("residual_start", data=np.asarray(rstart, dtype=np.int64), config=WRITE_EVERY_CHUNK)
+        t.create_array("residual_byte_start", data=np.asarray(bstart, dtype=np.int64), config=WRITE_EVERY_CHUNK)
+        t.create_array("intensity_shift", data=np.asarray(shifts, dtype=np.uint8), config=WRITE_EVERY_CHUNK)
+        root.create_array("header", data=np.frombuffer(header, dtype=np.uint8), config=WRITE_EVERY_CHUNK)
+        root.create_array("evlrs", data=np.frombuffer(evlrs, dtype=np.uint8), config=WRITE_EVERY_CHUNK)
         counts = dict(tiles=len(tiles), patches=pstart[-1], cells=cstart[-1], residual=rstart[-1], points=points)
         root.attrs.update(
             format=FORMAT, version=VERSION, mode="model", max_error=float(max_error), grid=grid, source=source, counts=counts,
@@ -354,11 +358,11 @@ def write_points_pcz(
             bounds.append([int(v) for v in b.bounds])
         laz.close()
         g = root.require_group("blocks")
-        g.create_array("point_start", data=np.asarray(pstart, dtype=np.int64))
-        g.create_array("byte_start", data=np.asarray(bstart, dtype=np.int64))
-        g.create_array("bounds", data=np.asarray(bounds, dtype=np.int64).reshape(-1, 6))
-        root.create_array("header", data=np.frombuffer(header, dtype=np.uint8))
-        root.create_array("evlrs", data=np.frombuffer(evlrs, dtype=np.uint8))
+        g.create_array("point_start", data=np.asarray(pstart, dtype=np.int64), config=WRITE_EVERY_CHUNK)
+        g.create_array("byte_start", data=np.asarray(bstart, dtype=np.int64), config=WRITE_EVERY_CHUNK)
+        g.create_array("bounds", data=np.asarray(bounds, dtype=np.int64).reshape(-1, 6), config=WRITE_EVERY_CHUNK)
+        root.create_array("header", data=np.frombuffer(header, dtype=np.uint8), config=WRITE_EVERY_CHUNK)
+        root.create_array("evlrs", data=np.frombuffer(evlrs, dtype=np.uint8), config=WRITE_EVERY_CHUNK)
         counts = dict(blocks=len(bounds), points=pstart[-1])
         root.attrs.update(
             format=FORMAT, version=VERSION, mode="points", max_error=float(max_error), grid=grid, source=source, counts=counts,
@@ -784,6 +788,11 @@ def _array(p: Path, root: zarr.Group, name: str, dtype, tail: tuple, rows: int |
     check_memory(whole, f"{p}: a chunk of {name}")
     if name.startswith(("tiles/", "blocks/")):  # read whole as the file opens
         check_memory(int(np.prod(a.shape)) * a.dtype.itemsize, f"{p}: {name}")
+    if root.attrs.get("version", 0) >= 5 and a.shape[0]:  # every chunk is written: one missing is damage
+        tail_keys = "/0" * len(tail)
+        for i in range(-(-a.shape[0] // a.chunks[0])):
+            if f"{name}/c/{i}{tail_keys}" not in chunks:
+                raise PatchcloudIOError(f"{p}: damaged .pcz file (chunk {name}/c/{i}{tail_keys} is missing)")
     prefix = f"{name}/c/"
     for key, size in chunks.items():
         if key.startswith(prefix) and size != whole:

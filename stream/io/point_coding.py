@@ -28,7 +28,8 @@ import numpy as np
 
 from patchcloud.core import PatchcloudValueError
 
-__all__ = ["PDAL_NAMES", "coarse_steps", "coarsen", "refine", "coarse_records", "dropped_fields", "zero_fields", "keep_only"]
+__all__ = ["PDAL_NAMES", "coarse_steps", "coarsen", "refine", "coarse_records", "dropped_fields", "check_drop", "zero_fields",
+           "keep_only"]
 
 #: laspy's field names and the PDAL dimension names users know them by (``--drop`` takes either, any case).
 PDAL_NAMES = {
@@ -95,6 +96,16 @@ def zero_fields(points: laspy.PackedPointRecord, fields) -> None:
     """Set the dimensions ``fields`` (laspy names) of ``points`` to zero, in place."""
     for f in fields:
         points[f] = np.zeros_like(np.asarray(points[f]))
+
+
+def check_drop(catalog, names) -> None:
+    """``--drop``'s ``names`` against every file of ``catalog`` (a :class:`~.catalog.Catalog`): an unknown name is
+    refused before anything runs (:func:`dropped_fields`' error; no store is left behind for a typo)."""
+    if not names:
+        return
+    for src in catalog.sources:
+        with laspy.open(src.path) as r:
+            dropped_fields(r.header.point_format, names, where=src.path)
 
 
 def keep_only(point_format: laspy.PointFormat, kept) -> tuple[str, ...]:

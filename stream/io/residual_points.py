@@ -13,7 +13,8 @@ Its residual points are summarised the same way, point by point:
   ``s`` per tile the smallest shift that brings the 99th percentile of
   the tile's intensities below ``2**INTENSITY_BITS``
   (:func:`intensity_shift`), so every intensity comes back within
-  ``2**(s - 1)`` (1/128 of that percentile); the mean intensities of the
+  ``2**(s - 1)``, at most 1/64 of that percentile (32 to 64 levels lie
+  below it); the mean intensities of the
   tile's cells are stored the same way;
 - one return (return 1 of 1, as the sampled points); every other
   dimension zero (and those ``--drop`` names).
@@ -47,11 +48,15 @@ from patchcloud.core import MAX_DEPTH, encode
 
 from .laz_block import records_laz
 from .residual_octree import OctreePoints, encode as octree_encode, records_of as octree_records
-from .point_coding import coarse_records, refine
+from .point_coding import coarse_records, keep_only, refine
 
-__all__ = ["INTENSITY_BITS", "CODING", "intensity_shift", "coarse_intensity", "fine_intensity", "stored_records", "decoded_records",
+__all__ = ["KEPT", "RETURNS", "residual_dropped", "INTENSITY_BITS", "CODING", "intensity_shift", "coarse_intensity", "fine_intensity", "stored_records", "decoded_records",
            "residual_block", "octree_block", "morton_order", "column_order", "COLUMN_STEPS"]
 
+#: What a residual point keeps besides its position (its returns as return 1 of 1); every other dimension is zero.
+KEPT = ("intensity", "return_number", "number_of_returns", "classification")
+#: The two return fields: one dropped drops both (return 1 of 0 is no point).
+RETURNS = ("return_number", "number_of_returns")
 #: Levels of a residual point's intensity, in bits: 64 levels below a tile's 99th percentile.
 INTENSITY_BITS = 6
 #: How residual points are coded (a compress run's parameters hold it: a store's tiles coded otherwise are redone).
@@ -59,6 +64,19 @@ CODING = {"version": 5, "intensity_bits": INTENSITY_BITS, "returns": "single", "
 #: The width of :func:`column_order`'s columns, in coded steps (2 m at a 5 cm budget on a 1 cm grid): of 16, 32, 64 and
 #: 128, the best on the aerial files of ../shared/data but fusa (whose scan lines are better in input order).
 COLUMN_STEPS = 32
+
+
+def residual_dropped(pf: laspy.PointFormat, drop=()) -> tuple[str, ...]:
+    """The dimensions of ``pf`` residual points keep as zeros: every one but :data:`KEPT`, then ``drop`` (laspy's names,
+    as ``--drop`` gives them); if either return field is dropped, both are.
+
+    >>> residual_dropped(laspy.PointFormat(1), ["number_of_returns"])[-3:]
+    ('gps_time', 'number_of_returns', 'return_number')
+    """
+    out = list(dict.fromkeys(keep_only(pf, KEPT) + tuple(drop)))
+    if any(r in out for r in RETURNS):
+        out += [r for r in RETURNS if r not in out]
+    return tuple(out)
 
 
 def intensity_shift(intensity: np.ndarray) -> int:

@@ -39,8 +39,10 @@ from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
 from patchcloud.stream.io.las import LasSource, atomic_output, check_not_input, check_writable, open_source, raw_header
-from patchcloud.stream.io.point_coding import coarse_steps, dropped_fields, keep_only
-from patchcloud.stream.io.residual_points import CODING, INTENSITY_BITS, coarse_intensity, intensity_shift, residual_block
+from patchcloud.stream.io.point_coding import check_drop, coarse_steps, dropped_fields
+from patchcloud.stream.io.residual_points import (
+    CODING, INTENSITY_BITS, KEPT, coarse_intensity, intensity_shift, residual_block, residual_dropped,
+)
 from patchcloud.stream.io.store import Store
 
 __all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format", "RESIDUAL_KEPT"]
@@ -54,7 +56,7 @@ MAX_EDGE_SPACINGS = 32.0
 #: What a model-mode ``.pcz`` keeps of each residual point besides its position (:mod:`patchcloud.stream.io.residual_points`):
 #: its class, its intensity (on 64 levels) and its returns (as return 1 of 1, as the sampled points); the other dimensions
 #: are zero.
-RESIDUAL_KEPT = ("intensity", "return_number", "number_of_returns", "classification")
+RESIDUAL_KEPT = KEPT
 _PART = ("scale", "centroid", "rotation", "coeffs", "rmse", "cells", "level", "ijk", "count", "extent", "mask",
          "classification", "intensity")
 
@@ -233,6 +235,9 @@ class CompressJob(Job):
     def steps(self):
         return [("records", self.records), ("fit", self.fit)]
 
+    def check(self, catalog) -> None:
+        check_drop(catalog, self.options.drop)
+
     def records(self, ctx: JobContext) -> None:
         st = ctx.store
         if not st.step_done("records"):
@@ -250,7 +255,7 @@ class CompressJob(Job):
             max_edge=MAX_EDGE_SPACINGS * spacing if spacing > 0 else float("inf"), point_format=pf.id, version=src.version,
             extra_dims=[extra_dim(d) for d in pf.extra_dimensions], selection=ctx.run.selection.to_json(),
             steps=list(coarse_steps(self.options.max_error, st.grid.scale)),
-            dropped=list(dict.fromkeys(keep_only(pf, RESIDUAL_KEPT) + dropped_fields(pf, self.options.drop, where=src.path))),
+            dropped=list(residual_dropped(pf, dropped_fields(pf, self.options.drop, where=src.path))),
             residual_coding=CODING,
         )
         self.params["key"] = params_key(self.params)

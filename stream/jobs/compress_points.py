@@ -35,7 +35,7 @@ from patchcloud.stream.io import pcz
 from patchcloud.stream.io.laz_block import records_laz
 from patchcloud.stream.jobs.compress import CompressSummary, pcz_source
 from patchcloud.stream.io.las import LasSource, raw_header, read_range
-from patchcloud.stream.io.point_coding import coarse_records, coarse_steps, dropped_fields, refine
+from patchcloud.stream.io.point_coding import check_drop, coarse_records, coarse_steps, dropped_fields, refine
 
 __all__ = ["PointsJob", "encode_block", "blocks_folder"]
 
@@ -82,6 +82,9 @@ class PointsJob(Job):
         self.steps_: tuple[int, int, int] = (1, 1, 1)
         self.dropped: tuple[str, ...] = ()
         self.counts: dict = {}
+
+    def check(self, catalog) -> None:
+        check_drop(catalog, self.options.drop)
 
     def steps(self):
         return [("encode", self.encode)]

@@ -4,7 +4,9 @@ It reads a ``.pcz`` tile by tile (or only the tiles that meet a box),
 samples every patch cell by cell (its own count, a density, or a level of
 detail) and writes the samples and the residual points to LAS/LAZ with
 the original header and a ``Reconstructed`` dimension (1 sampled from a
-patch, 0 a residual point, byte for byte as it was).  It needs no store
+patch, 0 a residual point as the ``.pcz`` keeps it: version 5, its coded
+position, class and intensity, one return; versions 2-4, its record but
+the dimensions dropped).  It needs no store
 and no scheduler: one pass over the file.
 """
 
@@ -200,7 +202,7 @@ def decompress(
     input: str | os.PathLike, output: str | os.PathLike, *, density: float | None = None, lod: int | None = None,
     bbox=None, seed: int = 0, overwrite: bool = False,
 ) -> DecompressSummary:
-    """Points of a ``.pcz``, written to LAS/LAZ: samples of every patch and the residual points as they were.
+    """Points of a ``.pcz``, written to LAS/LAZ: samples of every patch and the residual points as it keeps them.
 
     Parameters
     ----------
