@@ -35,6 +35,7 @@ import struct
 from dataclasses import dataclass
 
 import laspy
+import numba
 import numpy as np
 
 from patchcloud.core import MAX_DEPTH, PatchcloudIOError, decode as morton_decode, encode as morton_encode
@@ -49,7 +50,6 @@ MAGIC = b"PCZO"
 _HEAD = struct.Struct("<4sBBIIqqqB")
 _ESCAPE = 127  # intensity levels from here on: escaped, 16 bits
 _MANY = 15  # points on one position from 1 + here on: escaped, 32 bits
-_OFFSETS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -63,16 +63,60 @@ class OctreePoints:
 
 
 def _neighbours(keys: np.ndarray) -> np.ndarray:
-    """For each node of a level (sorted Morton keys), how many of its six face neighbours are nodes of the level."""
-    ijk = morton_decode(keys)
-    count = np.zeros(len(keys), dtype=np.int64)
-    for off in _OFFSETS:
-        q = ijk + off
-        ok = np.all((q >= 0) & (q < (1 << MAX_DEPTH)), axis=1)
-        k = morton_encode(np.where(ok[:, None], q, 0))
-        pos = np.minimum(np.searchsorted(keys, k), len(keys) - 1)
-        count += ok & (keys[pos] == k)
-    return count
+    """For each node of a level (sorted Morton keys, uint64), how many of its six face neighbours are nodes of the level."""
+    out = np.zeros(len(keys), dtype=np.int64)
+    _count_neighbours(np.ascontiguousarray(keys, dtype=np.uint64), out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _spread(v):
+    x = v & np.uint64(0x1FFFFF)
+    x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+    x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+    x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+    x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+    x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
+    return x
+
+
+@numba.njit(cache=True, nogil=True)
+def _compact(v):
+    x = v & np.uint64(0x1249249249249249)
+    x = (x | (x >> np.uint64(2))) & np.uint64(0x10C30C30C30C30C3)
+    x = (x | (x >> np.uint64(4))) & np.uint64(0x100F00F00F00F00F)
+    x = (x | (x >> np.uint64(8))) & np.uint64(0x1F0000FF0000FF)
+    x = (x | (x >> np.uint64(16))) & np.uint64(0x1F00000000FFFF)
+    x = (x | (x >> np.uint64(32))) & np.uint64(0x1FFFFF)
+    return x
+
+
+@numba.njit(cache=True, nogil=True)
+def _count_neighbours(keys, out):
+    """Morton keys as core.morton makes them (x in bit 0 of each triple); each neighbour found by binary search."""
+    n = keys.shape[0]
+    top = np.int64((1 << 21) - 1)
+    for k in range(n):
+        key = keys[k]
+        c = np.int64(0)
+        for axis in range(3):
+            v = np.int64(_compact(key >> np.uint64(axis)))
+            rest = key & ~(np.uint64(0x1249249249249249) << np.uint64(axis))
+            for step in (-1, 1):
+                w = v + step
+                if w < 0 or w > top:
+                    continue
+                nk = rest | (_spread(np.uint64(w)) << np.uint64(axis))
+                lo, hi = 0, n
+                while lo < hi:
+                    mid = (lo + hi) >> 1
+                    if keys[mid] < nk:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                if lo < n and keys[lo] == nk:
+                    c += 1
+        out[k] = c
 
 
 def encode(xyz: np.ndarray, classification: np.ndarray, intensity: np.ndarray, single_return: bool) -> bytes | None:
