@@ -24,7 +24,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.don': ('difference_of_normals', 'don_magnitude', 'don_mask', 'segment_don'),
     '.errors': ('PatchcloudError', 'PatchcloudExistsError', 'PatchcloudIOError', 'PatchcloudMemoryError', 'PatchcloudNotImplementedError', 'PatchcloudValueError', 'os_error_line'),
     '.moments': ('cell_moments',),
-    '.morton': ('MAX_DEPTH', 'decode', 'encode'),
+    '.morton': ('MAX_DEPTH', 'decode', 'encode', 'face_neighbours'),
     '.frame': ('cell_indices', 'local_coordinates'),
     '.points': ('GRID_ANCHOR',),
     '.codes': ('Method', 'PatchKind'),
@@ -80,6 +80,7 @@ __all__ = [
     "MAX_DEPTH",
     "decode",
     "encode",
+    "face_neighbours",
     # .frame
     "local_coordinates",
     "cell_indices",

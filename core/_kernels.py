@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "face_neighbour_counts", "shift_moments"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -101,6 +101,72 @@ def _spread(x):
     x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
     x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
     return x
+
+
+@njit(cache=True, nogil=True)
+def _compact(x):
+    x = x & np.uint64(0x1249249249249249)
+    x = (x | (x >> np.uint64(2))) & np.uint64(0x10C30C30C30C30C3)
+    x = (x | (x >> np.uint64(4))) & np.uint64(0x100F00F00F00F00F)
+    x = (x | (x >> np.uint64(8))) & np.uint64(0x1F0000FF0000FF)
+    x = (x | (x >> np.uint64(16))) & np.uint64(0x1F00000000FFFF)
+    x = (x | (x >> np.uint64(32))) & np.uint64(0x1FFFFF)
+    return x
+
+
+@njit(cache=True, nogil=True)
+def shift_moments(moments, d, rows, cols, exps, binom, out):
+    """``out[m]``: the moments ``moments[m]`` (35 sums of monomials) moved by ``d[m]``, from the non-zero entries of the
+    shift matrix (``rows``, ``cols``, the exponents of ``d`` in each, their binomial factors)."""
+    pw = np.empty((3, 5))
+    for m in range(moments.shape[0]):
+        for a in range(3):
+            pw[a, 0] = 1.0
+            for e in range(1, 5):
+                pw[a, e] = pw[a, e - 1] * d[m, a]
+        for j in range(out.shape[1]):
+            out[m, j] = 0.0
+        for t in range(rows.shape[0]):
+            v = pw[0, exps[t, 0]] * pw[1, exps[t, 1]]
+            v *= pw[2, exps[t, 2]]
+            v *= binom[t]
+            out[m, rows[t]] += v * moments[m, cols[t]]
+
+
+@njit(cache=True, nogil=True)
+def lower_bound(cells, key):
+    """The first position of sorted ``cells`` whose value is not below ``key`` (numpy's searchsorted, left)."""
+    lo, hi = 0, cells.size
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if cells[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def face_neighbour_counts(keys, out):
+    """``out[k]``: how many of the six face neighbours of the cell of Morton key ``keys[k]`` are in ``keys`` (sorted,
+    unique, uint64)."""
+    n = keys.shape[0]
+    top = np.int64((1 << 21) - 1)
+    for k in range(n):
+        key = keys[k]
+        c = np.int64(0)
+        for axis in range(3):
+            v = np.int64(_compact(key >> np.uint64(axis)))
+            rest = key & ~(np.uint64(0x1249249249249249) << np.uint64(axis))
+            for step in (-1, 1):
+                w = v + step
+                if w < 0 or w > top:
+                    continue
+                nk = rest | (_spread(np.uint64(w)) << np.uint64(axis))
+                at = lower_bound(keys, nk)
+                if at < n and keys[at] == nk:
+                    c += 1
+        out[k] = c
 
 
 @njit(cache=True, nogil=True)

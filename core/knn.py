@@ -295,18 +295,6 @@ def nearest_neighbours(
 
 
 @njit(cache=True, nogil=True)
-def _lower_bound(cells, key):
-    lo, hi = 0, cells.size
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if cells[mid] < key:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@njit(cache=True, nogil=True)
 def _offer(points, ids, a, b, qx, qy, qz, limit, bd, bi):
     """Offer points ``a`` to ``b`` to the lists ``bd`` (squared distances) and ``bi``, kept sorted by (distance, index)."""
     k = bd.size
@@ -361,11 +349,11 @@ def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, q
                     if gap > limit or gap > bd[k - 1]:
                         continue
                     key = _kernels.morton_key(i, j, z) << shift
-                    a = _lower_bound(cells, key)
+                    a = _kernels.lower_bound(cells, key)
                     if shift == 0:  # a finest cell: one key
                         b = a + 1 if a < cells.size and cells[a] == key else a
                     else:
-                        b = _lower_bound(cells, key + (np.uint64(1) << shift))
+                        b = _kernels.lower_bound(cells, key + (np.uint64(1) << shift))
                     if b > a:
                         _offer(points, ids, starts[a], starts[b], qx, qy, qz, limit, bd, bi)
         reach = r * edge + inner
@@ -390,7 +378,7 @@ def _any_near(cells, corner, scale, level, levels, qx, qy, qz):
         if i < 0 or j < 0 or z < 0 or i >= n or j >= n or z >= n:
             continue
         key = _kernels.morton_key(i, j, z) << shift
-        a = _lower_bound(cells, key)
+        a = _kernels.lower_bound(cells, key)
         if a < cells.size and cells[a] < key + (np.uint64(1) << shift):
             return True
     return False

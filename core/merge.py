@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .moments import N_MOMENTS, shift_entries
+from .moments import N_MOMENTS, shift_moments
 from .quadric import fit_nodes
 
 __all__ = ["leaf_neighbours", "merge_leaves", "shift_moments", "sum_moments", "moment_scale"]
@@ -29,11 +29,6 @@ __all__ = ["leaf_neighbours", "merge_leaves", "shift_moments", "sum_moments", "m
 #: The 26 offsets to the cells that touch a cell (faces, edges and corners).
 _OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
                     dtype=np.int64)
-
-
-#: Sums the entries of :func:`patchcloud.core.moments.shift_entries` into their rows.
-_ROW_SUM = np.zeros((shift_entries(np.zeros((1, 3)))[0].size, N_MOMENTS))
-_ROW_SUM[np.arange(_ROW_SUM.shape[0]), shift_entries(np.zeros((1, 3)))[0]] = 1.0
 
 
 def _level_keys(ijk: np.ndarray, level: int) -> np.ndarray:
@@ -90,20 +85,11 @@ def leaf_neighbours(level: np.ndarray, ijk: np.ndarray) -> np.ndarray:
     pairs = np.concatenate(found) if found else np.zeros((0, 2), dtype=np.int64)
     pairs = np.sort(pairs, axis=1)
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
-    return np.unique(pairs, axis=0) if pairs.size else np.zeros((0, 2), dtype=np.int64)
-
-
-def shift_moments(moments: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Moments about ``c`` (M, 35) moved to ``c - d``: the sums of ``(p - c + d)^e``.
-
-    Parameters
-    ----------
-    moments : (M, 35) float64
-    d : (M, 3) float64
-        Old centre minus new centre (metres).
-    """
-    rows, cols, vals = shift_entries(d)
-    return (vals * moments[:, cols]) @ _ROW_SUM
+    if not pairs.size:
+        return np.zeros((0, 2), dtype=np.int64)
+    P = np.int64(len(level))  # one int64 a pair: a 1-D unique, sorted as the rows (axis=0 unique sorts void views)
+    key = np.unique(pairs[:, 0] * P + pairs[:, 1])
+    return np.column_stack([key // P, key % P])
 
 
 def _centroid(moments: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -289,7 +275,8 @@ def merge_leaves(
         pairs = np.sort(relabel[pairs], axis=1)
         live = pairs[:, 0] != pairs[:, 1]
         pairs, pair_rmse, pair_harm = pairs[live], pair_rmse[live], pair_harm[live]
-        pairs, idx = np.unique(pairs, axis=0, return_index=True)
+        key, idx = np.unique(pairs[:, 0] * np.int64(P) + pairs[:, 1], return_index=True)  # first of each pair
+        pairs = np.column_stack([key // P, key % P])
         pair_rmse, pair_harm = pair_rmse[idx], pair_harm[idx]
         changed = np.zeros(P, dtype=bool)
         changed[hub] = True

@@ -27,6 +27,7 @@ __all__ = [
     "cell_moments",
     "shift_matrices",
     "shift_entries",
+    "shift_moments",
     "pca",
     "quadric_normal_equations",
     "TENSOR_INDEX",
@@ -178,6 +179,32 @@ def shift_entries(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     vals *= pw[:, 2, _SHIFT_EXP[:, 2]]
     vals *= _SHIFT_BINOM
     return _SHIFT_ROW, _SHIFT_COL, vals
+
+
+def shift_moments(moments: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Moments about ``c`` (M, 35) moved to ``c - d``: the sums of ``(p - c + d)^e`` (a compiled loop over the
+    non-zero entries of :func:`shift_matrices`).
+
+    Parameters
+    ----------
+    moments : (M, 35) float64
+    d : (M, 3) float64
+        Old centre minus new centre (metres).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> p = np.random.default_rng(0).normal(size=(50, 3))
+    >>> m = point_moments(p, np.array([0]))
+    >>> moved = shift_moments(m, np.array([[0.5, -1.0, 2.0]]))
+    >>> bool(np.allclose(moved, point_moments(p + [0.5, -1.0, 2.0], np.array([0]))))
+    True
+    """
+    moments = np.ascontiguousarray(moments, dtype=np.float64)
+    out = np.empty_like(moments)
+    _kernels.shift_moments(moments, np.ascontiguousarray(d, dtype=np.float64), _SHIFT_ROW, _SHIFT_COL, _SHIFT_EXP,
+                           _SHIFT_BINOM, out)
+    return out
 
 
 def shift_matrices(d: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MAX_DEPTH", "encode", "decode", "quantize", "key_range", "containing"]
+__all__ = ["MAX_DEPTH", "encode", "decode", "quantize", "key_range", "containing", "face_neighbours"]
 
 #: Bits per axis; 3 * 21 = 63 bits fit an unsigned 64-bit key.
 MAX_DEPTH = 21
@@ -103,3 +103,28 @@ def containing(lo: np.ndarray, hi: np.ndarray, keys: np.ndarray) -> np.ndarray:
     idx = np.searchsorted(lo, keys, side="right") - 1
     safe = np.maximum(idx, 0)
     return np.where((idx >= 0) & (keys < hi[safe]), idx, -1)
+
+
+def face_neighbours(keys: np.ndarray) -> np.ndarray:
+    """For each cell of one level, how many of its six face neighbours are cells of the level.
+
+    Parameters
+    ----------
+    keys : (N,) uint64
+        Morton keys of the level's cells, sorted, unique.
+
+    Returns
+    -------
+    (N,) int64, 0 to 6
+
+    Examples
+    --------
+    >>> keys = np.sort(encode(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]])))
+    >>> face_neighbours(keys).tolist()
+    [2, 1, 1, 0]
+    """
+    from ._kernels import face_neighbour_counts
+
+    out = np.zeros(len(keys), dtype=np.int64)
+    face_neighbour_counts(np.ascontiguousarray(keys, dtype=np.uint64), out)
+    return out

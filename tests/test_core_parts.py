@@ -180,3 +180,20 @@ def test_numba_caches_outside_the_installed_package():
         pytest.skip("NUMBA_CACHE_DIR was set by the user")
     assert config.CACHE_DIR == patchcloud.core._numba_cache.cache_dir()
     assert not os.path.abspath(config.CACHE_DIR).startswith(os.path.abspath(package))
+
+
+def test_face_neighbours_counts_the_occupied_cells_beside_each_cell():
+    """Against a count by coordinates, on random cells and on cells at the edges of the key's range (no neighbour
+    past 0 or 2**21 - 1)."""
+    from patchcloud.core.morton import decode, encode, face_neighbours
+
+    rng = np.random.default_rng(3)
+    cube = np.stack(np.meshgrid(*[np.arange(20, 23)] * 3), axis=-1).reshape(-1, 3)  # its centre has all six
+    ijk = np.unique(np.vstack([rng.integers(0, 12, (600, 3)), cube, [[0, 0, 0], [(1 << 21) - 1, 0, 5], [(1 << 21) - 2, 0, 5]]]),
+                    axis=0)
+    keys = np.sort(encode(ijk))
+    cells = {tuple(c) for c in decode(keys).tolist()}
+    want = [sum((c[0] + d[0], c[1] + d[1], c[2] + d[2]) in cells
+                for d in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)))
+            for c in decode(keys).tolist()]
+    assert face_neighbours(keys).tolist() == want and max(want) == 6

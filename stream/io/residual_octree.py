@@ -35,10 +35,9 @@ import struct
 from dataclasses import dataclass
 
 import laspy
-import numba
 import numpy as np
 
-from patchcloud.core import MAX_DEPTH, PatchcloudIOError, decode as morton_decode, encode as morton_encode
+from patchcloud.core import MAX_DEPTH, PatchcloudIOError, decode as morton_decode, encode as morton_encode, face_neighbours
 
 from .range_coder import (
     chain_contexts, decode_chain, decode_direct, decode_tree, decoder, encode_direct, encode_tree, encoder, finish, new_trees,
@@ -60,63 +59,6 @@ class OctreePoints:
     classification: np.ndarray
     intensity: np.ndarray
     single_return: bool
-
-
-def _neighbours(keys: np.ndarray) -> np.ndarray:
-    """For each node of a level (sorted Morton keys, uint64), how many of its six face neighbours are nodes of the level."""
-    out = np.zeros(len(keys), dtype=np.int64)
-    _count_neighbours(np.ascontiguousarray(keys, dtype=np.uint64), out)
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def _spread(v):
-    x = v & np.uint64(0x1FFFFF)
-    x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
-    x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
-    x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
-    x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
-    x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
-    return x
-
-
-@numba.njit(cache=True, nogil=True)
-def _compact(v):
-    x = v & np.uint64(0x1249249249249249)
-    x = (x | (x >> np.uint64(2))) & np.uint64(0x10C30C30C30C30C3)
-    x = (x | (x >> np.uint64(4))) & np.uint64(0x100F00F00F00F00F)
-    x = (x | (x >> np.uint64(8))) & np.uint64(0x1F0000FF0000FF)
-    x = (x | (x >> np.uint64(16))) & np.uint64(0x1F00000000FFFF)
-    x = (x | (x >> np.uint64(32))) & np.uint64(0x1FFFFF)
-    return x
-
-
-@numba.njit(cache=True, nogil=True)
-def _count_neighbours(keys, out):
-    """Morton keys as core.morton makes them (x in bit 0 of each triple); each neighbour found by binary search."""
-    n = keys.shape[0]
-    top = np.int64((1 << 21) - 1)
-    for k in range(n):
-        key = keys[k]
-        c = np.int64(0)
-        for axis in range(3):
-            v = np.int64(_compact(key >> np.uint64(axis)))
-            rest = key & ~(np.uint64(0x1249249249249249) << np.uint64(axis))
-            for step in (-1, 1):
-                w = v + step
-                if w < 0 or w > top:
-                    continue
-                nk = rest | (_spread(np.uint64(w)) << np.uint64(axis))
-                lo, hi = 0, n
-                while lo < hi:
-                    mid = (lo + hi) >> 1
-                    if keys[mid] < nk:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                if lo < n and keys[lo] == nk:
-                    c += 1
-        out[k] = c
 
 
 def encode(xyz: np.ndarray, classification: np.ndarray, intensity: np.ndarray, single_return: bool) -> bytes | None:
@@ -141,7 +83,7 @@ def encode(xyz: np.ndarray, classification: np.ndarray, intensity: np.ndarray, s
         children = unique >> (shift - np.uint64(3))
         nodes, first = np.unique(children >> np.uint64(3), return_index=True)
         occupancy = np.bitwise_or.reduceat(np.left_shift(1, (children & np.uint64(7)).astype(np.int64)), first)
-        out = encode_tree(st, out, trees, _neighbours(nodes), occupancy, 8)
+        out = encode_tree(st, out, trees, face_neighbours(nodes), occupancy, 8)
     many = np.minimum(count - 1, _MANY)
     out = encode_tree(st, out, new_trees(1, 4), np.zeros(len(many), np.int64), many, 4)
     out = encode_direct(st, out, count[count - 1 >= _MANY] - 1 - _MANY, 32)
@@ -177,7 +119,7 @@ def _decode(data: np.ndarray, n: int, npos: int, origin: np.ndarray, depth: int,
     trees = new_trees(7, 8)
     nodes = np.zeros(1 if n else 0, dtype=np.uint64)
     for _ in range(depth):
-        occupancy = decode_tree(st, data, trees, _neighbours(nodes), 8)
+        occupancy = decode_tree(st, data, trees, face_neighbours(nodes), 8)
         bits = ((occupancy[:, None] >> np.arange(8)) & 1).astype(bool)
         if not bits.any(axis=1).all() or bits.sum() > npos:
             raise PatchcloudIOError("damaged coded points (an empty node, or more positions than the header says)")
