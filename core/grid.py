@@ -59,7 +59,7 @@ class CellGrid:
         dims = hi - lo + 1 + 2 * pad
         if float(dims[0]) * float(dims[1]) * float(dims[2]) >= 2.0**62:
             raise PatchcloudValueError(
-                f"a grid of {edge:g} m cells over this cloud's extent has too many cells; use a larger radius or split the cloud"
+                f"a grid of cells of {edge:g} (the coordinates' unit) over this cloud's extent has too many cells; use a larger radius or split the cloud"
             )
         idx = absolute - base
         key = (idx[:, 0] * dims[1] + idx[:, 1]) * dims[2] + idx[:, 2]

@@ -60,7 +60,7 @@ def check_scales(r_small, r_large) -> tuple[float, float]:
     rs = check_radius("r_small", r_small)
     rl = check_radius("r_large", r_large)
     if not rs < rl:
-        raise PatchcloudValueError(f"r_small must be smaller than r_large; got r_small={rs:g} m, r_large={rl:g} m")
+        raise PatchcloudValueError(f"r_small must be smaller than r_large; got r_small={rs:g}, r_large={rl:g} (in the coordinates' unit)")
     return rs, rl
 
 

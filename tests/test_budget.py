@@ -207,6 +207,6 @@ def test_a_tile_too_large_for_the_budget_is_refused_once_tiled(tmp_path, monkeyp
     write_scene(src, n=250_000, seed=3, extra=False)
     monkeypatch.setenv(budget.ENV, "64MiB")
     assert TILE_POINT_BYTES * 250_000 > 64 << 20
-    with pytest.raises(PatchcloudMemoryError, match=r"scene.las: a tile of 64 m holding [\d,]+ points would need .* give a smaller --tile-size"):
+    with pytest.raises(PatchcloudMemoryError, match=r"scene.las: a tile of 64 \(in its unit\) holding [\d,]+ points would need .* give a smaller --tile-size"):
         normals(src, tmp_path / "out.las", tile_size=64, in_memory=False, scheduler="synchronous", quiet=True)
     assert not (tmp_path / "out.las").exists()

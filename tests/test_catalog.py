@@ -1,5 +1,7 @@
 """Catalogs: several files taken as one cloud give, per point, what the merged file gives; bad catalogs give one clear error."""
 
+import os
+
 import laspy
 import numpy as np
 import pytest
@@ -193,6 +195,17 @@ def test_bad_catalogs_give_one_clear_error_and_write_nothing(cut, tmp_path):
                "does not exist", tmp_path)
     _cli_fails(["compress", str(tmp_path / "d1"), "--out-dir", str(tmp_path / "o"), "--report", str(tmp_path / "no" / "r.html")],
                "does not exist", tmp_path)
+    # the same file under two names, by a hard or a symbolic link (a sweep of 2026-11-27: its points were taken twice,
+    # or one of the two outputs was not written)
+    (tmp_path / "links").mkdir()
+    os.link(d / "in" / "tile_1.las", tmp_path / "links" / "hard.las")
+    os.symlink(d / "in" / "tile_1.las", tmp_path / "links" / "soft.las")
+    for name in ("hard.las", "soft.las"):
+        _cli_fails(["normals", str(d / "in" / "tile_1.las"), str(tmp_path / "links" / name), "--out-dir", str(tmp_path / "o")],
+                   f"links/{name}: the same file under two names (give it once)", tmp_path)
+    from patchcloud.stream.io.catalog import expand_inputs  # the same name twice (a directory and a glob): once
+
+    assert expand_inputs([d / "in", str(d / "in" / "*.las")]) == expand_inputs(d / "in")
 
 
 def test_compress_of_a_catalog_is_each_file_compressed_alone(cut, tmp_path):

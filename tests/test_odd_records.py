@@ -196,6 +196,26 @@ def test_a_laz_chunk_table_past_the_end_is_truncation(tmp_path):
         open_source(cut)
 
 
+@pytest.mark.parametrize("more", [1, 100])
+def test_a_laz_header_counting_more_points_than_its_last_chunk_holds_is_refused_by_every_run(tmp_path, more):
+    """A count a point or a hundred too high (within the last chunk): decoded in parts, the last chunk ran into the
+    bytes after it and gave made-up points, exit 0 (found by a sweep of 2026-11-27); now one line before anything runs,
+    in memory and on disk, and no store left."""
+    # LAStools' house: 57,084 points in fixed chunks of 50,000, the table without counts (it bounds the count only)
+    raw = bytearray(shared_file("lidar-lastools/house.laz").read_bytes())
+    n = struct.unpack_from("<I", raw, 107)[0]
+    struct.pack_into("<I", raw, 107, n + more)
+    bad = tmp_path / "more.laz"
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(PatchcloudIOError, match=rf"more.laz: corrupt or truncated point data: its last LAZ chunk does not "
+                                                 rf"hold the {n + more - 50_000:,} points the header's count of {n + more:,} implies"):
+        open_source(bad)
+    for extra in ([], ["--on-disk"], ["--scheduler", "processes", "--workers", "2"]):
+        r = CliRunner().invoke(main, ["normals", str(bad), str(tmp_path / "o.las"), "-q", *extra])
+        assert r.exit_code == 2 and r.output.count("\n") == 1 and "its last LAZ chunk does not hold" in r.output, r.output
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["more.laz"]
+
+
 def test_a_plausible_chunk_count_is_read(tmp_path):
     """One chunk (the file's own count) passes the check: the bound is not too tight."""
     bad, _ = _laz_with_chunks(tmp_path, 1)

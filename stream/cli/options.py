@@ -372,8 +372,8 @@ def in_option_words(message: str, command: click.Command | None) -> str:
 
     >>> cmd = click.Command("don", params=[click.Option(["--rs", "r_small"], type=float), click.Option(["--rl", "r_large"]),
     ...                                     click.Option(["--orient"]), click.Option(["--viewpoint"])])
-    >>> in_option_words('r_small must be smaller than r_large; got r_small=2 m, r_large=0.5 m', cmd)
-    '--rs must be smaller than --rl; got --rs 2 m, --rl 0.5 m'
+    >>> in_option_words('r_small must be smaller than r_large; got r_small=2, r_large=0.5', cmd)
+    '--rs must be smaller than --rl; got --rs 2, --rl 0.5'
     >>> in_option_words('orient="viewpoint" needs a viewpoint (x, y, z), or None', cmd)
     '--orient viewpoint needs a viewpoint (x, y, z), or not given'
     >>> in_option_words("orient 'sideways': not a rule", cmd)

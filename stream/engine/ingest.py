@@ -81,7 +81,7 @@ def check_tile_size(tile_size) -> float | None:
     if isinstance(tile_size, bool) or not isinstance(tile_size, (int, float, np.number)) or not np.isfinite(tile_size) or tile_size <= 0:
         raise PatchcloudValueError(f"tile size must be a positive length in the coordinates' unit, got {tile_size!r}")
     if tile_size > MAX_TILE:
-        raise PatchcloudValueError(f"tile size must be at most {MAX_TILE:g} m, got {tile_size:g}")
+        raise PatchcloudValueError(f"tile size must be at most {MAX_TILE:g} (in the coordinates' unit), got {tile_size:g}")
     return float(tile_size)
 
 
@@ -107,8 +107,8 @@ def check_points_per_tile(src: LasSource | Catalog, t: float) -> None:
     tiles = float(ext[0] * ext[1]) / (t * t)
     if src.point_count < MIN_POINTS_PER_TILE * tiles:
         raise PatchcloudValueError(
-            f"a tile size of {t:g} m leaves about {src.point_count / tiles:.2g} points per tile over the input's "
-            f"{ext[0]:g} x {ext[1]:g} m (at least {MIN_POINTS_PER_TILE} needed); give a larger --tile-size, or leave it out"
+            f"a tile size of {t:g} leaves about {src.point_count / tiles:.2g} points per tile over the input's "
+            f"{ext[0]:g} x {ext[1]:g} (in its unit; at least {MIN_POINTS_PER_TILE} needed); give a larger --tile-size, or leave it out"
         )
 
 
@@ -152,11 +152,11 @@ def check_occupied_tiles(counts: np.ndarray, t: float, where: str) -> None:
     >>> check_occupied_tiles(np.full(100, 30), 2.0, "house.laz")
     Traceback (most recent call last):
     ...
-    patchcloud.stream.engine.ingest.TileSizeError: house.laz: a tile size of 2 m leaves 30 points per occupied tile on average (100 tiles; at least 50 needed); give a larger --tile-size, or leave it out
+    patchcloud.stream.engine.ingest.TileSizeError: house.laz: a tile size of 2 leaves 30 points per occupied tile on average (100 tiles; at least 50 needed); give a larger --tile-size, or leave it out
     """
     if counts.size > FEW_TILES and counts.sum() < MIN_POINTS_PER_OCCUPIED_TILE * counts.size:
         raise TileSizeError(
-            f"{where}: a tile size of {t:g} m leaves {counts.sum() / counts.size:.3g} points per occupied tile on average "
+            f"{where}: a tile size of {t:g} leaves {counts.sum() / counts.size:.3g} points per occupied tile on average "
             f"({counts.size:,} tiles; at least {MIN_POINTS_PER_OCCUPIED_TILE} needed); give a larger --tile-size, or leave it out"
         )
 
@@ -571,7 +571,7 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
     check_occupied_tiles(store.tile_counts, grid.tile_size, cat.path)
     if store.tile_counts.size:  # a tile's steps hold all its points at once, in one process
         most = int(store.tile_counts.max())
-        check_memory(TILE_POINT_BYTES * most, f"{cat.path}: a tile of {grid.tile_size:g} m holding {most:,} points",
+        check_memory(TILE_POINT_BYTES * most, f"{cat.path}: a tile of {grid.tile_size:g} (in its unit) holding {most:,} points",
                      hint="give a smaller --tile-size")
     occ = map_tiles(sort_tile, store, runner=runner, label="tile: sort")
     store.remove("parts")

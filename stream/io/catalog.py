@@ -148,7 +148,7 @@ def factor_and_shift(scale, offset, common_scale, common_offset):
 
 
 def expand_inputs(inputs) -> list[Path]:
-    """The LAS/LAZ files that ``inputs`` name, sorted by path, each once.
+    """The LAS/LAZ files that ``inputs`` name, sorted by path, each once (the same file under two names: an error).
 
     ``inputs``: a path, a directory (its ``*.las`` and ``*.laz`` files, any
     case, not its sub-directories), a glob pattern (``tiles/*.laz``), or a
@@ -182,8 +182,16 @@ def expand_inputs(inputs) -> list[Path]:
             raise PatchcloudIOError(f"{p}: no such file")
     if not found:
         raise PatchcloudIOError("no input file given")
-    unique = sorted({q.resolve(): q for q in found}.items())
-    return [q for _, q in unique]
+    # one file once, by what it is (device and inode: a symbolic or a hard link is the file it names); named twice
+    # under two names, its output's name would be a guess (found by a sweep of 2026-11-27: a hard link took its points
+    # twice, a symbolic one wrote only one of the two outputs asked for)
+    first: dict[tuple[int, int], Path] = {}
+    for q in sorted(found, key=lambda q: str(q)):
+        st = q.stat()
+        seen = first.setdefault((st.st_dev, st.st_ino), q)
+        if seen.name != q.name:
+            raise PatchcloudIOError(f"{seen} and {q}: the same file under two names (give it once)")
+    return sorted(first.values(), key=lambda q: str(q.resolve()))
 
 
 def output_name(path: str | os.PathLike) -> str:

@@ -32,7 +32,7 @@ __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
-    "POSITION_AND_CLASS",
+    "POSITION_AND_CLASS", "check_last_chunk",
 ]
 
 #: The fields of a LAS 1.4 layered LAZ record (point formats 6 to 10) that say where a point is and whether it takes
@@ -228,6 +228,7 @@ def open_source(path: str | os.PathLike) -> LasSource:
         if held is not None and not held[0] <= src.point_count <= held[1]:
             what = f"{held[0]:,}" if held[0] == held[1] else f"{held[0]:,} to {held[1]:,} (its chunks of fixed size)"
             raise PatchcloudIOError(f"{p}: the header says {src.point_count:,} points but the LAZ chunk table holds {what}")
+        check_last_chunk(src)
     if not compressed:
         end = start + src.point_count * record
         if st.st_size < end:
@@ -468,6 +469,8 @@ def read_range(src: LasSource, first: int, count: int, parallel: bool = False,
         The data ends before ``first + count`` (truncated or corrupt).
     """
     p = src.path
+    if src.compressed and first + count == src.point_count and count:
+        check_last_chunk(src)  # a streaming decoder reads past a short last chunk into what follows: made-up points
     if parallel and first and src.compressed:
         pts = _read_whole_chunks(src, first, count, selection)
         if pts is not None:
@@ -480,7 +483,8 @@ def read_range(src: LasSource, first: int, count: int, parallel: bool = False,
             try:
                 pts = reader.read_points(count)
             except Exception as exc:
-                raise PatchcloudIOError(f"{p}: corrupt or truncated point data after point {first:,} ({exc})") from exc
+                raise PatchcloudIOError(f"{p}: corrupt or truncated point data in points {first:,} to {first + count:,} "
+                                        f"({exc})") from exc
     except PatchcloudIOError:
         raise
     except Exception as exc:
@@ -523,6 +527,36 @@ def _laz_chunks(path: str, size: int, mtime_ns: int) -> _LazChunks | None:
     except Exception:
         return None
     return _LazChunks(header, data, int(vlr.chunk_size()), table) if len(table) else None
+
+
+def check_last_chunk(src: LasSource) -> None:
+    """A LAZ file of fixed-size chunks whose last chunk does not hold the points its header implies (a count too high,
+    a chunk cut short) is refused: decoded from its own bytes, the chunk runs out (found by a sweep of 2026-11-27: a
+    count one too high gave a made-up last point to the runs that read the file in parts).  Decodes X, Y, Z of that
+    chunk once per file version; nothing for other files."""
+    _check_last_chunk(src.path, src.size, src.mtime_ns, src.point_count)
+
+
+@functools.lru_cache(maxsize=64)
+def _check_last_chunk(path: str, size: int, mtime_ns: int, point_count: int) -> None:
+    plan = _laz_chunks(path, size, mtime_ns)
+    if plan is None:
+        return
+    c = len(plan.table) - 1
+    n = point_count - c * plan.chunk
+    if not 0 < n <= plan.chunk:
+        raise PatchcloudIOError(f"{path}: the header says {point_count:,} points, its {len(plan.table)} LAZ chunks of "
+                                f"{plan.chunk:,} hold {(c * plan.chunk + 1):,} to {(c + 1) * plan.chunk:,}")
+    out = np.empty(n * plan.header.point_format.size, dtype=np.uint8)
+    try:
+        with open(path, "rb") as f:
+            f.seek(int(plan.table[c, 0]))
+            data = f.read(int(plan.table[c, 1]))
+        lazrs.decompress_points_with_chunk_table(data, plan.vlr, out, [(n, int(plan.table[c, 1]))],
+                                                 POSITION_AND_CLASS.to_lazrs())
+    except Exception as exc:
+        raise PatchcloudIOError(f"{path}: corrupt or truncated point data: its last LAZ chunk does not hold the "
+                                f"{n:,} points the header's count of {point_count:,} implies ({exc})") from None
 
 
 def _read_whole_chunks(src: LasSource, first: int, count: int, selection) -> laspy.ScaleAwarePointRecord | None:
