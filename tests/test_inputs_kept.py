@@ -16,7 +16,8 @@ SAMPLE = os.path.join(os.path.dirname(__file__), "..", "data", "test_data_77055_
 def laz(tmp_path):
     p = tmp_path / "in.laz"
     shutil.copy(SAMPLE, p)
-    os.symlink(p, tmp_path / "link.laz")
+    (tmp_path / "links").mkdir()  # not in the directory the catalogs name: there it would be the same file twice
+    os.symlink(p, tmp_path / "links" / "link.laz")
     return p
 
 
@@ -49,7 +50,7 @@ def laz(tmp_path):
 def test_an_input_is_never_replaced(laz, tmp_path, args):
     before = laz.read_bytes()
     files = sorted(p.name for p in tmp_path.iterdir())
-    args = [a.format(**{"in": str(laz), "link": str(tmp_path / "link.laz"), "dir": str(tmp_path)}) for a in args]
+    args = [a.format(**{"in": str(laz), "link": str(tmp_path / "links" / "link.laz"), "dir": str(tmp_path)}) for a in args]
     Path(f"{tmp_path}_out").mkdir(exist_ok=True)  # a catalog's output directory, there (outside tmp_path)
     r = CliRunner().invoke(main, args + ["-q"])
     assert r.exit_code == 2, r.output

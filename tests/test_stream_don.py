@@ -214,7 +214,7 @@ def test_cli_don_and_segment(scene, tmp_path):
     "args, words",
     [
         # the Python API's parameter names said as the options the user typed
-        (["--rs", "2", "--rl", "0.2"], "--rs must be smaller than --rl; got --rs 2 m, --rl 0.2 m"),
+        (["--rs", "2", "--rl", "0.2"], "--rs must be smaller than --rl; got --rs 2, --rl 0.2 (in the coordinates' unit)"),
         (["--rs", "-0.2"], "--rs must be a positive length"),
         (["--threshold", "1.5"], "--threshold must be a DoN magnitude in [0, 1]"),
         (["--tolerance", "0"], "--tolerance must be a positive length"),
