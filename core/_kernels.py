@@ -148,9 +148,24 @@ def lower_bound(cells, key):
 
 @njit(cache=True, nogil=True)
 def face_neighbour_counts(keys, out):
-    """``out[k]``: how many of the six face neighbours of the cell of Morton key ``keys[k]`` are in ``keys`` (sorted,
-    unique, uint64)."""
+    """``out[k]``: how many of the six face neighbours of the cell of Morton key ``keys[k]`` are in ``keys`` (unique,
+    uint64, below 2**63): looked up in an open-addressing hash table of the keys (a binary search each took 80 ms of a
+    277,573-point file's decompression)."""
     n = keys.shape[0]
+    bits = 1
+    while (1 << bits) < 2 * n:
+        bits += 1
+    size = 1 << bits
+    empty = np.uint64(0xFFFFFFFFFFFFFFFF)
+    table = np.full(size, empty, dtype=np.uint64)
+    mask = np.uint64(size - 1)
+    mult = np.uint64(0x9E3779B97F4A7C15)
+    down = np.uint64(64 - bits)
+    for k in range(n):
+        h = (keys[k] * mult) >> down
+        while table[h] != empty:
+            h = (h + np.uint64(1)) & mask
+        table[h] = keys[k]
     top = np.int64((1 << 21) - 1)
     for k in range(n):
         key = keys[k]
@@ -163,9 +178,12 @@ def face_neighbour_counts(keys, out):
                 if w < 0 or w > top:
                     continue
                 nk = rest | (_spread(np.uint64(w)) << np.uint64(axis))
-                at = lower_bound(keys, nk)
-                if at < n and keys[at] == nk:
-                    c += 1
+                h = (nk * mult) >> down
+                while table[h] != empty:
+                    if table[h] == nk:
+                        c += 1
+                        break
+                    h = (h + np.uint64(1)) & mask
         out[k] = c
 
 
