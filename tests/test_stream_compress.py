@@ -190,8 +190,9 @@ def test_what_model_mode_keeps_of_a_residual_point_is_what_it_says(las_file, tmp
     assert res.sum() == s.residual > 0
     rn, nr = np.asarray(out.return_number)[res], np.asarray(out.number_of_returns)[res]
     assert set(rn) == set(nr) == ({0} if returns else {1})
-    assert (set(np.asarray(out.intensity)[res]) == {0}) == ("Intensity" in drop)
-    assert (set(np.asarray(out.classification)[res]) == {0}) == ("Classification" in drop)
+    for points in (res, ~res):  # the residual points' own, and the cells' that the sampled points carry
+        assert (set(np.asarray(out.intensity)[points]) == {0}) == ("Intensity" in drop)
+        assert (set(np.asarray(out.classification)[points]) == {0}) == ("Classification" in drop)
 
 
 def test_header_vlrs_and_extended_vlrs_survive(tmp_path):

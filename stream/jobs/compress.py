@@ -192,6 +192,9 @@ def compress_tile(url: str, ijk: tuple, params: dict) -> dict:
         level=q.level, ijk=q.ijk, count=q.count, extent=q.extent, mask=q.mask,
         classification=votes.argmax(axis=1).astype(np.uint8), intensity=coarse_intensity(np.rint(inten / np.maximum(q.count, 1)), shift),
     )
+    for name in ("classification", "intensity"):  # --drop: the cells' too (their samples carry zeros)
+        if name in params["dropped"]:
+            values[name] = np.zeros_like(values[name])
     for name in _PART:
         store.write(ijk, "pcz_" + name, values[name])
     laz = residual_block(in_order[np.sort(rank[residual])], pf, params["version"], params["steps"], params["dropped"],
