@@ -32,8 +32,12 @@ __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
-    "POSITION_AND_CLASS", "check_last_chunk",
+    "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS",
 ]
+
+#: What a ``except BaseException`` around lazrs lets through: lazrs' Rust panics come as pyo3's PanicException, which
+#: is not an Exception (a fuzzed LASzip VLR made ``info`` print a traceback), but these are the user's or Python's.
+INTERRUPTS = (KeyboardInterrupt, SystemExit, GeneratorExit)
 
 #: The fields of a LAS 1.4 layered LAZ record (point formats 6 to 10) that say where a point is and whether it takes
 #: part: coordinates, return numbers and channel, classification and its flags (withheld).  What the ingest decodes.
@@ -523,8 +527,12 @@ def _laz_chunks(path: str, size: int, mtime_ns: int) -> _LazChunks | None:
         vlr = lazrs.LazVlr(data)
         if vlr.uses_variable_size_chunks() or struct.unpack("<H", data[:2])[0] == POINTWISE_COMPRESSOR:
             return None
+        if vlr.item_size() != header.point_format.size:  # a damaged VLR: lazrs would panic splitting its buffers
+            return None
         table = laz_layers.chunk_table(path, header.offset_to_point_data, data)
-    except Exception:
+    except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
+        if isinstance(exc, INTERRUPTS):
+            raise
         return None
     return _LazChunks(header, data, int(vlr.chunk_size()), table) if len(table) else None
 
@@ -554,7 +562,9 @@ def _check_last_chunk(path: str, size: int, mtime_ns: int, point_count: int) -> 
             data = f.read(int(plan.table[c, 1]))
         lazrs.decompress_points_with_chunk_table(data, plan.vlr, out, [(n, int(plan.table[c, 1]))],
                                                  POSITION_AND_CLASS.to_lazrs())
-    except Exception as exc:
+    except BaseException as exc:  # lazrs' Rust panics (a damaged LASzip VLR) come as pyo3's PanicException, a BaseException
+        if isinstance(exc, INTERRUPTS):
+            raise
         raise PatchcloudIOError(f"{path}: corrupt or truncated point data: its last LAZ chunk does not hold the "
                                 f"{n:,} points the header's count of {point_count:,} implies ({exc})") from None
 
@@ -586,7 +596,9 @@ def _read_whole_chunks(src: LasSource, first: int, count: int, selection) -> las
             f.seek(int(starts[c0]))
             data = f.read(int(sizes[c0:c1].sum()))
         lazrs.decompress_points_with_chunk_table(data, plan.vlr, out, table, sel)
-    except Exception:
+    except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
+        if isinstance(exc, INTERRUPTS):
+            raise
         return None
     records = laspy.PackedPointRecord.from_buffer(out[: count * pf.size], pf)
     return laspy.ScaleAwarePointRecord(records.array, pf, plan.header.scales, plan.header.offsets)
