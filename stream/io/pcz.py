@@ -165,9 +165,12 @@ class TilePart:
     """One tile's share of a ``.pcz``: its quantised patches (root = the tile), their cells' attributes, its residual points.
 
     ``models.root_corner``/``root_edge`` must be the tile's cube;
-    ``residual_laz`` is a LAZ file of the residual points' records (see
-    :func:`~.residual_points.residual_block`), holding ``residual_count``
-    points; its cells' and residual points' intensities are divided by ``2**intensity_shift``
+    ``residual_laz`` is the block of the residual points' records (a LAZ
+    file or, version 5, an octree block: see
+    :func:`~.residual_points.residual_block`; no bytes for none), holding
+    ``residual_count`` points (the name is the array's, ``residual/laz``,
+    kept from version 2); its cells' and residual points' intensities are
+    divided by ``2**intensity_shift``
     (:func:`~.residual_points.coarse_intensity`).
     """
 
