@@ -24,7 +24,7 @@ import numpy as np
 from .moments import N_MOMENTS, shift_moments
 from .quadric import fit_nodes
 
-__all__ = ["leaf_neighbours", "merge_leaves", "shift_moments", "sum_moments", "moment_scale"]
+__all__ = ["leaf_neighbours", "unique_pairs", "merge_leaves", "shift_moments", "sum_moments", "moment_scale"]
 
 #: The 26 offsets to the cells that touch a cell (faces, edges and corners).
 _OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
@@ -85,11 +85,21 @@ def leaf_neighbours(level: np.ndarray, ijk: np.ndarray) -> np.ndarray:
     pairs = np.concatenate(found) if found else np.zeros((0, 2), dtype=np.int64)
     pairs = np.sort(pairs, axis=1)
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
-    if not pairs.size:
-        return np.zeros((0, 2), dtype=np.int64)
-    P = np.int64(len(level))  # one int64 a pair: a 1-D unique, sorted as the rows (axis=0 unique sorts void views)
-    key = np.unique(pairs[:, 0] * P + pairs[:, 1])
-    return np.column_stack([key // P, key % P])
+    return unique_pairs(pairs, len(level))[0] if pairs.size else np.zeros((0, 2), dtype=np.int64)
+
+
+def unique_pairs(pairs: np.ndarray, base: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of ``pairs`` ((K, 2) integers, the second column in ``[0, base)``) once each, sorted, and the index of
+    each one's first occurrence: numpy's ``unique(pairs, axis=0, return_index=True)``, on one int64 a row (a 1-D
+    unique: ``axis=0`` sorts void views, several times slower).
+
+    >>> unique_pairs(np.array([[2, 1], [0, 3], [2, 1], [0, 0]]), 4)
+    (array([[0, 0],
+           [0, 3],
+           [2, 1]]), array([3, 1, 0]))
+    """
+    key, first = np.unique(pairs[:, 0] * np.int64(base) + pairs[:, 1], return_index=True)
+    return np.column_stack([key // base, key % base]), first
 
 
 def _centroid(moments: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -275,8 +285,7 @@ def merge_leaves(
         pairs = np.sort(relabel[pairs], axis=1)
         live = pairs[:, 0] != pairs[:, 1]
         pairs, pair_rmse, pair_harm = pairs[live], pair_rmse[live], pair_harm[live]
-        key, idx = np.unique(pairs[:, 0] * np.int64(P) + pairs[:, 1], return_index=True)  # first of each pair
-        pairs = np.column_stack([key // P, key % P])
+        pairs, idx = unique_pairs(pairs, P)
         pair_rmse, pair_harm = pair_rmse[idx], pair_harm[idx]
         changed = np.zeros(P, dtype=bool)
         changed[hub] = True

@@ -28,7 +28,7 @@ import numpy as np
 from ._kernels import cell_moments
 from .checks import check_budget
 from .errors import PatchcloudValueError
-from .merge import leaf_neighbours, merge_leaves, moment_scale, sum_moments
+from .merge import leaf_neighbours, merge_leaves, moment_scale, sum_moments, unique_pairs
 from .octree import estimate_spacing, sort_points
 from .options import NormalsOptions
 from .patches import PatchKind
@@ -235,9 +235,7 @@ def _assign(world, leaf, nb, surf_group, g_size, g_centroid, g_frame, g_coeffs, 
     # candidate patches per leaf: its own and those of the leaves touching it (``nb``; CSR over leaves)
     both = np.concatenate([nb, nb[:, ::-1], np.column_stack([np.arange(L), np.arange(L)])])
     both = both[surf_group[both[:, 1]] >= 0]
-    G = np.int64(max(int(g_size.size), 1))  # (leaf, patch) as one int64: a 1-D unique, in the rows' order
-    pk = np.unique(both[:, 0] * G + surf_group[both[:, 1]])
-    cand = np.column_stack([pk // G, pk % G])
+    cand = unique_pairs(np.column_stack([both[:, 0], surf_group[both[:, 1]]]), max(int(g_size.size), 1))[0]
     c_start = np.searchsorted(cand[:, 0], np.arange(L + 1))
     out_pt, out_g, out_e = [], [], []
     for lo in range(0, leaf.size, chunk):
