@@ -123,14 +123,27 @@ def encode_tree(st: np.ndarray, out: np.ndarray, probs: np.ndarray, contexts: np
     return out
 
 
-def encode_direct(st: np.ndarray, out: np.ndarray, values: np.ndarray, bits: int) -> np.ndarray:
-    """Code ``values`` (each below ``2**bits``) with fixed probabilities of one half (no adaptation, ``bits`` bits each)."""
-    values = np.ascontiguousarray(values, dtype=np.int64)
-    probs = np.full((1, 2), _ONE // 2, np.uint16)  # one node, set back to a half before each bit
+@numba.njit(cache=True, nogil=True)
+def _encode_direct(st, out, values, bits):
+    probs = np.empty((1, 2), dtype=np.uint16)  # one node, set back to a half before each bit
     for k in range(values.shape[0]):
+        if st[_POS] + np.uint64(16 + bits // 8) >= np.uint64(out.shape[0]):
+            return k
         for b in range(bits - 1, -1, -1):
             probs[0, 1] = _ONE // 2
-            out = encode_tree(st, out, probs, np.zeros(1, np.int64), np.array([(int(values[k]) >> b) & 1]), 1)
+            _encode_bit(st, out, probs, 0, 1, (values[k] >> b) & 1)
+    return values.shape[0]
+
+
+def encode_direct(st: np.ndarray, out: np.ndarray, values: np.ndarray, bits: int) -> np.ndarray:
+    """Code ``values`` (each below ``2**bits``) with fixed probabilities of one half (no adaptation, ``bits`` bits each);
+    returns the output buffer (as :func:`encode_tree`)."""
+    values = np.ascontiguousarray(values, dtype=np.int64)
+    done = 0
+    while done < values.shape[0]:
+        done += _encode_direct(st, out, values[done:], bits)
+        if done < values.shape[0]:
+            out = np.concatenate([out, np.zeros(out.shape[0] + (values.shape[0] - done) * bits // 8 + 64, np.uint8)])
     return out
 
 
@@ -231,14 +244,22 @@ def chain_contexts(symbols: np.ndarray, shift: int) -> np.ndarray:
     return np.r_[0, s[:-1]] >> shift if len(s) else s
 
 
-def decode_direct(st: np.ndarray, data: bytes | np.ndarray, count: int, bits: int) -> np.ndarray:
-    """``count`` values of ``bits`` bits coded by :func:`encode_direct`."""
-    out = np.zeros(count, dtype=np.int64)
-    probs = np.full((1, 2), _ONE // 2, np.uint16)
-    for k in range(count):
+@numba.njit(cache=True, nogil=True)
+def _decode_direct(st, data, bits, out):
+    probs = np.empty((1, 2), dtype=np.uint16)
+    for k in range(out.shape[0]):
         v = 0
         for _ in range(bits):
             probs[0, 1] = _ONE // 2
-            v = (v << 1) | int(decode_tree(st, data, probs, np.zeros(1, np.int64), 1)[0])
+            v = (v << 1) | _decode_symbol(st, data, probs, 0, 1)
         out[k] = v
+
+
+def decode_direct(st: np.ndarray, data: bytes | np.ndarray, count: int, bits: int) -> np.ndarray:
+    """``count`` values of ``bits`` bits coded by :func:`encode_direct`."""
+    buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, (bytes, bytearray)) else data
+    out = np.zeros(count, dtype=np.int64)
+    _decode_direct(st, buf, bits, out)
+    if st[_ERROR]:
+        raise PatchcloudIOError("the coded points end early (damaged)")
     return out
