@@ -473,8 +473,6 @@ def read_range(src: LasSource, first: int, count: int, parallel: bool = False,
         The data ends before ``first + count`` (truncated or corrupt).
     """
     p = src.path
-    if src.compressed and first + count == src.point_count and count:
-        check_last_chunk(src)  # a streaming decoder reads past a short last chunk into what follows: made-up points
     if parallel and first and src.compressed:
         pts = _read_whole_chunks(src, first, count, selection)
         if pts is not None:
