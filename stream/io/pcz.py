@@ -467,20 +467,32 @@ class _OpenPcz:
         check_memory(3 * n * (B + 12) + (s.stop - s.start), f"{name} ({n:,} points)")
         raw = self._read(array, s).tobytes()
         if self.attrs["version"] >= 5 and raw[:4] == OCTREE_MAGIC:  # an octree of residual points (residual_octree)
-            points = octree_decode(raw, name)
-            if len(points.xyz) != n:
-                raise PatchcloudIOError(f"{name}: {len(points.xyz):,} coded points, the index says {n:,}")
-            rows = octree_records(points, self.input_format_id, B + 12) if self.input_format_id >= 0 else None
-            if rows is None:
-                raise PatchcloudIOError(f"{name}: the input's header has no point format")
-            return _refined(self.path, rows[:, :12].copy().view("<i4").reshape(n, 3), self.steps, what), rows[:, 12:].copy()
+            rows = self._octree_rows(raw, n, B + 12, name)
+        else:
+            rows = self._laz_rows(raw, n, B + 12, name, pronoun)
+        if rows.shape != (n, B + 12):
+            raise PatchcloudIOError(f"{name}: {rows.shape[0]} points of {rows.shape[1]} bytes, the index says {n} of {B + 12}")
+        xyz = _refined(self.path, rows[:, :12].copy().view("<i4").reshape(n, 3), self.steps, what)
+        return xyz, rows[:, 12:].copy()
+
+    def _octree_rows(self, raw: bytes, n: int, size: int, name: str) -> np.ndarray:
+        """The (n, size) records of an octree block (:mod:`.residual_octree`)."""
+        points = octree_decode(raw, name)
+        if len(points.xyz) != n:
+            raise PatchcloudIOError(f"{name}: {len(points.xyz):,} coded points, the index says {n:,}")
+        if self.input_format_id < 0:
+            raise PatchcloudIOError(f"{name}: the input's header has no point format")
+        return octree_records(points, self.input_format_id, size)
+
+    def _laz_rows(self, raw: bytes, n: int, size: int, name: str, pronoun: str) -> np.ndarray:
+        """The records of a LAS/LAZ block, checked against the index (formats 0-3 back from their layered twins)."""
         check_header_sizes(name, raw[:375], len(raw))
         said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
         pid = self.input_format_id  # records of formats 0-3 are stored as 6 or 7 (version 4; version 3: as they were)
         layered = self.attrs["version"] >= 4 and raw[104] & 0x3F == LAYERED.get(pid)
-        size = layered_size(pid, B + 12) if layered else B + 12
-        if said != n or record != size:
-            raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {size}")
+        stored = layered_size(pid, size) if layered else size
+        if said != n or record != stored:
+            raise PatchcloudIOError(f"{name}: {pronoun} LAZ header says {said:,} points of {record} bytes, the index says {n:,} of {stored}")
         try:
             las = laspy.read(io.BytesIO(raw))
         except Exception as exc:
@@ -491,10 +503,7 @@ class _OpenPcz:
                 rows = from_layered(rows, pid)
             except ValueError as exc:
                 raise PatchcloudIOError(f"{name}: damaged ({exc})") from exc
-        if rows.shape != (n, B + 12):
-            raise PatchcloudIOError(f"{name}: {rows.shape[0]} points of {rows.shape[1]} bytes, the index says {n} of {B + 12}")
-        xyz = _refined(self.path, rows[:, :12].copy().view("<i4").reshape(n, 3), self.steps, what)
-        return xyz, rows[:, 12:].copy()
+        return rows
 
     def close(self) -> None:
         self._store.close()

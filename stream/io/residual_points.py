@@ -50,7 +50,7 @@ from .laz_block import records_laz
 from .residual_octree import OctreePoints, encode as octree_encode, records_of as octree_records
 from .point_coding import coarse_records, keep_only, refine
 
-__all__ = ["KEPT", "RETURNS", "residual_dropped", "INTENSITY_BITS", "CODING", "intensity_shift", "coarse_intensity", "fine_intensity", "stored_records", "decoded_records",
+__all__ = ["KEPT", "RETURNS", "residual_dropped", "kept_words", "INTENSITY_BITS", "CODING", "intensity_shift", "coarse_intensity", "fine_intensity", "stored_records", "decoded_records",
            "residual_block", "octree_block", "morton_order", "column_order", "COLUMN_STEPS"]
 
 #: What a residual point keeps besides its position (its returns as return 1 of 1); every other dimension is zero.
@@ -77,6 +77,24 @@ def residual_dropped(pf: laspy.PointFormat, drop=()) -> tuple[str, ...]:
     if any(r in out for r in RETURNS):
         out += [r for r in RETURNS if r not in out]
     return tuple(out)
+
+
+def kept_words(dropped, shifts: tuple[int, int] | None = None) -> str:
+    """What residual points keep of their attributes, in words (the compress summary's and ``info``'s): ``dropped`` as
+    :func:`residual_dropped` gives it; ``shifts``: the smallest and largest intensity shift of a file, said if given.
+
+    >>> kept_words(["gps_time"]), kept_words(["intensity", "return_number", "number_of_returns"], (0, 3))
+    ('class exact, intensity on 64 levels, return 1 of 1', 'class exact')
+    >>> kept_words([], (2, 5))
+    'class exact, intensity on 64 levels (divided by 2**2 to 2**5, rounded), return 1 of 1'
+    """
+    levels = f"intensity on {2**INTENSITY_BITS} levels"
+    if shifts is not None:
+        lo, hi = shifts
+        levels += f" (divided by 2**{lo}{'' if lo == hi else f' to 2**{hi}'}, rounded)"
+    kept = [what for name, what in (("classification", "class exact"), ("intensity", levels), ("return_number", "return 1 of 1"))
+            if name not in dropped]
+    return ", ".join(kept) or "no attribute"
 
 
 def intensity_shift(intensity: np.ndarray) -> int:
@@ -190,7 +208,7 @@ def column_order(rows: np.ndarray) -> np.ndarray:
     >>> column_order(np.hstack([xyz.view(np.uint8).reshape(4, 12), np.zeros((4, 2), np.uint8)])).tolist()
     [2, 1, 3, 0]
     """
-    xyz = rows[:, :12].copy().view("<i4").reshape(-1, 3).astype(np.int64)
+    xyz = _positions(rows)
     return np.lexsort((xyz[:, 2], xyz[:, 1] // COLUMN_STEPS, xyz[:, 0] // COLUMN_STEPS))
 
 
@@ -199,9 +217,14 @@ def morton_order(rows: np.ndarray) -> np.ndarray:
 
     Positions are taken from their smallest; a span wider than the key's 21 bits an axis loses its low bits.
     """
-    xyz = rows[:, :12].copy().view("<i4").reshape(-1, 3).astype(np.int64)
+    xyz = _positions(rows)
     if not len(xyz):
         return np.zeros(0, np.int64)
     rel = xyz - xyz.min(axis=0)
     drop = max(0, int(rel.max()).bit_length() - MAX_DEPTH)
     return np.argsort(encode(rel >> drop), kind="stable")
+
+
+def _positions(rows: np.ndarray) -> np.ndarray:
+    """X, Y, Z of records ``rows`` ((R, L) uint8: their first 12 bytes), (R, 3) int64."""
+    return rows[:, :12].copy().view("<i4").reshape(-1, 3).astype(np.int64)

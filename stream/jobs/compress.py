@@ -41,7 +41,7 @@ from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_pa
 from patchcloud.stream.io.las import LasSource, atomic_output, check_not_input, check_writable, open_source, raw_header
 from patchcloud.stream.io.point_coding import check_drop, coarse_steps, dropped_fields
 from patchcloud.stream.io.residual_points import (
-    CODING, INTENSITY_BITS, KEPT, coarse_intensity, intensity_shift, residual_block, residual_dropped,
+    CODING, KEPT, coarse_intensity, intensity_shift, kept_words, residual_block, residual_dropped,
 )
 from patchcloud.stream.io.store import Store
 
@@ -95,12 +95,6 @@ class CompressSummary:
         return (f"  positions       {who} within {self.max_error:g} {u} (on a grid of {grid} {u}: "
                 f"{', '.join(map(str, self.steps))} x the file's)")
 
-    def _residual_kept(self) -> str:
-        kept = [what for name, what in (("classification", "classification exact"),
-                                        ("intensity", f"intensity on {2**INTENSITY_BITS} levels"),
-                                        ("return_number", "one return")) if name not in self.dropped]
-        return ", ".join(kept) or "none kept"
-
     def format(self) -> str:
         n = max(self.points, 1)
         u = self.units["symbol"]
@@ -121,7 +115,7 @@ class CompressSummary:
             f"  error           budget {self.max_error:g} {u}; mean distance of the modelled points to their surface "
             f"{self.mean_error:.4f} {u} (before quantisation, which adds at most half the budget)",
             self._position_line("residual points"),
-            f"  residual dims   {self._residual_kept()}; zero: {dropped}",
+            f"  residual dims   {kept_words(self.dropped)}; zero: {dropped}",
             size,
             *left_out_lines(self.left_out, self.selection, self.points, "in no model, kept as residual points"),
             *time_and_memory_lines(self.seconds, self.points, self.peak_memory, self.scheduler, self.compile_seconds),

@@ -15,6 +15,7 @@ from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classifi
 from patchcloud.stream.io.crs import crs_description, units_of
 from patchcloud.stream.io.las import LasSource, open_source, read_chunks
 from patchcloud.stream.io.pcz import open_pcz
+from patchcloud.stream.io.residual_points import kept_words
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.engine.background import stops_what_it_starts
 from patchcloud.stream.jobs.decompress import DECOMPRESS_DIMS
@@ -52,12 +53,8 @@ def _residual_coding(d: dict) -> str:
     """What a model-mode ``.pcz`` (:func:`describe`'s ``d``) keeps of its residual points' attributes."""
     if d["version"] < 5:
         return "every attribute not dropped exact, in input order"
-    lo, hi = d.get("intensity_shifts", [0, 0])
-    kept = [what for name, what in (
-        ("classification", "class exact"),
-        ("intensity", f"intensity on 64 levels (divided by 2**{lo}{'' if lo == hi else f' to 2**{hi}'}, rounded)"),
-        ("return_number", "return 1 of 1")) if name not in d.get("dropped", [])]
-    return ", ".join(kept) or "no attribute"
+    return kept_words(d.get("dropped", []), tuple(d.get("intensity_shifts", [0, 0])))
+
 
 def class_counts(src: LasSource) -> tuple[dict[int, int], int]:
     """Points of each class present (code: count) and the withheld points of a file, read in chunks of 2^20 points."""
