@@ -1134,3 +1134,37 @@ def face_votes(lower, edge, a_centroid, a_frames, a_coeffs, a_rmse, i, b_centroi
                     votes += same
                     voters += 1
         out[e] = votes / max(voters, 4)
+
+
+@parallel_kernel
+def draw_on_patches(todo, k, r, occupied, cell_order, extent, patch, coeffs, centroid, frame, lo, edge, side, pts, outside):
+    """One draw of :func:`patchcloud.core.patchmodel.sample_models` for the points ``todo``, written to ``pts[todo]``.
+
+    Point ``t`` of cell ``k[t]`` takes the uniform numbers ``r[i]`` (i its
+    row of ``todo``): ``r[i, 0]`` picks one of the cell's ``occupied``
+    mask cells (``cell_order``: the occupied first), ``r[i, 1:]`` a place
+    in it, within the cell's ``extent`` (u0, u1, v0, v1) of ``side`` x
+    ``side`` mask cells; the place is lifted onto the patch's quadric and
+    turned to the caller's frame.  ``outside[i]``: the point left its
+    octree cell (corner ``lo``, ``edge``).  The same arithmetic, in the
+    same order, as the numpy it replaces.
+    """
+    for i in prange(todo.shape[0]):
+        t = todo[i]
+        kk = k[t]
+        pk = patch[kk]
+        occ = occupied[kk]
+        pick = min(np.int64(r[i, 0] * occ), max(occ - 1, 0))
+        cell = cell_order[kk, pick]
+        e0, e1, e2, e3 = extent[kk, 0], extent[kk, 1], extent[kk, 2], extent[kk, 3]
+        u = e0 + (cell // side + r[i, 1]) * (e1 - e0) / side
+        v = e2 + (cell % side + r[i, 2]) * (e3 - e2) / side
+        c = coeffs[pk]
+        w = c[0] * u * u + c[1] * u * v + c[2] * v * v + c[3] * u + c[4] * v + c[5]
+        out = False
+        for a in range(3):
+            p = centroid[pk, a] + (frame[pk, a, 0] * u + frame[pk, a, 1] * v + frame[pk, a, 2] * w)
+            pts[t, a] = p
+            if p < lo[kk, a] or p > lo[kk, a] + edge[kk]:
+                out = True
+        outside[i] = out

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._kernels import cell_moments
+from ._kernels import cell_moments, draw_on_patches
 from .checks import check_budget
 from .errors import PatchcloudValueError
 from .merge import leaf_neighbours, merge_leaves, moment_scale, sum_moments, unique_pairs
@@ -500,18 +500,13 @@ def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed
     patch = models.cell_patch
     pts = np.empty((k.size, 3))
     todo = np.arange(k.size)
+    args = (occupied, cell_order, np.ascontiguousarray(models.extent, dtype=np.float64), patch,
+            np.ascontiguousarray(models.coeffs, dtype=np.float64), np.ascontiguousarray(models.centroid, dtype=np.float64),
+            np.ascontiguousarray(models.frame, dtype=np.float64), np.ascontiguousarray(lo), np.ascontiguousarray(edge, dtype=np.float64))
     for attempt in range(MAX_DRAWS):  # a draw outside its octree cell is drawn again
-        kk = k[todo]
-        pk = patch[kk]
         r = rng.random((todo.size, 3))
-        pick = np.minimum((r[:, 0] * occupied[kk]).astype(np.int64), np.maximum(occupied[kk] - 1, 0))
-        cell = cell_order[kk, pick]
-        e = models.extent[kk]
-        u = e[:, 0] + (cell // MASK_SIDE + r[:, 1]) * (e[:, 1] - e[:, 0]) / MASK_SIDE
-        v = e[:, 2] + (cell % MASK_SIDE + r[:, 2]) * (e[:, 3] - e[:, 2]) / MASK_SIDE
-        w = _quadric(models.coeffs[pk], u, v)
-        pts[todo] = models.centroid[pk] + np.einsum("nij,nj->ni", models.frame[pk], np.column_stack([u, v, w]))
-        outside = np.any((pts[todo] < lo[kk]) | (pts[todo] > lo[kk] + edge[kk, None]), axis=1)
+        outside = np.empty(todo.size, dtype=np.bool_)
+        draw_on_patches(todo, k, r, *args, MASK_SIDE, pts, outside)
         todo = todo[outside]
         if todo.size == 0:
             break

@@ -177,3 +177,46 @@ def test_a_leaf_is_split_between_patches_only_where_its_majority_patch_does_not_
     g = major[leaf[fit.cell[others]]]
     off = np.abs(implicit_value(p[others], m.centroid[g], m.frame[g], m.coeffs[g]))
     assert others.size > 0 and np.all(off > budget)
+
+
+def _sample_models_numpy(models, seed=0):
+    """sample_models as it was written in numpy (before its draws were compiled), the frame turned by explicit sums in
+    axis order (numpy's einsum summed them in another order: 1e-16 m apart, the same LAS integers): the reference."""
+    from patchcloud.core.patchmodel import MASK_SIDE, MAX_DRAWS
+
+    C = models.count.shape[0]
+    k = np.repeat(np.arange(C), models.count)
+    rng = np.random.default_rng(seed)
+    bits = models.mask_bits()
+    occupied = bits.sum(axis=1)
+    cell_order = np.argsort(~bits, axis=1, kind="stable")
+    edge, lo, patch = models.edge, models.cell_corner(), models.cell_patch
+    pts = np.empty((k.size, 3))
+    todo = np.arange(k.size)
+    for _ in range(MAX_DRAWS):
+        kk = k[todo]
+        pk = patch[kk]
+        r = rng.random((todo.size, 3))
+        pick = np.minimum((r[:, 0] * occupied[kk]).astype(np.int64), np.maximum(occupied[kk] - 1, 0))
+        cell = cell_order[kk, pick]
+        e = models.extent[kk]
+        u = e[:, 0] + (cell // MASK_SIDE + r[:, 1]) * (e[:, 1] - e[:, 0]) / MASK_SIDE
+        v = e[:, 2] + (cell % MASK_SIDE + r[:, 2]) * (e[:, 3] - e[:, 2]) / MASK_SIDE
+        c = models.coeffs[pk]
+        w = c[:, 0] * u * u + c[:, 1] * u * v + c[:, 2] * v * v + c[:, 3] * u + c[:, 4] * v + c[:, 5]
+        f = models.frame[pk]
+        pts[todo] = models.centroid[pk] + (f[:, :, 0] * u[:, None] + f[:, :, 1] * v[:, None] + f[:, :, 2] * w[:, None])
+        outside = np.any((pts[todo] < lo[kk]) | (pts[todo] > lo[kk] + edge[kk, None]), axis=1)
+        todo = todo[outside]
+        if todo.size == 0:
+            break
+    return pts, k
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_compiled_draws_are_the_numpy_definition_bit_for_bit(rng, seed):
+    p = np.vstack([sphere(rng, n=20000, noise=0.003), box(rng, per_face=3000) + 20.0])
+    models = dequantise_models(quantise_models(fit_models(p, 0.01).models, 0.01))
+    got, k = sample_models(models, seed=seed)
+    want, k0 = _sample_models_numpy(models, seed=seed)
+    assert np.array_equal(k, k0) and np.array_equal(got, want)

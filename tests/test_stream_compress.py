@@ -285,3 +285,16 @@ def test_a_box_gets_the_residual_points_rounded_past_their_tiles_face(las_file, 
             got = np.asarray(part.Reconstructed) == 0
             assert got.sum() == want.sum(), (face, lo, hi)
     assert decompress(tmp_path / "c.pcz", tmp_path / "lod.las", lod=40).reconstructed > 0  # past MAX_LOD: one point a cell
+
+
+def test_sampled_points_outside_their_tile_or_not_finite_are_a_damaged_file():
+    from patchcloud.stream.jobs.decompress import TILE_SLACK, check_in_tile
+
+    ijk, t = np.array([1, 0, 2]), 8.0  # the tile [8, 16] x [0, 8] x [16, 24]
+    inside = np.array([[8.0, 0.0, 16.0], [16.0, 8.0, 24.0], [12.0, 4.0, 20.0]])
+    check_in_tile("x.pcz", inside, ijk, t)
+    check_in_tile("x.pcz", inside[:0], ijk, t)
+    check_in_tile("x.pcz", inside - TILE_SLACK * t * 0.99, ijk, t)  # within the slack
+    for bad in ([np.nan, 4.0, 20.0], [12.0, -TILE_SLACK * t * 1.01, 20.0], [12.0, 4.0, np.inf]):
+        with pytest.raises(PatchcloudIOError, match=r"x.pcz: damaged .pcz file \(tile t\+1\+0\+2's patches put 2 points outside it\)"):
+            check_in_tile("x.pcz", np.vstack([inside, [bad, bad]]), ijk, t)

@@ -392,6 +392,7 @@ class _OpenPcz:
         self.root = root
         self._store = store
         self.attrs = dict(root.attrs)
+        self._arrays: dict[str, zarr.Array] = {}  # opened once each: a tile's reads then skip their metadata
 
     # -- what the file says -------------------------------------------------
     @property
@@ -405,7 +406,9 @@ class _OpenPcz:
     def _read(self, name: str, rows: slice | None = None) -> np.ndarray:
         """Rows of array ``name`` (all of it by default); a chunk that cannot be decoded is a PatchcloudIOError naming it."""
         try:
-            a = self.root[name]
+            a = self._arrays.get(name)
+            if a is None:
+                a = self._arrays[name] = self.root[name]
             return a[...] if rows is None else a[rows]
         except Exception as exc:
             raise PatchcloudIOError(f"{self.path}: damaged .pcz file (array {name} cannot be read: {exc})") from exc

@@ -85,6 +85,8 @@ def check_in_tile(path, points: np.ndarray, ijk: np.ndarray, tile_size: float) -
     of the tile's edge outside tile ``ijk``: a damaged or crafted ``.pcz`` (PatchcloudIOError naming the tile)."""
     lo = np.asarray(ijk, dtype=np.float64) * tile_size - TILE_SLACK * tile_size
     hi = lo + (1 + 2 * TILE_SLACK) * tile_size
+    if not points.size or (np.all(points.min(axis=0) >= lo) and np.all(points.max(axis=0) <= hi)):  # NaN fails both
+        return
     ok = np.isfinite(points).all(axis=1) & np.all((points >= lo) & (points <= hi), axis=1)
     if not ok.all():
         raise PatchcloudIOError(f"{path}: damaged .pcz file (tile {tile_name(ijk)}'s patches put {int((~ok).sum()):,} points "
