@@ -37,8 +37,8 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.patches': ('PatchTable',),
     '.patchmodel': ('MASK_SIDE', 'ModelFit', 'PatchModels', 'QuantisedModels', 'dequantise_models', 'fit_models', 'patch_distances', 'quantise_models', 'sample_models'),
     '.quadric': ('fit_nodes', 'surface_normals'),
-    '.checks': ('MODES',),
-    '.radius': ('check_points', 'default_viewpoint', 'grid_origin', 'halo_width', 'radius_normals'),
+    '.checks': ('MODES', 'check_rounding'),
+    '.radius': ('check_points', 'coordinate_step', 'default_viewpoint', 'grid_origin', 'halo_width', 'radius_normals'),
     '.threads': ('single_threaded',),
     '.tiles': ('SKIN_HALO', 'Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
 }
@@ -125,6 +125,8 @@ __all__ = [
     # .radius
     "MODES",
     "check_points",
+    "check_rounding",
+    "coordinate_step",
     "halo_width",
     # .cluster
     "components",

@@ -264,13 +264,14 @@ def ball_moments(
 
 
 @parallel_kernel
-def pca_normals(moments, query, viewpoint, min_points, normals, variation):
+def pca_normals(moments, query, viewpoint, min_points, min_spread, normals, variation):
     """Normal (smallest principal axis) and surface variation from ball moments about the query points.
 
     A normal is turned to face ``viewpoint`` (dot(viewpoint - q, n) >= 0).
     Rows with fewer than ``min_points`` points, or whose points lie on a
     line or at one place (second-smallest eigenvalue below 1e-12 of the
-    largest), are left NaN: their normal is undefined.
+    largest, or at most ``min_spread``: the coordinates' rounding step
+    squared), are left NaN: their normal is undefined.
     """
     M = moments.shape[0]
     chunks = (M + CHUNK - 1) // CHUNK
@@ -294,7 +295,7 @@ def pca_normals(moments, query, viewpoint, min_points, normals, variation):
             cov[2, 2] = moments[m, 9] / n - mz * mz
             cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
             eigh3_into(cov, w, v)
-            if not (w[1] > 1e-12 * w[2]) or w[2] <= 0.0:
+            if not (w[1] > 1e-12 * w[2]) or w[1] <= min_spread or w[2] <= 0.0:
                 for a in range(3):
                     normals[m, a] = np.nan
                 variation[m] = np.nan

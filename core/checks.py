@@ -12,7 +12,7 @@ from .errors import PatchcloudValueError
 
 __all__ = [
     "coordinates", "CRITERIA", "ORIENT_RULES", "MODES", "check_positive", "check_radius", "check_viewpoint", "check_mode",
-    "check_cluster_sizes", "check_budget", "check_indices",
+    "check_cluster_sizes", "check_budget", "check_indices", "check_rounding",
 ]
 
 #: Octree split criteria: quadric fit RMSE (metres) or surface variation.
@@ -81,12 +81,38 @@ def check_radius(name: str, value) -> float:
     return v
 
 
-def check_viewpoint(viewpoint) -> np.ndarray:
-    """``viewpoint`` as a (3,) float64 array of finite coordinates, or a PatchcloudValueError."""
-    vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
+def check_viewpoint(viewpoint, name: str = "viewpoint") -> np.ndarray:
+    """``viewpoint`` (or another point, ``name``) as a (3,) float64 array of finite coordinates, or a PatchcloudValueError.
+
+    >>> check_viewpoint([0, 1, 2]).tolist()
+    [0.0, 1.0, 2.0]
+    >>> check_viewpoint([float("nan"), 0, 0], "origin")
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: origin must be three finite coordinates (x, y, z), got [nan, 0, 0]
+    """
+    try:
+        vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        vp = np.zeros(0)
     if vp.shape != (3,) or not np.isfinite(vp).all():
-        raise PatchcloudValueError(f"viewpoint must be three finite coordinates (x, y, z), got {viewpoint!r}")
+        raise PatchcloudValueError(f"{name} must be three finite coordinates (x, y, z), got {viewpoint!r}")
     return vp
+
+
+def check_rounding(rounding) -> float:
+    """``rounding`` (the step the coordinates are rounded to, metres) as a float >= 0, or a PatchcloudValueError.
+
+    >>> check_rounding(0.01)
+    0.01
+    """
+    try:
+        value = float(rounding)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (np.isfinite(value) and value >= 0):
+        raise PatchcloudValueError(f"rounding must be a finite length of at least 0 (the coordinates' step), got {rounding!r}")
+    return value
 
 
 def check_mode(mode: str, resolution: int = 4, min_points: int = 3) -> None:

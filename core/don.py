@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .checks import check_cluster_sizes, check_radius
+from .checks import check_cluster_sizes, check_radius, check_rounding
 from .cluster import euclidean_clusters
 from .errors import PatchcloudValueError
 from .options import AXES, DonOptions, check_threshold
-from .radius import check_points, default_viewpoint, grid_origin, radius_normals
+from .radius import check_points, coordinate_step, default_viewpoint, grid_origin, radius_normals
 
 __all__ = ["difference_of_normals", "don_magnitude", "don_mask", "segment_don"]
 
@@ -31,6 +31,7 @@ def difference_of_normals(
     min_points: int = 3,
     at: np.ndarray | None = None,
     origin=None,
+    rounding: float | None = None,
 ) -> np.ndarray:
     """The DoN vector of every point.
 
@@ -45,10 +46,11 @@ def difference_of_normals(
         (:func:`patchcloud.core.radius.default_viewpoint`).
     mode, resolution, min_points :
         As :class:`patchcloud.core.DonOptions` (which checks all of these).
-    at, origin :
+    at, origin, rounding :
         As :func:`patchcloud.core.radius_normals` (``origin``: where fast
         mode's voxels are laid from; by default as ``patchcloud don`` lays
-        them, so the whole file's DoN is the command's).
+        them, so the whole file's DoN is the command's; ``rounding``: the
+        coordinates' step, a ``laspy.LasData``'s scale by default).
 
     Returns
     -------
@@ -64,11 +66,12 @@ def difference_of_normals(
     >>> float(np.abs(d).max())
     0.0
     """
+    step = coordinate_step(points) if rounding is None else check_rounding(rounding)
     pts = check_points(points)
     o = DonOptions(r_small, r_large, mode=mode, viewpoint=viewpoint, resolution=resolution, min_points=min_points)
     vp = default_viewpoint(pts) if o.viewpoint is None else np.asarray(o.viewpoint)
     kw = dict(viewpoint=vp, mode=o.mode, resolution=o.resolution, min_points=o.min_points, at=at,
-              origin=grid_origin(pts) if origin is None else origin)
+              origin=grid_origin(pts) if origin is None else origin, rounding=step)
     return (radius_normals(pts, o.r_small, **kw) - radius_normals(pts, o.r_large, **kw)) / 2.0
 
 

@@ -32,7 +32,14 @@ Both compute in float64 on offsets from the query point, so large
 projected coordinates (UTM, Lambert-93) lose nothing.  A point with fewer
 than ``min_points`` points in its ball, or whose ball's points are
 collinear or coincident, gets an undefined normal: a row of NaN, never a
-silent zero.
+silent zero.  Collinear up to the coordinates' rounding counts: with
+``rounding`` the step the coordinates are rounded to (a LAS file's scale,
+taken from a ``laspy.LasData`` by default), a ball whose points spread
+less than one step across their line (the PCA's second eigenvalue below
+``rounding**2``) has no normal.  Three points of a line rounded to 1 cm
+otherwise give a plane the rounding turns at will: on a plane of 3,000
+points rounded to 1 cm, |DoN| (0.2 m / 2 m) reached 0.72, and 0.08 with
+the rule.
 """
 
 from __future__ import annotations
@@ -40,14 +47,14 @@ from __future__ import annotations
 import numpy as np
 
 from . import _radius_kernels as _rk
-from .checks import check_indices, check_mode, check_positive, check_radius, check_viewpoint, coordinates
+from .checks import check_indices, check_mode, check_positive, check_radius, check_rounding, check_viewpoint, coordinates
 from .errors import PatchcloudValueError
 from .grid import CellGrid
 from .points import GRID_ANCHOR
 
 __all__ = [
     "radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "voxel_points", "VOXEL_MIN_POINTS", "check_points",
-    "grid_origin",
+    "grid_origin", "coordinate_step",
 ]
 
 def check_points(points, name: str = "points") -> np.ndarray:
@@ -56,12 +63,24 @@ def check_points(points, name: str = "points") -> np.ndarray:
     p = np.asarray(coordinates(points))
     if p.ndim != 2 or p.shape[1] != 3:
         raise PatchcloudValueError(f"{name} must be an (N, 3) array, got shape {p.shape}")
-    if not np.issubdtype(p.dtype, np.number):
-        raise PatchcloudValueError(f"{name} must be numeric, got dtype {p.dtype}")
+    if not np.issubdtype(p.dtype, np.number) or np.iscomplexobj(p):
+        raise PatchcloudValueError(f"{name} must be real numbers, got dtype {p.dtype}")
     p = np.ascontiguousarray(p, dtype=np.float64)
     if not np.isfinite(p).all():
         raise PatchcloudValueError(f"{name} holds NaN or infinite coordinates")
     return p
+
+
+def coordinate_step(points) -> float:
+    """The step ``points``' coordinates are rounded to: a ``laspy.LasData``'s largest scale, else 0 (not rounded).
+
+    >>> import laspy
+    >>> coordinate_step(laspy.read(sample)), coordinate_step(np.zeros((4, 3)))
+    (0.01, 0.0)
+    """
+    if hasattr(points, "xyz") and hasattr(points, "header") and hasattr(points, "point_format"):
+        return float(np.max(np.asarray(points.header.scales, dtype=np.float64)))
+    return 0.0
 
 
 def default_viewpoint(points: np.ndarray) -> np.ndarray:
@@ -191,7 +210,7 @@ def radius_moments(
     r = check_radius("radius", radius)
     check_mode(mode, resolution, 3)
     at = None if at is None else check_indices(at, pts.shape[0])
-    shift = grid_origin(pts) if origin is None else check_viewpoint(origin)
+    shift = grid_origin(pts) if origin is None else check_viewpoint(origin, "origin")
     if np.any(shift != 0):  # offsets from each query point: the frame changes where the cells lie, and the roundings
         pts = pts - shift
     q = pts if at is None else pts[at]
@@ -246,6 +265,7 @@ def radius_normals(
     density: float | None = None,
     return_variation: bool = False,
     origin=None,
+    rounding: float | None = None,
 ):
     """Unit normals from the PCA of all points within ``radius`` of each point.
 
@@ -283,12 +303,17 @@ def radius_normals(
         frame starts, so the whole file's values are those of
         ``patchcloud don``; moving the origin by a fraction of a voxel moves
         fast-mode values a little, exact ones only by rounding).
+    rounding : float, optional
+        The step the coordinates are rounded to (metres; default
+        :func:`coordinate_step` of ``points``: a ``laspy.LasData``'s largest
+        scale, else 0): a ball whose points lie within it of a line (second
+        eigenvalue below ``rounding**2``) has no normal.
 
     Returns
     -------
     normals : (M, 3) float64
         Unit normals; rows of NaN where the normal is undefined (too few
-        points, or collinear or coincident ones).
+        points, or collinear, up to ``rounding``, or coincident ones).
     variation : (M,) float64, only with ``return_variation``
 
     Raises
@@ -305,6 +330,7 @@ def radius_normals(
     >>> np.allclose(n, [0, 0, 1])
     True
     """
+    step = coordinate_step(points) if rounding is None else check_rounding(rounding)
     pts = check_points(points)
     r = check_radius("radius", radius)
     check_mode(mode, resolution, min_points)
@@ -315,5 +341,5 @@ def radius_normals(
     normals = np.empty((q.shape[0], 3))
     variation = np.empty(q.shape[0])
     if q.shape[0]:
-        _rk.pca_normals(mom, q, vp, float(min_points), normals, variation)
+        _rk.pca_normals(mom, q, vp, float(min_points), step * step, normals, variation)
     return (normals, variation) if return_variation else normals

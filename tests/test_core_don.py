@@ -292,3 +292,40 @@ def test_fast_don_agrees_with_exact_and_hardly_depends_on_the_origin(rng):
     assert np.abs(ex).max() > 0.15  # the step and the waves give DoN worth comparing
     assert np.percentile(np.abs(fast - ex), 99) < 0.01  # a voxel centre test: 0.016
     assert np.percentile(np.abs(moved - fast), 99) < 0.01  # a voxel centre test: 0.023
+
+
+@pytest.mark.parametrize("mode", ["exact", "fast"])
+def test_a_line_rounded_to_its_step_is_still_a_line(rng, mode):
+    """Points of a line stored to 1 cm lie up to half a step off it: their balls get a plane the rounding turned at
+    will, unless the step is known (a LAS file's scale); then they are collinear, as without rounding."""
+    t = np.sort(rng.uniform(0, 10, 400))
+    line = np.round(np.column_stack([3.0 + 0.8 * t, 1.0 + 0.6 * t, 2.0 + 0.05 * t]), 2)
+    assert np.isfinite(radius_normals(line, 0.3, mode=mode, rounding=0.0)).all(axis=1).mean() > 0.9  # the old answer
+    assert np.isnan(radius_normals(line, 0.3, mode=mode, rounding=0.01)).all()
+    plane = np.round(np.column_stack([rng.uniform(0, 10, (10000, 2)), np.zeros(10000)]) @ [[1, 0, 0.2], [0, 1, 0.1], [0, 0, 1]], 2)
+    n = radius_normals(plane, 0.3, mode=mode, rounding=0.01)  # a plane keeps its normals: it spreads far more than 1 cm
+    assert np.isfinite(n).all() and np.abs(n @ ([-0.2, -0.1, 1] / np.linalg.norm([-0.2, -0.1, 1]))).min() > 0.99
+
+
+def test_the_rounding_of_a_lasdata_is_its_scale():
+    import laspy
+
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = [0.01, 0.01, 0.001], [0.0, 0.0, 0.0]
+    las = laspy.LasData(h)
+    t = np.linspace(0, 10, 400)
+    las.x, las.y, las.z = 3.0 + 0.8 * t, 1.0 + 0.6 * t, 2.0 + 0.05 * t
+    assert np.isnan(radius_normals(las, 0.3)).all()  # the largest scale, 0.01
+    assert np.isfinite(radius_normals(las, 0.3, rounding=0.0)).all(axis=1).mean() > 0.9
+    assert np.isnan(difference_of_normals(las, 0.3, 1.0)).all()
+
+
+@pytest.mark.parametrize("call, words", [
+    (lambda p: radius_normals(p, 1.0, rounding=-0.01), "rounding must be a finite length of at least 0"),
+    (lambda p: difference_of_normals(p, 0.5, 1.0, rounding=float("nan")), "rounding must be a finite length of at least 0"),
+    (lambda p: radius_normals(p, 1.0, origin=[np.nan, 0, 0]), "origin must be three finite coordinates"),
+    (lambda p: radius_normals(p.astype(complex), 1.0), "points must be real numbers, got dtype complex128"),
+])
+def test_bad_rounding_origin_and_complex_points_are_named(rng, call, words):
+    with pytest.raises(PatchcloudValueError, match=words):
+        call(rng.uniform(0, 5, (100, 3)))

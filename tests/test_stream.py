@@ -92,8 +92,10 @@ def test_tile_size_does_not_change_the_result(scene_las, reference, tmp_path):
         assert np.median(angles_deg(nrm, ref)) < 0.05, T
 
 
-@pytest.mark.slow  # a local dask cluster, about 30 s (2 cores)
-def test_local_cluster_gives_identical_output(scene_las, tmp_path):
+@pytest.mark.slow  # a local dask cluster, about 30 s (2 cores) for each way its workers start
+@pytest.mark.parametrize("start", ["fork", "spawn"])
+def test_local_cluster_gives_identical_output(scene_las, tmp_path, monkeypatch, start):
+    monkeypatch.setenv("PATCHCLOUD_WORKER_START", start)  # forked copies of this process (Linux's default), or new ones
     path, _, _ = scene_las
     laz = tmp_path / "scene.laz"
     laspy.read(str(path)).write(str(laz))
@@ -273,3 +275,28 @@ def test_cli_viewpoint_orients_as_pdals_does_and_bad_options_are_named_as_typed(
         r = CliRunner().invoke(main, ["normals", str(path), str(tmp_path / "c.las"), *args, *run])
         assert r.exit_code == 2 and words in r.output, r.output
         assert not (tmp_path / "c.las").exists()
+
+
+@pytest.mark.parametrize("change", ["z", "class"])
+def test_a_kept_store_is_not_reused_for_an_input_rewritten_in_place(scene_las, tmp_path, change):
+    """Same name, same size, same modification time (``touch -r``, ``cp -p``, a coarse file system), other records:
+    the store is tiled again, so the output is the new file's, as a run without the store gives."""
+    path, _, _ = scene_las
+    src = tmp_path / "in.las"
+    src.write_bytes(path.read_bytes())
+    store = str(tmp_path / "job.zarr")
+    normals(src, tmp_path / "first.las", store=store, keep_store=True, scheduler="synchronous", quiet=True)
+    stat = os.stat(src)
+    las = laspy.read(src)
+    if change == "z":  # the header's bounds change too
+        las.z = las.z + 0.5 * (las.x - las.x.min())
+    else:  # the header stays as it was: only the records differ
+        las.classification = np.where(np.arange(len(las.points)) % 7 == 0, 7, las.classification)  # noise: left out
+    las.write(src)
+    assert os.stat(src).st_size == stat.st_size
+    os.utime(src, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    normals(src, tmp_path / "again.las", store=store, keep_store=True, scheduler="synchronous", quiet=True)
+    normals(src, tmp_path / "fresh.las", scheduler="synchronous", quiet=True)
+    again, fresh = laspy.read(tmp_path / "again.las"), laspy.read(tmp_path / "fresh.las")
+    assert np.array_equal(again.points.array, fresh.points.array)
+    assert not np.array_equal(again.points.array, laspy.read(tmp_path / "first.las").points.array)

@@ -417,3 +417,21 @@ def test_map_tiles_refuses_a_tile_not_in_the_store_and_a_negative_halo(tmp_path)
     assert sorted(p.name for p in (st / "tiles").iterdir()) == before
     with pytest.raises(PatchcloudValueError, match="halo must be a whole number of tiles, 0 or more; got -1"):
         map_tiles(count, store, halo=-1)
+
+
+def test_a_line_stored_to_1_cm_has_no_don_and_no_segment(tmp_path):
+    """Its balls hold points of one line, up to the file's rounding: no plane, so no normal and no DoN (0 in the file),
+    and no segment (before: DoN up to 0.996 and 18 segments of 5 points or more)."""
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = [0.01] * 3, list(OFFSET)
+    las = laspy.LasData(h)
+    t = np.linspace(0, 50, 500)
+    las.x, las.y, las.z = OFFSET[0] + 0.8 * t, OFFSET[1] + 0.6 * t, OFFSET[2] + 0.05 * t
+    las.write(tmp_path / "line.las")
+    summary = don(tmp_path / "line.las", tmp_path / "don.las", r_small=0.2, r_large=2.0, quiet=True)
+    assert not np.asarray(laspy.read(tmp_path / "don.las").DoN).any()
+    text = summary.format()  # no "median magnitude nan"; what to change, said
+    assert "  DoN defined     0 (0.0%)\n" in text and "nan" not in text
+    assert "note            most points have no DoN: their r_s ball holds fewer than 3 points, or points of one line" in text
+    segment(tmp_path / "line.las", tmp_path / "seg.las", r_small=0.2, r_large=2.0, threshold=0.25, min_points=5, quiet=True)
+    assert not np.asarray(laspy.read(tmp_path / "seg.las").ClusterID).any()

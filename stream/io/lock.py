@@ -33,7 +33,7 @@ from pathlib import Path
 
 from patchcloud.core import PatchcloudIOError
 
-__all__ = ["RunLock", "PatchcloudLockedError", "lock_path", "HEARTBEAT", "STALE", "COMMAND_WORDS"]
+__all__ = ["RunLock", "PatchcloudLockedError", "lock_path", "alive", "HEARTBEAT", "STALE", "COMMAND_WORDS"]
 
 #: Seconds between two touches of a held lock.
 HEARTBEAT = 30.0
@@ -53,14 +53,24 @@ def lock_path(path: str | os.PathLike) -> Path:
     return p.with_name(p.name + ".lock")
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this host: it exists and is not a zombie (ended, its parent not yet told; under
+    a container's first process that never reaps, it stays one for good).
+
+    >>> alive(os.getpid())
+    True
+    """
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # someone else's process
+        pass
+    try:  # Linux: the state after the name's closing parenthesis (a name may hold one too)
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):  # no /proc (macOS), or gone meanwhile: os.kill said it was there
         return True
-    return True
+    return state not in ("Z", "X")
 
 
 def _read(lock: Path) -> dict | None:
@@ -79,7 +89,7 @@ def _stale(lock: Path, info: dict | None) -> str | None:
     if info is None:  # being written right now, or garbage
         return f"unreadable and untouched for {age:.0f} s" if age > _TAKEOVER_STALE else None
     if info.get("host") == socket.gethostname():
-        return None if _alive(int(info.get("pid", -1))) else f"pid {info.get('pid')} on this host is dead"
+        return None if alive(int(info.get("pid", -1))) else f"pid {info.get('pid')} on this host is dead"
     return f"no heartbeat from {info.get('host')} for {age:.0f} s" if age > STALE else None
 
 

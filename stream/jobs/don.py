@@ -45,6 +45,10 @@ DON_DIMS = (
 )
 
 
+#: Below this share of points with a DoN the summary says why and what to change.
+FEW_DEFINED = 0.5
+
+
 @dataclass
 class DonSummary:
     """What a ``don`` or ``segment`` run did (times in seconds, memory in bytes)."""
@@ -87,9 +91,13 @@ class DonSummary:
             f"  tiles           {self.tiles:,} of {self.tile_size:g} {u}",
             units_line(self.units),
             f"  scales          r_s {p['r_small']:g} {u}, r_l {p['r_large']:g} {u}, mode {p['mode']}",
-            f"  DoN defined     {self.defined:,} ({self.defined / n:.1%}); median magnitude {self.median_magnitude():.2f}",
+            f"  DoN defined     {self.defined:,} ({self.defined / n:.1%})"
+            + (f"; median magnitude {self.median_magnitude():.2f}" if self.defined else ""),
             *left_out_lines(self.left_out, self.selection, self.points),
         ]
+        if self.points and self.defined < FEW_DEFINED * self.points:
+            lines.append(f"  note            most points have no DoN: their r_s ball holds fewer than {p.get('min_points', 3)} points, "
+                         f"or points of one line (a scan line); a larger --rs, a few times the point spacing, gives them one")
         if self.kept is not None:
             extra = f", |DoN_{p['axis']}| >= {p['axis_threshold']:g}" if p.get("axis") else ""
             lines.append(f"  kept            {self.kept:,} ({self.kept / n:.1%}) with magnitude >= {p['threshold']:g}{extra}")
@@ -109,6 +117,12 @@ def default_viewpoint_of(src: LasSource | Catalog) -> np.ndarray:
     lo, hi = np.asarray(src.mins, dtype=np.float64), np.asarray(src.maxs, dtype=np.float64)
     ext = float(max((hi - lo).max(), 1.0))
     return np.array([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, hi[2] + ext])
+
+
+def catalog_step(catalog: Catalog) -> float:
+    """The step a catalog's coordinates are rounded to: its files' largest scale (file units), the ``rounding`` of
+    :func:`patchcloud.core.radius_normals` (a ball collinear up to it has no normal)."""
+    return float(max(max(s.scale) for s in catalog.sources))
 
 
 def cloud_density(st: Store, edge: float) -> float:
@@ -179,7 +193,7 @@ class DonJob(Job):
         vp = default_viewpoint_of(ctx.catalog) if o.viewpoint is None else np.asarray(o.viewpoint, dtype=np.float64)
         self.params = dict(
             r_small=o.r_small, r_large=o.r_large, mode=o.mode, resolution=o.resolution, min_points=o.min_points,
-            viewpoint_local=(vp - origin).tolist(), **self.selection(),
+            viewpoint_local=(vp - origin).tolist(), rounding=catalog_step(ctx.catalog), **self.selection(),
         )
         if o.mode == "fast":  # whether voxels pay off, from the whole file (as a whole-cloud run decides it)
             self.params["density_small"] = cloud_density(st, o.r_small / o.resolution)

@@ -49,7 +49,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import check_points, default_viewpoint, MODES, PatchcloudValueError, radius_normals
+from patchcloud.core import MODES, PatchcloudValueError, check_points, check_rounding, coordinate_step, default_viewpoint, radius_normals
 
 from patchcloud.stream.io.las import open_source, read_chunks
 
@@ -484,6 +484,7 @@ def select_scales(
     classes_from: str = "classification",
     progress: Callable[[str], None] | None = None,
     _source: str | None = None,
+    rounding: float | None = None,
 ) -> ScalesResult:
     """Per-class DoN magnitude statistics over radius pairs, for points in memory (see the module text).
 
@@ -516,6 +517,9 @@ def select_scales(
     progress : callable, optional
         Called with a one-line message after each radius (all arguments and
         classes are checked before the first call).
+    rounding : float, optional
+        The coordinates' step, as :func:`patchcloud.core.radius_normals`
+        (default: a ``laspy.LasData``'s scale, else 0).
 
     Returns
     -------
@@ -542,6 +546,7 @@ def select_scales(
     >>> r.best_pair, r.classes.tolist(), r.fisher.round(1).tolist()
     ((0.3, 2.0), [2, 64], [0.7, 1.7, 0.8])
     """
+    step = coordinate_step(points) if rounding is None else check_rounding(rounding)
     pts = check_points(points)
     lab = np.asarray(labels).reshape(-1)
     if lab.shape[0] != pts.shape[0]:
@@ -564,7 +569,8 @@ def select_scales(
     normals = {}
     for r in np.unique(pairs):
         t0 = time.perf_counter()
-        normals[float(r)] = radius_normals(pts, float(r), viewpoint=vp, mode=mode, resolution=resolution, min_points=min_points, at=at)
+        normals[float(r)] = radius_normals(pts, float(r), viewpoint=vp, mode=mode, resolution=resolution, min_points=min_points, at=at,
+                                            rounding=step)
         if progress is not None:
             progress(f"radius normals r = {r:g} m at {at.size:,} points in {time.perf_counter() - t0:.1f} s")
     mag = np.empty((pairs.shape[0], at.size))
@@ -734,4 +740,5 @@ def don_scales(
         pts, lab, radii=radii, small=small, large=large, classes=classes, sample=sample, mode=mode,
         resolution=resolution, min_points=min_points, min_class_points=min_class_points, min_defined=min_defined,
         seed=seed, classes_from=classes_from, progress=None if progress is None else step, _source=src.path,
+        rounding=float(max(src.scale)),  # the file's step: a ball collinear up to it has no normal
     )

@@ -100,6 +100,7 @@ def don_tile(url: str, ijk: tuple, params: dict, neighbours: list) -> dict:
     kw = dict(
         viewpoint=np.asarray(params["viewpoint_local"]), mode=params["mode"], resolution=params["resolution"],
         min_points=params["min_points"], at=at, origin=np.zeros(3),  # the store's frame: its origin is the grid's
+        rounding=params["rounding"],
     )
     n_small = radius_normals(pts, params["r_small"], density=params.get("density_small"), **kw)
     n_large = radius_normals(pts, params["r_large"], density=params.get("density_large"), **kw)
