@@ -70,11 +70,11 @@ def check_threshold(threshold, axis=None, axis_threshold=None) -> None:
         if v is None and name == "axis_threshold":
             continue
         try:
-            ok = 0.0 <= float(v) <= 1.0
+            ok = not isinstance(v, (str, bytes)) and 0.0 <= float(v) <= 1.0
         except (TypeError, ValueError):
             ok = False
         if not ok:
-            raise PatchcloudValueError(f"{name} must be a DoN magnitude in [0, 1]; got {v!r}")
+            raise PatchcloudValueError(f"{name} must be a DoN magnitude in [0, 1] (a number); got {v!r}")
     if axis is None and axis_threshold is not None:
         raise PatchcloudValueError("axis_threshold needs an axis (one of x, y, z)")
     if axis is not None:

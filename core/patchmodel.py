@@ -27,7 +27,7 @@ import numpy as np
 
 from ._kernels import cell_moments, draw_on_patches
 from .checks import check_budget
-from .errors import PatchcloudValueError
+from .errors import PatchcloudMemoryError, PatchcloudValueError
 from .merge import leaf_neighbours, merge_leaves, moment_scale, sum_moments, unique_pairs
 from .octree import estimate_spacing, sort_points
 from .options import NormalsOptions
@@ -486,11 +486,20 @@ def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed
     >>> p.shape, float(np.abs(p[:, 2]).max()) < 1e-9
     ((20000, 3), True)
     """
+    if not isinstance(models, PatchModels):
+        raise PatchcloudValueError(f"models must be PatchModels (fit_models(...).models, or dequantise_models), got {type(models).__name__}")
     C = models.count.shape[0]
-    counts = models.count if counts is None else np.asarray(counts, dtype=np.int64)
-    if counts.shape != (C,) or (counts < 0).any():
-        raise PatchcloudValueError(f"counts must be {C} non-negative whole numbers, one per cell")
-    k = np.repeat(np.arange(C), counts)
+    if counts is None:
+        counts = models.count
+    else:
+        given = np.asarray(counts)
+        whole = given.dtype.kind in "iu" or (given.dtype.kind == "f" and bool(np.all(np.isfinite(given) & (given == np.round(given)))))
+        if given.shape != (C,) or not whole or (given < 0).any():
+            raise PatchcloudValueError(f"counts must be {C} non-negative whole numbers, one per cell")
+        counts = given.astype(np.int64)
+    seeds = np.asarray(seed, dtype=object).reshape(-1)
+    if not seeds.size or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0 for v in seeds):
+        raise PatchcloudValueError(f"seed must be a non-negative whole number, or a sequence of them; got {seed!r}")
     rng = np.random.default_rng(seed)
     bits = models.mask_bits()
     occupied = bits.sum(axis=1)
@@ -498,8 +507,13 @@ def sample_models(models: PatchModels, counts: np.ndarray | None = None, *, seed
     edge = models.edge
     lo = models.cell_corner()
     patch = models.cell_patch
-    pts = np.empty((k.size, 3))
-    todo = np.arange(k.size)
+    try:
+        k = np.repeat(np.arange(C), counts)
+        pts = np.empty((k.size, 3))
+        todo = np.arange(k.size)
+    except MemoryError:
+        total = int(counts.sum())
+        raise PatchcloudMemoryError(f"counts ask for {total:,} points ({total * 48 / 2**30:,.1f} GiB): more than this machine holds") from None
     args = (occupied, cell_order, np.ascontiguousarray(models.extent, dtype=np.float64), patch,
             np.ascontiguousarray(models.coeffs, dtype=np.float64), np.ascontiguousarray(models.centroid, dtype=np.float64),
             np.ascontiguousarray(models.frame, dtype=np.float64), np.ascontiguousarray(lo), np.ascontiguousarray(edge, dtype=np.float64))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _kernels
-from .checks import check_positive, coordinates
+from .checks import check_positive, check_viewpoint, coordinates
 from .errors import PatchcloudValueError
 
 __all__ = ["validate_points", "root_cube", "GRID_ANCHOR"]
@@ -120,8 +120,11 @@ def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
             edge *= 2.0
         return corner, edge
     if root is not None:
-        corner, edge = root
-        corner = np.asarray(corner, dtype=np.float64).reshape(3)
+        try:
+            corner, edge = root
+        except (TypeError, ValueError):
+            raise PatchcloudValueError(f"root must be (corner, edge), 'grid' or None; got {root!r}") from None
+        corner = check_viewpoint(corner, "root corner")
         edge = check_positive("root edge", edge)
         if np.any(lo < corner) or np.any(hi > corner + edge):
             raise PatchcloudValueError("points lie outside the given root cube")

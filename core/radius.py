@@ -183,8 +183,10 @@ def grid_origin(points: np.ndarray) -> np.ndarray:
 
     >>> grid_origin(np.array([[650012.5, 6860001.0, -3.0]])).tolist()
     [647168.0, 6856704.0, -4096.0]
+
+    No points: (0, 0, 0).  Points not (N, 3) or not finite: a PatchcloudValueError.
     """
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    p = check_points(points)
     return np.floor(p.min(axis=0) / GRID_ANCHOR) * GRID_ANCHOR if p.shape[0] else np.zeros(3)
 
 

@@ -15,7 +15,9 @@ from patchcloud.core import (
     don_mask,
     estimate_normals,
     fit_models,
+    grid_origin,
     radius_normals,
+    sample_models,
 )
 from patchcloud.stream import normals
 from patchcloud.stream.cli import main
@@ -157,3 +159,37 @@ def test_always_up_and_a_viewpoint_are_not_both_taken(tmp_path):
     r = CliRunner().invoke(main, ["normals", str(src), str(tmp_path / "o.laz"), "--viewpoint", "0", "0", "100", "--always-up"])
     assert r.exit_code == 2 and r.output.count("\n") == 1 and "--always-up turns every normal up and a viewpoint" in r.output
     assert not (tmp_path / "o.laz").exists()
+
+
+@pytest.mark.parametrize("call, error, words", [
+    (lambda p: estimate_normals(p, root=((np.nan, 0, 0), 100.0)), PatchcloudValueError, "root corner must be three finite coordinates"),
+    (lambda p: estimate_normals(p, root=5.0), PatchcloudValueError, "root must be (corner, edge), 'grid' or None; got 5.0"),
+    (lambda p: fit_models(p, 0.01, root=((0, np.inf, 0), 100.0)), PatchcloudValueError, "root corner must be three finite"),
+    (lambda p: grid_origin(p[:, :2]), PatchcloudValueError, "points must be an (N, 3) array, got shape (400, 2)"),
+    (lambda p: grid_origin(p[:, 0]), PatchcloudValueError, "points must be an (N, 3) array, got shape (400,)"),
+    (lambda p: grid_origin(np.vstack([p, [np.nan] * 3])), PatchcloudValueError, "points holds NaN or infinite coordinates"),
+    (lambda p: don_mask(np.zeros((4, 3)), "0.2"), PatchcloudValueError, "threshold must be a DoN magnitude in [0, 1] (a number); got '0.2'"),
+    (lambda p: sample_models(p), PatchcloudValueError, "models must be PatchModels"),
+])
+def test_bad_arguments_of_the_api_are_one_clear_error(call, error, words):
+    p = np.random.default_rng(0).uniform(0, 10, (400, 3))
+    with pytest.raises(error, match=words.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[").replace("]", r"\]")):
+        call(p)
+    assert grid_origin(np.zeros((0, 3))).tolist() == [0.0, 0.0, 0.0]  # no points: the origin
+
+
+def test_sample_models_takes_whole_counts_and_seeds_and_says_when_memory_cannot_hold_them():
+    from patchcloud.core import PatchcloudMemoryError
+
+    xy = np.random.default_rng(0).uniform(0, 8, (20000, 2))
+    m = fit_models(np.column_stack([xy, np.zeros(20000)]), 0.01).models
+    C = len(m.count)
+    assert sample_models(m, np.full(C, 3.0))[0].shape == (3 * C, 3)  # whole numbers as floats are whole numbers
+    for bad in (np.full(C, 2.5), np.full(C, -1), np.full(C + 1, 2)):
+        with pytest.raises(PatchcloudValueError, match=f"counts must be {C} non-negative whole numbers"):
+            sample_models(m, bad)
+    for seed in (-1, 1.5, "x", [1, -2]):
+        with pytest.raises(PatchcloudValueError, match="seed must be a non-negative whole number"):
+            sample_models(m, seed=seed)
+    with pytest.raises(PatchcloudMemoryError, match=r"counts ask for [\d,]+ points"):
+        sample_models(m, np.full(C, 10**13))

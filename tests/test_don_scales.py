@@ -205,3 +205,15 @@ def test_command_rejects_a_file_that_is_not_las(tmp_path):
     assert run.exit_code == 2
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error:") and str(bad) in lines[0]
+
+
+def test_classes_whose_don_is_alike_at_every_pair_are_said_not_to_separate():
+    """Two classes on one plane: every DoN is defined and 0, so no pair separates them (it said no DoN was defined)."""
+    from patchcloud.core import PatchcloudValueError
+    from patchcloud.stream.jobs.don_scales import select_scales
+
+    xy = np.random.default_rng(4).uniform(0, 20, (20000, 2))
+    pts = np.column_stack([xy, np.full(20000, 10.0)])
+    labels = np.where(xy[:, 0] < 10, 2, 6)
+    with pytest.raises(PatchcloudValueError, match=r"no pair of radii separates the classes: at every pair their DoN magnitudes are alike"):
+        select_scales(pts, labels, radii=[0.5, 1, 2], mode="exact")

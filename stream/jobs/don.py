@@ -171,8 +171,14 @@ class DonJob(Job):
 
     def check(self, catalog) -> None:
         """A radius (or, for segments, a tolerance) wider than the cloud's bounds' diagonal is refused: every ball would
-        hold every point (and each tile's halo the whole cloud).  Bounds of zero width (a header that does not state
-        them) check nothing."""
+        hold every point (and each tile's halo the whole cloud); so is a radius narrower than the files' coordinate
+        step (their largest scale): a ball would hold copies of its point alone.  Bounds of zero width (a header that
+        does not state them) check the first only."""
+        step = catalog_step(catalog)
+        for name, r in (("r_small", float(self.options.r_small)), ("r_large", float(self.options.r_large))):
+            if r < step:
+                raise PatchcloudValueError(f"{name}={r:g} is narrower than the coordinates' step ({step:g}, the files' "
+                                           "scale): a ball would hold nothing but copies of its point")
         across = float(np.linalg.norm(np.subtract(catalog.maxs, catalog.mins)))
         if across <= 0 or not np.isfinite(across):
             return

@@ -230,6 +230,7 @@ def _fisher(n: np.ndarray, mean: np.ndarray, std: np.ndarray, min_count, usable=
         within = (w * sd_c**2).sum(axis=1)
         f = between / within
     f = np.where((within == 0) & (between > 0), np.inf, f)
+    f = np.where((within == 0) & (between == 0), 0.0, f)  # every value alike (a plane's DoN, all 0): nothing separates
     return np.where(ok.sum(axis=1) >= 2, f, np.nan)
 
 
@@ -238,7 +239,7 @@ def fisher_ratio(values: np.ndarray, labels: np.ndarray, *, min_count: int = 1) 
 
     NaN values are left out; a class takes part with at least ``min_count``
     finite values.  NaN with fewer than two such classes; ``inf`` when the
-    classes differ but each is constant.
+    classes differ but each is constant; 0 when every value is the same.
 
     Examples
     --------
@@ -246,6 +247,8 @@ def fisher_ratio(values: np.ndarray, labels: np.ndarray, *, min_count: int = 1) 
     25.0
     >>> fisher_ratio(np.array([0.0, 0.2, np.nan]), np.array([1, 1, 2]))
     nan
+    >>> fisher_ratio(np.zeros(4), np.array([1, 1, 2, 2]))
+    0.0
     """
     v = np.asarray(values, dtype=np.float64).reshape(-1)
     lab = np.asarray(labels).reshape(-1)
@@ -585,6 +588,11 @@ def select_scales(
             f"making up min_defined={min_defined:g} of their query points (radii "
             f"{', '.join(f'{v:g}' for v in np.unique(pairs))} m, {at.size:,} query points); "
             "use larger radii, a larger sample or smaller min_class_points / min_defined"
+        )
+    if np.nanmax(fisher) == 0:
+        raise PatchcloudValueError(
+            f"no pair of radii separates the classes: at every pair their DoN magnitudes are alike (radii "
+            f"{', '.join(f'{v:g}' for v in np.unique(pairs))} m, {at.size:,} query points; a plane's are all 0)"
         )
     best = int(np.nanargmax(np.where(np.isnan(fisher), -np.inf, fisher)))
     return ScalesResult(
