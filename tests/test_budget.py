@@ -134,6 +134,7 @@ def test_a_consistently_inflated_cell_is_refused_by_the_budget_before_writing(sm
     (lambda g: g.attrs.update(record_bytes=10**6), "record bytes 1000000"),
     (lambda g: g["tiles/patch_start"].__setitem__(1, 10**9), "tiles/patch_start does not rise from 0"),
     (lambda g: g.attrs.update(counts=dict(g.attrs["counts"], residual=g.attrs["counts"]["residual"] + 1)), "residual points"),
+    (lambda g: g.attrs.update(source=dict(g.attrs["source"], point_count=[1, 2])), "damaged .pcz file (source"),  # info: a bug's line
 ])
 def test_attributes_and_index_the_file_cannot_hold_are_refused(small_pcz, tmp_path, change, message):
     with pytest.raises(PatchcloudIOError, match=message.replace("(", r"\(").replace(".", r"\.")):

@@ -16,6 +16,7 @@ run, dask workers included) sets it; :func:`set_max_memory` from Python.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 
@@ -71,8 +72,10 @@ def format_size(nbytes: int) -> str:
     return f"{int(nbytes)} B"
 
 
+@functools.lru_cache(maxsize=1)
 def machine_memory() -> int:
-    """Bytes of memory this process's machine has: physical memory, or its cgroup's limit when lower."""
+    """Bytes of memory this process's machine has: physical memory, or its cgroup's limit when lower (read once a
+    process: every check of the budget asks)."""
     total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
         try:

@@ -86,6 +86,7 @@ import functools
 import io
 import os
 import shutil
+import warnings
 import zipfile
 from collections import Counter
 from contextlib import contextmanager
@@ -110,7 +111,7 @@ from .residual_points import fine_intensity
 from .store import tile_name
 
 __all__ = ["FORMAT", "VERSION", "READABLE", "ZIP_TIME", "TilePart", "PointsBlock", "write_pcz", "write_points_pcz", "PczFile",
-           "PointsPczFile", "open_pcz"]
+           "PointsPczFile", "open_pcz", "OpenedArrays", "WHOLE_READ_BYTES"]
 
 FORMAT = "patchcloud-pcz"
 VERSION = 5
@@ -384,15 +385,44 @@ def _refined(path, xyz: np.ndarray, steps, where: str) -> np.ndarray:
     return out.astype(np.int32)
 
 
+#: An array of at most this many bytes is read whole at its first read, and its rows then come from memory: a tile's
+#: patches and cells are a dozen small reads, each a round trip through zarr's event loop (about 1 ms).
+WHOLE_READ_BYTES = 16 * 2**20
+
+
+class OpenedArrays:
+    """A zarr group whose arrays are opened once each (their metadata read once): what the checks of :func:`open_pcz`
+    and every later read share.  ``attrs`` as the group's."""
+
+    def __init__(self, group: zarr.Group) -> None:
+        self.group = group
+        self.attrs = group.attrs
+        try:  # every array's metadata in one go (zarr reads them side by side); a damaged one is found by name later
+            with warnings.catch_warnings():  # zarr warns of an entry that is not an array or group: said by name later
+                warnings.simplefilter("ignore")
+                self._opened: dict[str, zarr.Array] = {k: v for k, v in group.members(max_depth=None) if isinstance(v, zarr.Array)}
+        except Exception:
+            self._opened = {}
+
+    def __getitem__(self, name: str):
+        a = self._opened.get(name)
+        if a is None:
+            a = self._opened[name] = self.group[name]
+        return a
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._opened or name in self.group
+
+
 class _OpenPcz:
     """What both modes of an open ``.pcz`` share: its attributes, the input's header and EVLRs, and its stored records."""
 
-    def __init__(self, path: str, root: zarr.Group, store) -> None:
+    def __init__(self, path: str, root: OpenedArrays, store) -> None:
         self.path = path
         self.root = root
         self._store = store
         self.attrs = dict(root.attrs)
-        self._arrays: dict[str, zarr.Array] = {}  # opened once each: a tile's reads then skip their metadata
+        self._whole: dict[str, np.ndarray] = {}  # small arrays, read whole once (WHOLE_READ_BYTES)
 
     # -- what the file says -------------------------------------------------
     @property
@@ -406,9 +436,12 @@ class _OpenPcz:
     def _read(self, name: str, rows: slice | None = None) -> np.ndarray:
         """Rows of array ``name`` (all of it by default); a chunk that cannot be decoded is a PatchcloudIOError naming it."""
         try:
-            a = self._arrays.get(name)
-            if a is None:
-                a = self._arrays[name] = self.root[name]
+            if name in self._whole:
+                return self._whole[name] if rows is None else self._whole[name][rows]
+            a = self.root[name]
+            if rows is not None and a.nbytes <= WHOLE_READ_BYTES:
+                self._whole[name] = a[...]
+                return self._whole[name][rows]
             return a[...] if rows is None else a[rows]
         except Exception as exc:
             raise PatchcloudIOError(f"{self.path}: damaged .pcz file (array {name} cannot be read: {exc})") from exc
@@ -521,7 +554,7 @@ class _OpenPcz:
 class PczFile(_OpenPcz):
     """An open model-mode ``.pcz`` (see :func:`open_pcz`): its attributes, and its patches and residual points by tile or region."""
 
-    def __init__(self, path: str, root: zarr.Group, store, largest_cell: int = 0) -> None:
+    def __init__(self, path: str, root: OpenedArrays, store, largest_cell: int = 0) -> None:
         super().__init__(path, root, store)
         #: The most points one cell stands for.
         self.largest_cell = largest_cell
@@ -584,7 +617,7 @@ class PczFile(_OpenPcz):
 class PointsPczFile(_OpenPcz):
     """An open points-mode ``.pcz`` (``compress --keep-points``; see :func:`open_pcz`): every input point, block by block."""
 
-    def __init__(self, path: str, root: zarr.Group, store) -> None:
+    def __init__(self, path: str, root: OpenedArrays, store) -> None:
         super().__init__(path, root, store)
         self.point_start = root["blocks/point_start"][...]
         self.byte_start = root["blocks/byte_start"][...]
@@ -625,7 +658,7 @@ def open_pcz(path: str | os.PathLike) -> PczFile | PointsPczFile:
                 raise PatchcloudIOError(f"{p}: damaged .pcz file (entry {bad} fails its checksum)")
             chunks = {e.filename: _chunk_head(z, e) for e in z.infolist() if "/c/" in e.filename}
         store = ZipStore(str(p), mode="r")
-        root = zarr.open_group(store, mode="r")
+        root = OpenedArrays(zarr.open_group(store, mode="r"))
         a = dict(root.attrs)
     except PatchcloudError:
         raise
@@ -721,7 +754,8 @@ def _check_attrs(p: Path, a: dict, mode: str = "model") -> dict:
         raise PatchcloudIOError(f"{p}: damaged .pcz file (max error {max_error!r}, tile size {tile_size!r}, grid {g!r})")
     if not all(type(v) is int and v >= 0 for v in counts.values()) or type(record) is not int or not 0 <= record <= 65535 - 12:
         raise PatchcloudIOError(f"{p}: damaged .pcz file (counts {counts!r}, record bytes {record!r})")
-    if not isinstance(source, dict):
+    if (not isinstance(source, dict) or not isinstance(source.get("path", ""), str)
+            or not (type(source.get("point_count", 0)) is int and source.get("point_count", 0) >= 0)):
         raise PatchcloudIOError(f"{p}: damaged .pcz file (source {source!r})")
     if (not isinstance(steps, list) or len(steps) != 3 or not all(type(k) is int and 1 <= k <= 1 << 30 for k in steps)
             or not isinstance(dropped, list) or not all(isinstance(d, str) for d in dropped)):
@@ -729,7 +763,7 @@ def _check_attrs(p: Path, a: dict, mode: str = "model") -> dict:
     return counts
 
 
-def _check_points_arrays(p: Path, root: zarr.Group, chunks: dict[str, int | None], counts: dict) -> None:
+def _check_points_arrays(p: Path, root: OpenedArrays, chunks: dict[str, int | None], counts: dict) -> None:
     """A points-mode file's arrays against its layout and counts."""
     B = counts["blocks"]
     laz = _array(p, root, "points/laz", np.uint8, (), None, chunks)
@@ -742,7 +776,7 @@ def _check_points_arrays(p: Path, root: zarr.Group, chunks: dict[str, int | None
         _array(p, root, name, np.uint8, (), None, chunks)
 
 
-def _check_arrays(p: Path, root: zarr.Group, chunks: dict[str, int | None], counts: dict) -> int:
+def _check_arrays(p: Path, root: OpenedArrays, chunks: dict[str, int | None], counts: dict) -> int:
     """Every array's type, shape and chunks against the layout, the tile index against them and the counts; returns
     the most points a cell stands for."""
     T = counts["tiles"]
@@ -782,7 +816,7 @@ def _check_arrays(p: Path, root: zarr.Group, chunks: dict[str, int | None], coun
     return int(cell_counts.max()) if C else 0
 
 
-def _array(p: Path, root: zarr.Group, name: str, dtype, tail: tuple, rows: int | None, chunks: dict) -> zarr.Array:
+def _array(p: Path, root: OpenedArrays, name: str, dtype, tail: tuple, rows: int | None, chunks: dict) -> zarr.Array:
     """Array ``name``, checked: its type, its shape (``rows`` rows if given, of shape ``tail``), codecs and chunks."""
     try:
         a = root[name]
