@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import gc
+import os
 import signal
+import sys
 
 import click
 
@@ -57,7 +59,33 @@ main.add_command(render_tiles_command)
 def _terminated(signum, frame) -> None:
     """SIGTERM handler of the console script: the run stops as on Ctrl-C (one line, its store kept and said, its
     locks released, its workers closed, exit status 130), where Python would end at once and leave them."""
+    _cleaning_up()
     raise KeyboardInterrupt("terminated")
+
+
+def _interrupted(signum, frame) -> None:
+    """SIGINT handler of the console script: Ctrl-C stops the run as Python's KeyboardInterrupt does."""
+    _cleaning_up()
+    raise KeyboardInterrupt
+
+
+def _cleaning_up() -> None:
+    """After a first Ctrl-C or SIGTERM the run cleans up (its workers closed, its locks released, one line said):
+    another Ctrl-C then is let be, where it would cut the clean-up short (Python died of it at exit, status -2, or
+    printed 12-27 lines of tracebacks of dask's and numba's threads, a sweep found); SIGTERM (``kill PID``) ends the
+    process at once, should the clean-up hang (:func:`_stopped_at_once`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _stopped_at_once)
+
+
+def _stopped_at_once(signum, frame) -> None:
+    """SIGTERM during the clean-up: one line, exit status 130, now.  What the clean-up left (a lock, a store, an
+    output's temporary name) the same command's next run takes over or removes; the workers end with this process."""
+    try:
+        sys.stderr.write("error: terminated during the clean-up: stopped at once (the same command cleans up after it and resumes)\n")
+        sys.stderr.flush()
+    finally:
+        os._exit(130)
 
 
 def run() -> None:
@@ -83,6 +111,7 @@ def run() -> None:
     load_cached_kernels_lightly()  # 0.07 s of numba's compiler set-up that a cached kernel does not need (same module)
     skip_laspy_http()  # 0.02 s of requests, for COPC over HTTP (stream.engine.laspy_start)
     signal.signal(signal.SIGTERM, _terminated)  # what SLURM, PBS, Kubernetes and systemd send: as Ctrl-C
+    signal.signal(signal.SIGINT, _interrupted)  # then Ctrl-C again is let be during the clean-up, SIGTERM ends it
     try:
         main()
     finally:
