@@ -264,3 +264,14 @@ def test_cli_existing_report_needs_overwrite(scene_las, tmp_path):
     r = CliRunner().invoke(main, ["don", str(path), str(tmp_path / "o.las"), "-q", "--report", str(tmp_path / "r.html")])
     assert r.exit_code == 2 and "exists" in r.output and not (tmp_path / "o.las").exists()
     assert (tmp_path / "r.html").read_text() == "old"
+
+
+def test_a_don_report_without_any_defined_don_says_none_not_nan():
+    from patchcloud.stream.jobs.don import DonSummary
+    from patchcloud.stream.views.report import don_rows
+
+    s = DonSummary(input="in.las", output="out.las", points=500, tiles=1, tile_size=64.0,
+                   parameters=dict(r_small=0.2, r_large=2.0, mode="fast"), defined=0, histogram=[0] * 50)
+    rows = dict(don_rows(s))
+    assert rows["median DoN magnitude"] == "none (no DoN defined)" and rows["DoN defined"] == "0 (0.0%)"
+    assert "nan" not in " ".join(v for _, v in don_rows(s))
