@@ -167,23 +167,38 @@ def face_neighbour_counts(keys, out):
             h = (h + np.uint64(1)) & mask
         table[h] = keys[k]
     top = np.int64((1 << 21) - 1)
+    three = np.uint64(3)
+    first = 0  # the run of keys[k]'s siblings (one parent): keys[first:last], at most 8, around k in the sorted keys
+    last = 0
     for k in range(n):
         key = keys[k]
+        if k >= last:
+            first = k
+            last = k + 1
+            while last < n and (keys[last] >> three) == (key >> three):
+                last += 1
         c = np.int64(0)
         for axis in range(3):
+            bit = np.uint64(1) << np.uint64(axis)
+            # along each axis one face neighbour is a sibling (the other value of this axis' lowest bit): looked up in
+            # the run, the other crosses the parent's face: in the hash table
+            sib = key ^ bit
+            for j in range(first, last):
+                if keys[j] == sib:
+                    c += 1
+                    break
             v = np.int64(_compact(key >> np.uint64(axis)))
+            w = v + 1 if key & bit else v - 1
+            if w < 0 or w > top:
+                continue
             rest = key & ~(np.uint64(0x1249249249249249) << np.uint64(axis))
-            for step in (-1, 1):
-                w = v + step
-                if w < 0 or w > top:
-                    continue
-                nk = rest | (_spread(np.uint64(w)) << np.uint64(axis))
-                h = (nk * mult) >> down
-                while table[h] != empty:
-                    if table[h] == nk:
-                        c += 1
-                        break
-                    h = (h + np.uint64(1)) & mask
+            nk = rest | (_spread(np.uint64(w)) << np.uint64(axis))
+            h = (nk * mult) >> down
+            while table[h] != empty:
+                if table[h] == nk:
+                    c += 1
+                    break
+                h = (h + np.uint64(1)) & mask
         out[k] = c
 
 

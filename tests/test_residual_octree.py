@@ -174,3 +174,17 @@ def test_the_range_coder_codes_near_the_entropy(rng):
     H = -(p * np.log2(p)).sum() * len(sym) / 8
     assert len(data) <= 1.05 * H + 64
     assert np.array_equal(decode_tree(decoder(data), data, new_trees(1, 2), np.zeros(len(sym), np.int64), 2), sym)
+
+
+def test_children_are_the_occupancy_bits_in_order_and_a_damaged_level_is_none(rng):
+    from patchcloud.stream.io.residual_octree import child_keys
+
+    nodes = np.sort(rng.choice(10_000, 300, replace=False)).astype(np.uint64)
+    occ = rng.integers(1, 256, 300)
+    bits = ((occ[:, None] >> np.arange(8)) & 1).astype(bool)
+    parent, child = np.nonzero(bits)  # the numpy definition it replaced
+    want = (nodes[parent] << np.uint64(3)) | child.astype(np.uint64)
+    assert np.array_equal(child_keys(nodes, occ, 10**6), want) and np.all(np.diff(want.astype(np.int64)) > 0)
+    assert child_keys(nodes, np.where(np.arange(300) == 7, 0, occ), 10**6) is None  # an empty node
+    assert child_keys(nodes, np.where(np.arange(300) == 7, 256, occ), 10**6) is None  # not a byte
+    assert child_keys(nodes, occ, len(want) - 1) is None  # more positions than the header says

@@ -35,6 +35,7 @@ import struct
 from dataclasses import dataclass
 
 import laspy
+import numba
 import numpy as np
 
 from patchcloud.core import MAX_DEPTH, PatchcloudIOError, decode as morton_decode, encode as morton_encode, face_neighbours
@@ -43,7 +44,7 @@ from .range_coder import (
     chain_contexts, decode_chain, decode_direct, decode_tree, decoder, encode_direct, encode_tree, encoder, finish, new_trees,
 )
 
-__all__ = ["MAGIC", "OctreePoints", "encode", "decode", "records_of"]
+__all__ = ["MAGIC", "OctreePoints", "encode", "decode", "records_of", "child_keys"]
 
 MAGIC = b"PCZO"
 _HEAD = struct.Struct("<4sBBIIqqqB")
@@ -120,11 +121,9 @@ def _decode(data: np.ndarray, n: int, npos: int, origin: np.ndarray, depth: int,
     nodes = np.zeros(1 if n else 0, dtype=np.uint64)
     for _ in range(depth):
         occupancy = decode_tree(st, data, trees, face_neighbours(nodes), 8)
-        bits = ((occupancy[:, None] >> np.arange(8)) & 1).astype(bool)
-        if not bits.any(axis=1).all() or bits.sum() > npos:
+        nodes = child_keys(nodes, np.ascontiguousarray(occupancy, dtype=np.int64), npos)
+        if nodes is None:
             raise PatchcloudIOError("damaged coded points (an empty node, or more positions than the header says)")
-        parent, child = np.nonzero(bits)  # row-major: parents in order, children in bit order: keys stay sorted
-        nodes = (nodes[parent] << np.uint64(3)) | child.astype(np.uint64)
     if len(nodes) != npos:
         raise PatchcloudIOError(f"damaged coded points ({len(nodes):,} positions, the header says {npos:,})")
     many = decode_tree(st, data, new_trees(1, 4), np.zeros(npos, np.int64), 4)
@@ -143,6 +142,42 @@ def _decode(data: np.ndarray, n: int, npos: int, origin: np.ndarray, depth: int,
         q[esc] = decode_direct(st, data, int(esc.sum()), 16)
     xyz = morton_decode(keys) + origin
     return OctreePoints(xyz, cls.astype(np.uint8), q, single)
+
+
+def child_keys(nodes: np.ndarray, occupancy: np.ndarray, limit: int) -> np.ndarray | None:
+    """The keys of the children ``occupancy`` (a byte per node, bit c: child c) says the ``nodes`` have, parents in
+    order and children in bit order, so the keys stay sorted; None for an empty node or more than ``limit``."""
+    out = np.empty(_child_count(occupancy), dtype=np.uint64)
+    if out.size > limit or (occupancy.size and not _fill_children(nodes, occupancy, out)):
+        return None
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _child_count(occupancy):
+    total = 0
+    for i in range(occupancy.shape[0]):
+        o = occupancy[i] & 255
+        while o:
+            total += 1
+            o &= o - 1
+    return total
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_children(nodes, occupancy, out):
+    """Write the children's keys to ``out``; False at an empty node (its byte 0)."""
+    j = 0
+    for i in range(occupancy.shape[0]):
+        o = occupancy[i]
+        if o <= 0 or o > 255:
+            return False
+        base = nodes[i] << np.uint64(3)
+        for c in range(8):
+            if (o >> c) & 1:
+                out[j] = base | np.uint64(c)
+                j += 1
+    return True
 
 
 def records_of(points: OctreePoints, point_format_id: int, size: int) -> np.ndarray:
