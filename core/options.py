@@ -156,7 +156,7 @@ class NormalsOptions:
             raise PatchcloudValueError(f"min_sigma2 must be in [0, 1/3), got {self.min_sigma2!r}")
         _set(self, "min_sigma2", float(self.min_sigma2))
         if self.orient == "viewpoint" and self.viewpoint is None:
-            raise PatchcloudValueError('orient="viewpoint" needs a viewpoint (x, y, z)')
+            raise PatchcloudValueError('orient="viewpoint" needs a viewpoint (x, y, z): give viewpoint=(x, y, z)')
         if self.orient != "viewpoint" and self.viewpoint is not None:  # it would be ignored
             raise PatchcloudValueError(f'viewpoint goes with orient="viewpoint", not orient={self.orient!r}')
         _set(self, "viewpoint", _viewpoint(self.viewpoint))

@@ -441,3 +441,14 @@ def test_a_run_in_memory_removes_only_the_outputs_it_wrote(cut, tmp_path, monkey
     with pytest.raises(PatchcloudIOError, match="No space left on device .*the 1 output\\(s\\) it had written are removed"):
         normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True, overwrite=True)
     assert sorted(p.name for p in out.iterdir()) == ["tile_3.las"] and future.read_bytes() == b"kept"
+
+
+def test_info_on_a_missing_path_says_no_such_file_as_every_command(tmp_path):
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "nope.laz")])
+    assert r.exit_code == 2 and r.output == f"error: {tmp_path / 'nope.laz'}: no such file\n", r.output
+    (tmp_path / "x.txt").write_text("hello")
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "x.txt")])
+    assert r.exit_code == 2 and "x.txt: not a LAS/LAZ file (no 'LASF' signature)" in r.output, r.output
+    (tmp_path / "d").mkdir()
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "d")])
+    assert r.exit_code == 2 and "neither a LAS/LAZ file nor a patchcloud store" in r.output, r.output

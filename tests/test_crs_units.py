@@ -74,6 +74,17 @@ def test_a_geographic_crs_is_one_error_naming_units_and_units_overrides_it(tmp_p
     assert "units           m (metre, 1 m; from --units)" in r.output
 
 
+def test_tile_refuses_a_geographic_crs_as_the_jobs_do_and_takes_units(tmp_path):
+    """``tile`` cut a file in degrees into tiles of 32 degrees without a word, and had no --units."""
+    path = _scene(tmp_path / "geo.las", crs="EPSG:4326")
+    store = tmp_path / "s.zarr"
+    r = CliRunner().invoke(main, ["tile", str(path), str(store), "-q"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "EPSG:4326 (WGS 84) is geographic" in r.output, r.output
+    assert not store.exists()
+    r = CliRunner().invoke(main, ["tile", str(path), str(store), "-q", "--units", "m"])
+    assert r.exit_code == 0 and store.exists(), r.output
+
+
 def test_degrees_in_a_projected_crs_are_refused():
     with pytest.raises(PatchcloudValueError, match=r"look like degrees, not lengths of its projected CRS EPSG:2154.*--units"):
         units_of("EPSG:2154", (2.30, 48.80), (2.31, 48.81), where="x.las")

@@ -188,6 +188,7 @@ def test_command(labelled, tmp_path, monkeypatch):
         (["--radii", "0.5"], "at least two distinct"),
         (["--radii", "0.5,x"], "--radii must be comma-separated numbers"),
         (["--classes", "2,7"], "class 7 low point (noise) not in 'classification'"),
+        (["--plot", "a.png", "--no-plot"], "--plot and --no-plot: give one of them, not both"),
     ],
 )
 def test_command_errors(labelled, tmp_path, args, expect):

@@ -372,3 +372,13 @@ def test_undefined_don_and_left_out_normals_show_the_undefined_grey():
     assert rgb[0, 0].tolist() == list(UNDEFINED) and rgb[0, 1].tolist() == [0.5, 0.5, 1.0]
     rgb, _, _ = colorize("curvature", don, filled)  # a curvature of 0 is a plane's: coloured
     assert rgb[0, 0].tolist() != list(UNDEFINED)
+
+
+def test_a_picture_named_other_than_png_is_refused_before_anything_is_drawn(tmp_path):
+    """PNG bytes under a .jpg name mislead every viewer: one line, nothing written."""
+    src = tmp_path / "in.las"
+    write_las(src, np.random.default_rng(0).uniform(0, 10, (500, 3)))
+    out = tmp_path / "out.jpg"
+    r = CliRunner().invoke(main, ["render", str(src), str(out), "--color", "elevation", "-q"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "out.jpg: a PNG is written: name it out.png" in r.output, r.output
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["in.las"]

@@ -39,7 +39,7 @@ SAMPLE = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_
         (lambda: SegmentOptions(threshold=1.5), r"threshold must be a DoN magnitude in \[0, 1\]"),
         (lambda: SegmentOptions(min_cluster=0), "min_points must be a whole number"),
         (lambda: CompressOptions(max_error=0), "max_error must be a positive length in the coordinates' unit"),
-        (lambda: RunOptions(tile_size=0), "tile size must be a positive length in the coordinates' unit"),
+        (lambda: RunOptions(tile_size=0), "tile_size must be a positive length in the coordinates' unit"),
         (lambda: RunOptions(workers=0), "workers must be at least 1"),
     ],
 )

@@ -151,7 +151,7 @@ def test_cli_and_bad_input(las_file, tmp_path):
     r = CliRunner().invoke(main, ["compress", str(las_file), str(tmp_path / "y.pcz"), "--max-error", "-1", "-q"])
     assert r.exit_code == 2 and "--max-error must be a positive length" in r.output
     assert not (tmp_path / "y.pcz").exists() and not (tmp_path / "y.pcz.store").exists()
-    with pytest.raises(PatchcloudValueError, match="density or lod, not both"):
+    with pytest.raises(PatchcloudValueError, match="density=10.0 and lod=1: give one of them, not both"):
         decompress(tmp_path / "c.pcz", tmp_path / "z.las", density=10.0, lod=1)
     with pytest.raises(PatchcloudValueError, match="bbox must be"):
         decompress(tmp_path / "c.pcz", tmp_path / "z.las", bbox=(1, 1, 1, 0, 0, 0))

@@ -221,7 +221,7 @@ def test_cli_don_and_segment(scene, tmp_path):
         (["--min-points", "0"], "--min-points must be"),
         (["--min-points", "100", "--max-points", "10"], "no smaller than --min-points (100), or not given; got 10"),
         (["--axis-threshold", "0.2"], "--axis-threshold needs an axis"),
-        (["--tile-size", "-4"], "tile size must be a positive"),
+        (["--tile-size", "-4"], "--tile-size must be a positive"),
         # wider than the cloud: every ball the whole cloud (it took minutes and gigabytes, then hours)
         (["--rl", "1e9"], "--rl 1e+09 is wider than the cloud"),
         (["--tolerance", "1e6"], "--tolerance 1e+06 is wider than the cloud"),

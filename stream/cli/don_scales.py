@@ -119,6 +119,8 @@ def don_scales_command(input, radii, small, large, classes_from, classes, sample
     """
     from patchcloud.stream.jobs.don_scales import don_scales
 
+    if plot is not None and no_plot:
+        raise PatchcloudValueError("--plot and --no-plot: give one of them, not both")
     radii_v = parse_list("--radii", radii)
     small_v = parse_list("--small", small)
     large_v = parse_list("--large", large)

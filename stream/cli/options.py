@@ -112,6 +112,8 @@ def _set_max_memory(ctx: click.Context, param: click.Parameter, value: str | Non
     try:
         set_max_memory(value)
     except PatchcloudValueError as exc:
+        if ctx.get_parameter_source(param.name) == click.core.ParameterSource.ENVIRONMENT:  # not typed: say where it is
+            raise click.UsageError(f"{ENV} (the environment, for --max-memory): {exc}") from None
         raise click.BadParameter(str(exc)) from None
     ctx.call_on_close(lambda: os.environ.__setitem__(ENV, before) if before is not None else os.environ.pop(ENV, None))
 
@@ -216,7 +218,7 @@ paths_argument = click.argument("paths", nargs=-1, required=True, metavar="INPUT
 out_dir = click.option(
     "--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
     help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), taken as one cloud; "
-    "each file's output goes to DIR under its name (.copc.laz becomes .laz).",
+    "each file's output goes to DIR under its name (.copc.laz becomes .laz; render writes DIR/NAME.png).",
 )
 
 

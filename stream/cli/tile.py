@@ -11,6 +11,7 @@ from . import options
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.argument("store")
 @options.tile_size
+@options.units
 @options.classes
 @options.keep_noise
 @options.scheduler
@@ -19,7 +20,7 @@ from . import options
 @options.overwrite
 @options.quiet
 @options.reports_errors
-def tile_command(input, store, tile_size, classes, keep_noise, scheduler, workers, overwrite, quiet):
+def tile_command(input, store, tile_size, units, classes, keep_noise, scheduler, workers, overwrite, quiet):
     """Cut INPUT (LAS/LAZ) into the tiled zarr STORE (a path or fsspec URL), without computing anything.
 
     A later `patchcloud normals INPUT OUT --store STORE` starts from it.
@@ -27,6 +28,6 @@ def tile_command(input, store, tile_size, classes, keep_noise, scheduler, worker
     from patchcloud.stream import format_info, info, tile
 
     s = tile(input, store, tile_size=tile_size, scheduler=scheduler, workers=workers, overwrite=overwrite, quiet=quiet,
-             classes=classes, keep_noise=keep_noise)
+             classes=classes, keep_noise=keep_noise, units=units)
     if not quiet:
         click.echo(format_info(info(s.url)))

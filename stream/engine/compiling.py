@@ -68,12 +68,12 @@ def compiling_line(seconds: float) -> list[str]:
     >>> compiling_line(0.0)
     []
     >>> compiling_line(13.42)
-    ['  compiling       kernels, once: 13.4 s (numba, first run after installing; cached for later runs; not in the times below)']
+    ['  compiling       kernels, once: 13.4 s (numba: the first run of these kernels since installing; cached for later runs; not in the times below)']
     """
     if seconds <= 0:
         return []
-    return [f"  compiling       kernels, once: {seconds:.1f} s (numba, first run after installing; cached for later runs; "
-            "not in the times below)"]
+    return [f"  compiling       kernels, once: {seconds:.1f} s (numba: the first run of these kernels since installing; cached for "
+            "later runs; not in the times below)"]
 
 
 class CompileClock:
@@ -150,5 +150,5 @@ class CompileClock:
 
 def announce_on_stderr() -> None:
     """Say on standard error that the kernels are compiling (a progress bar being drawn gets its own line)."""
-    sys.stderr.write(("\n" if sys.stderr.isatty() else "") + f"{COMPILING} (numba's first run after installing; cached for later runs) ...\n")
+    sys.stderr.write(("\n" if sys.stderr.isatty() else "") + f"{COMPILING} (numba: the first run of these kernels since installing; cached for later runs) ...\n")
     sys.stderr.flush()

@@ -74,14 +74,14 @@ def check_tile_size(tile_size) -> float | None:
     >>> check_tile_size(-1)
     Traceback (most recent call last):
     ...
-    patchcloud.core.errors.PatchcloudValueError: tile size must be a positive length in the coordinates' unit, got -1
+    patchcloud.core.errors.PatchcloudValueError: tile_size must be a positive length in the coordinates' unit, got -1
     """
     if tile_size is None:
         return None
     if isinstance(tile_size, bool) or not isinstance(tile_size, (int, float, np.number)) or not np.isfinite(tile_size) or tile_size <= 0:
-        raise PatchcloudValueError(f"tile size must be a positive length in the coordinates' unit, got {tile_size!r}")
+        raise PatchcloudValueError(f"tile_size must be a positive length in the coordinates' unit, got {tile_size!r}")
     if tile_size > MAX_TILE:
-        raise PatchcloudValueError(f"tile size must be at most {MAX_TILE:g} (in the coordinates' unit), got {tile_size:g}")
+        raise PatchcloudValueError(f"tile_size must be at most {MAX_TILE:g} (in the coordinates' unit), got {tile_size:g}")
     return float(tile_size)
 
 

@@ -36,7 +36,7 @@ and its function (``jobs/normals.py`` is the model), one in
 >>> RunOptions(tile_size=-1)
 Traceback (most recent call last):
 ...
-patchcloud.core.errors.PatchcloudValueError: tile size must be a positive length in the coordinates' unit, got -1
+patchcloud.core.errors.PatchcloudValueError: tile_size must be a positive length in the coordinates' unit, got -1
 """
 
 from __future__ import annotations
@@ -314,7 +314,7 @@ def time_and_memory_lines(seconds: dict[str, float], points: int, peak_memory: i
       time            tile 1.0 s, fit 3.0 s; total 4.0 s (2,000,000 points/s)
       peak memory     1,024 MiB (all processes, scheduler threads)
     >>> print(time_and_memory_lines({"fit": 3.0}, 60_000, 2**30, "in memory", compile_seconds=12.5)[0])
-      compiling       kernels, once: 12.5 s (numba, first run after installing; cached for later runs; not in the times below)
+      compiling       kernels, once: 12.5 s (numba: the first run of these kernels since installing; cached for later runs; not in the times below)
     """
     total = sum(seconds.values())
     return [

@@ -241,7 +241,7 @@ def decompress(
     (True, True)
     """
     if density is not None and lod is not None:
-        raise PatchcloudValueError("give density or lod, not both")
+        raise PatchcloudValueError(f"density={density!r} and lod={lod!r}: give one of them, not both")
     if density is not None and (not np.isfinite(density) or density <= 0):
         raise PatchcloudValueError(f"density must be a positive number of points per square unit of the file's CRS, got {density!r}")
     if lod is not None and (not isinstance(lod, (int, np.integer)) or lod < 0):

@@ -137,6 +137,8 @@ def info(path: str | os.PathLike) -> dict:
             "files": [dict(path=f.get("path"), point_count=int(f.get("point_count", 0))) for f in (a.get("catalog") or {}).get("sources", [])],
             "unit": _store_unit(a),
         }
+    if "://" not in str(p) and not Path(p).exists():
+        raise PatchcloudIOError(f"{p}: no such file")  # as every other command says
     raise PatchcloudIOError(f"{p}: neither a LAS/LAZ file nor a patchcloud store")
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 from patchcloud.stream.engine.ingest import ensure_tiled
 from patchcloud.stream.engine.job import RunOptions
 from patchcloud.stream.engine.runner import Runner
+from patchcloud.stream.io.crs import units_of
 from patchcloud.stream.io.las import open_source
 from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import Store
@@ -20,7 +21,7 @@ __all__ = ["tile"]
 def tile(
     input: str | os.PathLike, store: str, *, tile_size: float | None = None, scheduler: str = "auto",
     workers: int | None = None, overwrite: bool = False, quiet: bool = False, chunk: int | None = None,
-    classes=None, keep_noise: bool = False,
+    classes=None, keep_noise: bool = False, units: str | None = None,
 ) -> Store:
     """Ingest only: cut ``input`` into a tiled store at ``store`` (a path or fsspec URL).
 
@@ -28,7 +29,9 @@ def tile(
     OUT --store STORE``).  The options are those of
     :class:`~patchcloud.stream.engine.job.RunOptions` (``classes`` and
     ``keep_noise``: the points the tiles hold, as the job run on the store
-    must ask for them, else it tiles again).
+    must ask for them, else it tiles again; ``units``: ``--units``, the
+    unit ``tile_size`` is in where the CRS does not say or says degrees, as
+    every job checks it).
 
     Examples
     --------
@@ -37,8 +40,9 @@ def tile(
     (4, 60653)
     """
     run = RunOptions(tile_size=tile_size, scheduler=scheduler, workers=workers, overwrite=overwrite, quiet=quiet, chunk=chunk,
-                     classes=classes, keep_noise=keep_noise)
+                     classes=classes, keep_noise=keep_noise, units=units)
     src = open_source(input)
+    units_of(src.crs, src.mins, src.maxs, run.units, where=src.path)  # degrees are not lengths: as every job refuses them
     local = "://" not in store
     if local:
         Path(store).parent.mkdir(parents=True, exist_ok=True)  # as zarr makes it; the store's lock goes beside it

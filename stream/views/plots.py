@@ -88,9 +88,9 @@ def check_png_path(path: str | os.PathLike) -> Path:
 
     Refused: a directory, a missing directory, a name of a point cloud
     (:data:`NOT_PICTURE_NAMES`, any case: ``render tiles/*.laz`` unquoted
-    makes the last tile the picture), and an existing file that is not a
-    PNG (a store's metadata, a LAS file, a report): a picture replaces only
-    a picture.  Jobs that draw after a long read call it first, so a bad
+    makes the last tile the picture), a name not ending in ``.png`` (any
+    case), and an existing file that is not a PNG (a store's metadata, a
+    LAS file, a report): a picture replaces only a picture.  Jobs that draw after a long read call it first, so a bad
     path fails before the work.
     """
     p = Path(path)
@@ -108,6 +108,8 @@ def check_png_path(path: str | os.PathLike) -> Path:
             raise PatchcloudIOError(f"{p}: cannot be read ({exc.strerror or exc})") from None
         if head != PNG_SIGNATURE:
             raise PatchcloudIOError(f"{p}: exists and is not a PNG (a picture replaces only a picture)")
+    if p.suffix.lower() != ".png":  # PNG bytes under another picture's name (.jpg, .tif) would mislead every viewer
+        raise PatchcloudIOError(f"{p}: a PNG is written: name it {p.stem}.png")
     return p
 
 

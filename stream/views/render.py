@@ -722,7 +722,7 @@ def _check_bbox(bbox):
         return None
     b = tuple(float(v) for v in bbox)
     if len(b) != 4 or not all(np.isfinite(b)) or not (b[2] > b[0] and b[3] > b[1]):
-        raise PatchcloudValueError(f"bbox must be xmin ymin xmax ymax with xmin < xmax and ymin < ymax (metres); got {bbox!r}")
+        raise PatchcloudValueError(f"bbox must be xmin ymin xmax ymax with xmin < xmax and ymin < ymax (file coordinates); got {bbox!r}")
     return b
 
 
