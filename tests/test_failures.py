@@ -45,10 +45,10 @@ def test_ctrl_c_is_one_line_and_exit_130(scene, tmp_path, monkeypatch):
     assert len(lines) == 1 and lines[0].startswith("error: interrupted (the store ") and "is kept" in lines[0], r.output
 
 
-@pytest.mark.slow
-def test_ctrl_c_in_a_terminal_with_worker_processes_is_one_line_and_resumes(tmp_path):
-    """SIGINT to the whole process group (what a terminal's Ctrl-C does): the workers print nothing, the run one line."""
-    import os
+def _interruptible_run(tmp_path, entry: str):
+    """A 2-worker ``normals`` of a 400,000-point scene started through ``patchcloud.stream.cli.<entry>()`` in its own
+    process group (SIGINT as a terminal leaves it, even where this test runs in the background, which ignores it and a
+    child inherits that), waited for until its tiles are being written and 2 s more: (process, command, store, output)."""
     import signal
     import subprocess
     import sys
@@ -57,23 +57,39 @@ def test_ctrl_c_in_a_terminal_with_worker_processes_is_one_line_and_resumes(tmp_
     src = tmp_path / "big.las"
     write_scene(src, n=400_000, seed=4)
     out = tmp_path / "out.las"
-    cmd = [sys.executable, "-c", "from patchcloud.stream.cli import main; main()", "normals", str(src), str(out),
-           "--scheduler", "processes", "--workers", "2", "--tile-size", "4"]
-    # SIGINT as a terminal leaves it, even where this test runs in the background (which ignores it, and a child inherits that)
-    p = subprocess.Popen(cmd + ["-q"], stderr=subprocess.PIPE, text=True, start_new_session=True,
+    cmd = [sys.executable, "-c", f"from patchcloud.stream.cli import {entry}; {entry}()", "normals", str(src), str(out),
+           "--scheduler", "processes", "--workers", "2", "--tile-size", "4", "-q"]
+    p = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     store = tmp_path / "out.las.store"
     deadline = time.time() + 120
     while not (store / "tiles").exists() and p.poll() is None and time.time() < deadline:
         time.sleep(0.2)
     time.sleep(2)
-    os.killpg(p.pid, signal.SIGINT)
+    return p, cmd, store, out
+
+
+def _one_line_then_resumes(tmp_path, p, cmd, store, out) -> None:
+    """The run ended with one line, exit 130, its store kept, no output and no lock; the same command then finishes."""
+    import subprocess
+
     err = p.communicate(timeout=120)[1]
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert p.returncode == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted (the store "), err
-    assert store.is_dir() and not out.exists()
-    r = subprocess.run(cmd + ["-q"], capture_output=True, text=True, timeout=600)
+    assert store.is_dir() and not out.exists() and not list(tmp_path.glob("*.lock"))
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0 and out.exists() and not store.exists(), r.stderr
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_a_terminal_with_worker_processes_is_one_line_and_resumes(tmp_path):
+    """SIGINT to the whole process group (what a terminal's Ctrl-C does): the workers print nothing, the run one line."""
+    import os
+    import signal
+
+    p, cmd, store, out = _interruptible_run(tmp_path, "main")
+    os.killpg(p.pid, signal.SIGINT)
+    _one_line_then_resumes(tmp_path, p, cmd, store, out)
 
 
 @pytest.mark.slow
@@ -83,22 +99,9 @@ def test_ctrl_c_again_and_again_is_still_one_line_and_the_run_resumes(tmp_path):
     tracebacks of dask's and numba's threads); the same command then resumes."""
     import os
     import signal
-    import subprocess
-    import sys
     import time
 
-    src = tmp_path / "big.las"
-    write_scene(src, n=400_000, seed=4)
-    out = tmp_path / "out.las"
-    cmd = [sys.executable, "-c", "from patchcloud.stream.cli import run; run()", "normals", str(src), str(out),
-           "--scheduler", "processes", "--workers", "2", "--tile-size", "4", "-q"]
-    p = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    store = tmp_path / "out.las.store"
-    deadline = time.time() + 120
-    while not (store / "tiles").exists() and p.poll() is None and time.time() < deadline:
-        time.sleep(0.2)
-    time.sleep(2)
+    p, cmd, store, out = _interruptible_run(tmp_path, "run")
     os.killpg(p.pid, signal.SIGINT)
     while p.poll() is None:
         time.sleep(0.05)
@@ -106,12 +109,7 @@ def test_ctrl_c_again_and_again_is_still_one_line_and_the_run_resumes(tmp_path):
             os.killpg(p.pid, signal.SIGINT)
         except ProcessLookupError:  # the group has ended meanwhile
             break
-    err = p.communicate(timeout=120)[1]
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert p.returncode == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted (the store "), err
-    assert store.is_dir() and not out.exists() and not list(tmp_path.glob("*.lock"))
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0 and out.exists() and not store.exists(), r.stderr
+    _one_line_then_resumes(tmp_path, p, cmd, store, out)
 
 
 @pytest.mark.slow
@@ -119,28 +117,10 @@ def test_sigterm_stops_the_console_script_as_ctrl_c_does(tmp_path):
     """SIGTERM (what SLURM sends at a job's time limit): one line, the store kept, no lock left, and the same command
     resumes (it used to end at once, silent, with its locks left and leaked semaphores reported)."""
     import signal
-    import subprocess
-    import sys
-    import time
 
-    src = tmp_path / "big.las"
-    write_scene(src, n=400_000, seed=4)
-    out = tmp_path / "out.las"
-    cmd = [sys.executable, "-c", "from patchcloud.stream.cli import run; run()", "normals", str(src), str(out),
-           "--scheduler", "processes", "--workers", "2", "--tile-size", "4", "-q"]
-    p = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    store = tmp_path / "out.las.store"
-    deadline = time.time() + 120
-    while not (store / "tiles").exists() and p.poll() is None and time.time() < deadline:
-        time.sleep(0.2)
-    time.sleep(2)
+    p, cmd, store, out = _interruptible_run(tmp_path, "run")
     p.send_signal(signal.SIGTERM)
-    err = p.communicate(timeout=120)[1]
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert p.returncode == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted (the store "), err
-    assert store.is_dir() and not out.exists() and not list(tmp_path.glob("*.lock"))
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0 and out.exists() and not store.exists(), r.stderr
+    _one_line_then_resumes(tmp_path, p, cmd, store, out)
 
 
 @pytest.mark.slow
