@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import PatchcloudValueError
+
 __all__ = ["MAX_DEPTH", "encode", "decode", "quantize", "key_range", "containing", "face_neighbours"]
 
 #: Bits per axis; 3 * 21 = 63 bits fit an unsigned 64-bit key.
@@ -125,6 +127,9 @@ def face_neighbours(keys: np.ndarray) -> np.ndarray:
     """
     from ._kernels import face_neighbour_counts
 
+    keys = np.ascontiguousarray(keys, dtype=np.uint64)
+    if keys.size > 1 and not bool(np.all(keys[1:] > keys[:-1])):  # the kernel finds siblings next to each other
+        raise PatchcloudValueError("keys must be sorted and unique")
     out = np.zeros(len(keys), dtype=np.int64)
-    face_neighbour_counts(np.ascontiguousarray(keys, dtype=np.uint64), out)
+    face_neighbour_counts(keys, out)
     return out

@@ -197,3 +197,15 @@ def test_face_neighbours_counts_the_occupied_cells_beside_each_cell():
                 for d in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)))
             for c in decode(keys).tolist()]
     assert face_neighbours(keys).tolist() == want and max(want) == 6
+
+
+def test_face_neighbours_refuses_keys_not_sorted_or_not_unique():
+    """It finds a cell's siblings next to it in the sorted keys: unsorted keys would count wrong, silently."""
+    from patchcloud.core import PatchcloudValueError
+    from patchcloud.core.morton import encode, face_neighbours
+
+    keys = np.sort(encode(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]])))
+    for bad in (keys[::-1], np.r_[keys, keys[:1]]):
+        with pytest.raises(PatchcloudValueError, match="keys must be sorted and unique"):
+            face_neighbours(bad)
+    assert face_neighbours(keys[:1]).tolist() == [0] and face_neighbours(keys[:0]).tolist() == []

@@ -165,3 +165,28 @@ def test_ctrl_c_while_the_worker_processes_start_is_one_line(tmp_path):
         err = p.communicate(timeout=120)[1]
         lines = [ln for ln in err.splitlines() if ln.strip()]
         assert p.returncode == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted"), (delay, err[-3000:])
+
+
+def test_a_run_started_ignoring_ctrl_c_still_ignores_it(tmp_path):
+    """A run started with SIGINT ignored (``patchcloud ... &`` in a script, which a Ctrl-C meant for the script must not
+    stop) keeps ignoring it: the console script's handler is not put over that (it was, for a day)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    src = tmp_path / "scene.las"
+    write_scene(src, n=200_000, seed=5)
+    out = tmp_path / "out.las"
+    cmd = [sys.executable, "-c", "from patchcloud.stream.cli import run; run()", "normals", str(src), str(out),
+           "--scheduler", "synchronous", "--on-disk", "--tile-size", "8", "-q"]
+    p = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    store = tmp_path / "out.las.store"
+    deadline = time.time() + 120
+    while not (store / "tiles").exists() and p.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    assert p.poll() is None, "the run ended before the signal could be sent"
+    os.kill(p.pid, signal.SIGINT)
+    err = p.communicate(timeout=300)[1]
+    assert p.returncode == 0 and out.exists(), err

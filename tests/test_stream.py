@@ -298,3 +298,29 @@ def test_a_kept_store_is_not_reused_for_an_input_rewritten_in_place(scene_las, t
     again, fresh = laspy.read(tmp_path / "again.las"), laspy.read(tmp_path / "fresh.las")
     assert np.array_equal(again.points.array, fresh.points.array)
     assert not np.array_equal(again.points.array, laspy.read(tmp_path / "first.las").points.array)
+
+
+def test_a_store_recorded_before_the_fingerprint_is_still_its_inputs(scene_las, tmp_path):
+    """Stores made before 2026-11-27 record no fingerprint: their input is compared on every other field, so a kept
+    store is reused and a finished command still keeps its output (a sweep found them all re-tiled, and the rerun of a
+    finished command refused its own output)."""
+    import json
+
+    path, _, _ = scene_las
+    store = str(tmp_path / "job.zarr")
+    out = tmp_path / "out.las"
+    normals(path, out, store=store, keep_store=True, scheduler="synchronous", quiet=True)
+    meta = tmp_path / "job.zarr" / "zarr.json"
+    doc = json.loads(meta.read_text())
+    attrs = doc["attributes"]
+    for src in attrs["catalog"]["sources"] + ([attrs["source"]] if isinstance(attrs.get("source"), dict) else []):
+        src.pop("fingerprint")  # as a store written before the fingerprint
+    meta.write_text(json.dumps(doc))
+    before = out.stat().st_mtime_ns
+    normals(path, out, store=store, keep_store=True, scheduler="synchronous", quiet=True)  # kept: not refused, not rewritten
+    assert out.stat().st_mtime_ns == before
+    from patchcloud.stream.io.las import LasSource, open_source
+
+    old = json.loads(json.dumps(open_source(path).to_json()))  # as a store gives it back
+    old.pop("fingerprint")
+    assert open_source(path).same_file(old) and LasSource.from_json(old).fingerprint == 0

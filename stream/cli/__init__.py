@@ -111,7 +111,8 @@ def run() -> None:
     load_cached_kernels_lightly()  # 0.07 s of numba's compiler set-up that a cached kernel does not need (same module)
     skip_laspy_http()  # 0.02 s of requests, for COPC over HTTP (stream.engine.laspy_start)
     signal.signal(signal.SIGTERM, _terminated)  # what SLURM, PBS, Kubernetes and systemd send: as Ctrl-C
-    signal.signal(signal.SIGINT, _interrupted)  # then Ctrl-C again is let be during the clean-up, SIGTERM ends it
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a run started ignoring it (`cmd &` in a script) still does
+        signal.signal(signal.SIGINT, _interrupted)  # then Ctrl-C again is let be during the clean-up, SIGTERM ends it
     try:
         main()
     finally:
