@@ -12,7 +12,7 @@ from .errors import PatchcloudValueError
 
 __all__ = [
     "coordinates", "CRITERIA", "ORIENT_RULES", "MODES", "check_positive", "check_radius", "check_viewpoint", "check_mode",
-    "check_cluster_sizes", "check_budget", "check_indices", "check_rounding",
+    "check_cluster_sizes", "check_budget", "check_indices", "check_rounding", "is_lasdata",
 ]
 
 #: Octree split criteria: quadric fit RMSE (metres) or surface variation.
@@ -44,9 +44,16 @@ def coordinates(points):
     >>> coordinates([[0, 1, 2]])
     [[0, 1, 2]]
     """
-    if hasattr(points, "xyz") and hasattr(points, "header") and hasattr(points, "point_format"):
-        return points.xyz
-    return points
+    return points.xyz if is_lasdata(points) else points
+
+
+def is_lasdata(points) -> bool:
+    """Whether ``points`` is a ``laspy.LasData`` (anything with ``xyz``, ``header`` and ``point_format``).
+
+    >>> is_lasdata(np.zeros((2, 3)))
+    False
+    """
+    return hasattr(points, "xyz") and hasattr(points, "header") and hasattr(points, "point_format")
 
 
 def check_positive(name: str, value, integer: bool = False):

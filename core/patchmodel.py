@@ -169,10 +169,6 @@ def _cell_edge(root_edge: float, level: np.ndarray) -> np.ndarray:
     return root_edge / 2.0 ** level.astype(np.float64)
 
 
-def _quadric(c: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return c[:, 0] * u * u + c[:, 1] * u * v + c[:, 2] * v * v + c[:, 3] * u + c[:, 4] * v + c[:, 5]
-
-
 def _cells(u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     span = np.where(hi > lo, hi - lo, 1.0)
     return np.clip(np.floor((u - lo) / span * MASK_SIDE), 0, MASK_SIDE - 1).astype(np.int64)

@@ -47,7 +47,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _radius_kernels as _rk
-from .checks import check_indices, check_mode, check_positive, check_radius, check_rounding, check_viewpoint, coordinates
+from .checks import check_indices, check_mode, check_positive, check_radius, check_rounding, check_viewpoint, coordinates, is_lasdata
 from .errors import PatchcloudValueError
 from .grid import CellGrid
 from .points import GRID_ANCHOR
@@ -78,9 +78,7 @@ def coordinate_step(points) -> float:
     >>> coordinate_step(laspy.read(sample)), coordinate_step(np.zeros((4, 3)))
     (0.01, 0.0)
     """
-    if hasattr(points, "xyz") and hasattr(points, "header") and hasattr(points, "point_format"):
-        return float(np.max(np.asarray(points.header.scales, dtype=np.float64)))
-    return 0.0
+    return float(np.max(np.asarray(points.header.scales, dtype=np.float64))) if is_lasdata(points) else 0.0
 
 
 def default_viewpoint(points: np.ndarray) -> np.ndarray:

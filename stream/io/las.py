@@ -70,6 +70,11 @@ class LasSource:
     def to_json(self) -> dict:
         return dict(self.__dict__)
 
+    @property
+    def step(self) -> float:
+        """The step its coordinates are rounded to: its largest scale (file units)."""
+        return float(max(self.scale))
+
     @classmethod
     def from_json(cls, d: dict) -> "LasSource":
         """The inverse of :meth:`to_json`."""

@@ -410,9 +410,6 @@ class OpenedArrays:
             a = self._opened[name] = self.group[name]
         return a
 
-    def __contains__(self, name: str) -> bool:
-        return name in self._opened or name in self.group
-
 
 class _OpenPcz:
     """What both modes of an open ``.pcz`` share: its attributes, the input's header and EVLRs, and its stored records."""

@@ -748,5 +748,5 @@ def don_scales(
         pts, lab, radii=radii, small=small, large=large, classes=classes, sample=sample, mode=mode,
         resolution=resolution, min_points=min_points, min_class_points=min_class_points, min_defined=min_defined,
         seed=seed, classes_from=classes_from, progress=None if progress is None else step, _source=src.path,
-        rounding=float(max(src.scale)),  # the file's step: a ball collinear up to it has no normal
+        rounding=src.step,  # the file's step: a ball collinear up to it has no normal
     )
