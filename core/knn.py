@@ -318,8 +318,14 @@ def _offer(points, ids, a, b, qx, qy, qz, limit, bd, bi):
 
 
 @njit(cache=True, nogil=True)
-def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, qy, qz, limit, bd, bi):
-    """Rings 0 to 2 of the cells of ``level`` (edge ``edge``, ``scale`` cells per unit) around the query; True when the lists are final."""
+def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, qy, qz, limit, bd, bi, memo, memo_of):
+    """Rings 0 to 2 of the cells of ``level`` (edge ``edge``, ``scale`` cells per unit) around the query; True when the lists are final.
+
+    ``memo`` (125, 2) holds the point ranges of the 5 x 5 x 5 cells around
+    the cell ``memo_of`` (4,: level and cell), -2 where not looked up yet:
+    the queries come in space order, so most share the last one's cell and
+    its neighbours' ranges (a cell lookup is two binary searches).
+    """
     n = np.int64(1) << np.int64(level)
     shift = np.uint64(3 * (levels - level))
     fx = (qx - corner[0]) * scale
@@ -331,6 +337,9 @@ def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, q
     # the query's distance to the nearest face of its own cell: a point beyond ring r is at least r edges farther
     inner = min(min(min(fx - cx, cx + 1 - fx), min(fy - cy, cy + 1 - fy)), min(fz - cz, cz + 1 - fz)) * edge
     far = max(max(max(abs(cx), abs(cx - n + 1)), max(abs(cy), abs(cy - n + 1))), max(abs(cz), abs(cz - n + 1)))
+    if memo_of[0] != level or memo_of[1] != cx or memo_of[2] != cy or memo_of[3] != cz:
+        memo_of[0], memo_of[1], memo_of[2], memo_of[3] = level, cx, cy, cz
+        memo[:, 0] = -2
     k = bd.size
     for r in range(3):
         for i in range(max(cx - r, 0), min(cx + r, n - 1) + 1):
@@ -348,14 +357,17 @@ def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, q
                     gap = (gx * gx + gy * gy + gz * gz) * edge * edge * (1.0 - 1e-9)
                     if gap > limit or gap > bd[k - 1]:
                         continue
-                    key = _kernels.morton_key(i, j, z) << shift
-                    a = _kernels.lower_bound(cells, key)
-                    if shift == 0:  # a finest cell: one key
-                        b = a + 1 if a < cells.size and cells[a] == key else a
-                    else:
-                        b = _kernels.lower_bound(cells, key + (np.uint64(1) << shift))
-                    if b > a:
-                        _offer(points, ids, starts[a], starts[b], qx, qy, qz, limit, bd, bi)
+                    slot = ((i - cx + 2) * 5 + (j - cy + 2)) * 5 + (z - cz + 2)
+                    if memo[slot, 0] == -2:
+                        key = _kernels.morton_key(i, j, z) << shift
+                        a = _kernels.lower_bound(cells, key)
+                        if shift == 0:  # a finest cell: one key
+                            b = a + 1 if a < cells.size and cells[a] == key else a
+                        else:
+                            b = _kernels.lower_bound(cells, key + (np.uint64(1) << shift))
+                        memo[slot, 0], memo[slot, 1] = starts[a], starts[b]
+                    if memo[slot, 1] > memo[slot, 0]:
+                        _offer(points, ids, memo[slot, 0], memo[slot, 1], qx, qy, qz, limit, bd, bi)
         reach = r * edge + inner
         if r >= far or reach * reach >= limit:
             return True  # every cell of the grid seen, or the rest beyond max_distance
@@ -365,13 +377,10 @@ def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, q
 
 
 @njit(cache=True, nogil=True)
-def _any_near(cells, corner, scale, level, levels, qx, qy, qz):
-    """Whether any point lies in the 27 cells of ``level`` (``scale`` cells per unit) around the query's; its own cell first."""
+def _any_near(cells, level, levels, cx, cy, cz):
+    """1 when any point lies in the 27 cells of ``level`` around the cell ``(cx, cy, cz)`` (its own first), else 0."""
     n = np.int64(1) << np.int64(level)
     shift = np.uint64(3 * (levels - level))
-    cx = np.int64(np.floor((qx - corner[0]) * scale))
-    cy = np.int64(np.floor((qy - corner[1]) * scale))
-    cz = np.int64(np.floor((qz - corner[2]) * scale))
     for t in range(27):
         u = (t + 13) % 27  # 13: the query's own cell, (0, 0, 0)
         i, j, z = cx + u // 9 - 1, cy + (u // 3) % 3 - 1, cz + u % 3 - 1
@@ -380,8 +389,8 @@ def _any_near(cells, corner, scale, level, levels, qx, qy, qz):
         key = _kernels.morton_key(i, j, z) << shift
         a = _kernels.lower_bound(cells, key)
         if a < cells.size and cells[a] < key + (np.uint64(1) << shift):
-            return True
-    return False
+            return 1
+    return 0
 
 
 @parallel_kernel
@@ -403,24 +412,36 @@ def _search(points, ids, cells, starts, corner, edge, scale, levels, queries, li
             first -= 1
             first_edge *= 2.0
             first_scale *= 0.5
-    for m in prange(queries.shape[0]):
-        bd = dist[m]
-        bi = idx[m]
-        if coarse >= 0 and not _any_near(cells, corner, coarse_scale, coarse, levels, queries[m, 0], queries[m, 1], queries[m, 2]):
-            continue
-        level = first
-        e = first_edge
-        sc = first_scale
-        while True:
-            if level == 0:  # the root cell: every point
-                _offer(points, ids, 0, points.shape[0], queries[m, 0], queries[m, 1], queries[m, 2], limit, bd, bi)
-                break
-            if _rings(points, ids, cells, starts, corner, e, sc, level, levels, queries[m, 0], queries[m, 1], queries[m, 2],
-                      limit, bd, bi):
-                break
-            # two rings were not enough: start again on cells twice as large (the root cell holds every point)
-            bd[:] = dist0[m]
-            bi[:] = idx0[m]
-            level -= 1
-            e *= 2.0
-            sc *= 0.5
+    M = queries.shape[0]
+    for chunk in prange((M + _kernels.CHUNK - 1) // _kernels.CHUNK):  # a memo of cell ranges per chunk of queries
+        memo = np.empty((125, 2), dtype=np.int64)
+        memo_of = np.full(4, -1, dtype=np.int64)
+        near_of = np.array([np.iinfo(np.int64).min, 0, 0, 0], dtype=np.int64)  # the coarse cell last tested, and the answer
+        for m in range(chunk * _kernels.CHUNK, min(M, (chunk + 1) * _kernels.CHUNK)):
+            bd = dist[m]
+            bi = idx[m]
+            if coarse >= 0:  # whether any point lies in the 27 cells around the query's (once per cell: they come in runs)
+                qc0 = np.int64(np.floor((queries[m, 0] - corner[0]) * coarse_scale))
+                qc1 = np.int64(np.floor((queries[m, 1] - corner[1]) * coarse_scale))
+                qc2 = np.int64(np.floor((queries[m, 2] - corner[2]) * coarse_scale))
+                if qc0 != near_of[0] or qc1 != near_of[1] or qc2 != near_of[2]:
+                    near_of[0], near_of[1], near_of[2] = qc0, qc1, qc2
+                    near_of[3] = _any_near(cells, coarse, levels, qc0, qc1, qc2)
+                if near_of[3] == 0:
+                    continue
+            level = first
+            e = first_edge
+            sc = first_scale
+            while True:
+                if level == 0:  # the root cell: every point
+                    _offer(points, ids, 0, points.shape[0], queries[m, 0], queries[m, 1], queries[m, 2], limit, bd, bi)
+                    break
+                if _rings(points, ids, cells, starts, corner, e, sc, level, levels, queries[m, 0], queries[m, 1], queries[m, 2],
+                          limit, bd, bi, memo, memo_of):
+                    break
+                # two rings were not enough: start again on cells twice as large (the root cell holds every point)
+                bd[:] = dist0[m]
+                bi[:] = idx0[m]
+                level -= 1
+                e *= 2.0
+                sc *= 0.5

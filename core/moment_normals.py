@@ -144,21 +144,26 @@ def moment_normals(
         best[ok] = s3[ok]
         defined |= ok
         coarse[ok] = edge == h
-        normal[ok], sigma3[ok], dir1[ok], vote[ok] = nrm[ok], s3[ok], d1[ok], v[ok]
+        for out, values in ((normal, nrm), (sigma3, s3), (dir1, d1), (vote, v)):  # the scale's values where it wins
+            np.copyto(out, values, where=ok if values.ndim == 1 else ok[:, None])
     return MomentNormals(defined, normal, sigma3, dir1, vote, coarse)
 
 
 def _at_points(points, votes, voters, where, edge):
     """The kernel's outputs at ``where`` (M, 3) for cells of ``edge`` (``votes`` summed where ``voters``)."""
     m = where.shape[0]
-    base = np.floor(where / edge - 0.5).astype(np.int64)
-    lo = base.min(axis=0)
-    span = base.max(axis=0) - lo + 2
+    if m == 0:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    # the queries' base cells floor(p / edge - 0.5) span lo to lo + span - 2 (floor is monotonic: from the extremes)
+    low, high = _kernels.bounds(where)[:2]  # the points are finite
+    lo = np.floor(low / edge - 0.5).astype(np.int64)
+    span = np.floor(high / edge - 0.5).astype(np.int64) - lo + 2
     if float(np.prod(span.astype(np.float64))) >= 2.0**62:  # the keys would overflow: two halves along the widest axis
         axis = int(np.argmax(span))  # > 2^20 cells wide, so the queries' cells there differ
-        left = base[:, axis] <= np.median(base[:, axis])
+        base = np.floor(where[:, axis] / edge - 0.5).astype(np.int64)
+        left = base <= np.median(base)
         if left.all():
-            left = base[:, axis] < base[:, axis].max()
+            left = base < base.max()
         out = [np.empty(shape) for shape in ((m, 3), m, m, (m, 3), (m, 3), m)]
         for part in (left, ~left):
             for o, values in zip(out, _at_points(points, votes, voters, where[part], edge)):
