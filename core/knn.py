@@ -318,8 +318,8 @@ def _offer(points, ids, a, b, qx, qy, qz, limit, bd, bi):
 
 
 @njit(cache=True, nogil=True)
-def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, qy, qz, limit, bd, bi, memo, memo_of):
-    """Rings 0 to 2 of the cells of ``level`` (edge ``edge``, ``scale`` cells per unit) around the query; True when the lists are final.
+def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, qy, qz, limit, bd, bi, rings, memo, memo_of):
+    """Rings 0 to ``rings - 1`` (at most 2) of the cells of ``level`` (edge ``edge``, ``scale`` cells per unit) around the query; True when the lists are final.
 
     ``memo`` (125, 2) holds the point ranges of the 5 x 5 x 5 cells around
     the cell ``memo_of`` (4,: level and cell), -2 where not looked up yet:
@@ -341,7 +341,7 @@ def _rings(points, ids, cells, starts, corner, edge, scale, level, levels, qx, q
         memo_of[0], memo_of[1], memo_of[2], memo_of[3] = level, cx, cy, cz
         memo[:, 0] = -2
     k = bd.size
-    for r in range(3):
+    for r in range(rings):
         for i in range(max(cx - r, 0), min(cx + r, n - 1) + 1):
             gx = max(max(i - fx, fx - (i + 1)), 0.0)  # the query's distance to the cells' slab, in edges
             for j in range(max(cy - r, 0), min(cy + r, n - 1) + 1):
@@ -398,20 +398,20 @@ def _search(points, ids, cells, starts, corner, edge, scale, levels, queries, li
     # dist0, idx0: the lists before this grid's points (a restart goes back to them); dist, idx: the lists, in place
     # scale: the grid's cells per unit of length (about 1 / edge), as its points' cells were found
     # with a finite limit: the level whose cells are the smallest at least sqrt(limit) wide, where the 27 cells
-    # around a query hold every point within the limit, so a query with none there is done at once
+    # around a query hold every point within the limit, so a query with none there is done at once, and the others
+    # search rings 0 and 1 of that level, no second try (on real aerial files faster than rings 0 to 2 of cells
+    # half as wide, now that cell lookups are kept; both the same neighbours)
     coarse = -1
     coarse_edge, coarse_scale = edge, scale
-    first, first_edge, first_scale = levels, edge, scale  # with a finite limit: the finest level whose two rings reach past the limit (no
-    if limit < np.inf:                # second try on larger cells; the cells of the rings beyond the limit are skipped)
+    rings = 3
+    if limit < np.inf:
         coarse = levels
         while coarse > 0 and coarse_edge * coarse_edge < limit:
             coarse -= 1
             coarse_edge *= 2.0
             coarse_scale *= 0.5
-        while first > 0 and 4.0 * first_edge * first_edge < limit:
-            first -= 1
-            first_edge *= 2.0
-            first_scale *= 0.5
+        rings = 2
+    first, first_edge, first_scale = (levels, edge, scale) if coarse < 0 else (coarse, coarse_edge, coarse_scale)
     M = queries.shape[0]
     for chunk in prange((M + _kernels.CHUNK - 1) // _kernels.CHUNK):  # a memo of cell ranges per chunk of queries
         memo = np.empty((125, 2), dtype=np.int64)
@@ -437,7 +437,7 @@ def _search(points, ids, cells, starts, corner, edge, scale, levels, queries, li
                     _offer(points, ids, 0, points.shape[0], queries[m, 0], queries[m, 1], queries[m, 2], limit, bd, bi)
                     break
                 if _rings(points, ids, cells, starts, corner, e, sc, level, levels, queries[m, 0], queries[m, 1], queries[m, 2],
-                          limit, bd, bi, memo, memo_of):
+                          limit, bd, bi, rings, memo, memo_of):
                     break
                 # two rings were not enough: start again on cells twice as large (the root cell holds every point)
                 bd[:] = dist0[m]

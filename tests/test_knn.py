@@ -66,6 +66,24 @@ def test_a_limit_finds_every_neighbour_within_it_from_queries_near_and_far(name,
         assert np.array_equal(np.isinf(d), bi < 0) and np.allclose(d[bi >= 0], bd[bi >= 0], rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("name,points", list(clouds()), ids=[c[0] for c in clouds()])
+@pytest.mark.parametrize("max_distance", [np.inf, 0.15, 0.9])
+def test_queries_in_space_order_share_cell_lookups_and_find_the_same_neighbours(name, points, max_distance):
+    """Queries sorted by Morton key, as the fallbacks ask them: runs of queries in one cell reuse the cells' ranges
+    looked up for the first of them; every query still gets the brute-force answer."""
+    from patchcloud.core.octree import sort_points
+
+    lo = points.min(axis=0) - 1.0
+    edge = float((points.max(axis=0) - lo).max()) + 2.0
+    order, keys, _ = sort_points(points - lo, np.zeros(3), edge)
+    queries = (points[order] + np.random.default_rng(2).normal(0, 0.05, points.shape))[::3]
+    for k in (1, 16):
+        d, i = nearest_neighbours(point_grid(points, 8), queries, k, max_distance=max_distance)
+        bd, bi = brute(points, queries, k, max_distance=max_distance)
+        assert np.array_equal(i, bi)
+        assert np.allclose(d[bi >= 0], bd[bi >= 0], rtol=0, atol=1e-9)
+
+
 def test_more_neighbours_than_points_and_degenerate_clouds():
     one = np.array([[1.0, 2.0, 3.0]])
     d, i = nearest_neighbours(point_grid(one, 4), np.array([[1.0, 2.0, 4.0]]), 4)
