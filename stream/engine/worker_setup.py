@@ -51,11 +51,14 @@ def exit_now() -> None:
 
 def dask_setup(worker) -> None:
     """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT, tune the allocator, skip
-    numba's BLAS probe and its compiler set-up for cached kernels (:mod:`~patchcloud.stream.engine.numba_start`) and
+    numba's BLAS probe and its compiler set-up for cached kernels, size lazrs' thread pool (:mod:`~patchcloud.stream.engine.numba_start`) and
     laspy's HTTP support (:mod:`~patchcloud.stream.engine.laspy_start`), have zarr code chunks on as many threads as the
     worker runs tasks (:func:`~patchcloud.stream.io.store.limit_zarr_threads`), leave at once at exit (see the module's
     notes)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # lazrs decodes the chunks of a variable-chunk LAZ file (COPC) on rayon's pool, one thread per core unless told:
+    # as many as the worker runs tasks (before any lazrs call: the pool is made at the first)
+    os.environ.setdefault("RAYON_NUM_THREADS", str(worker_threads(worker)))
     tune_allocator()
     skip_numba_blas_probe()
     load_cached_kernels_lightly()

@@ -516,6 +516,10 @@ def read_range(src: LasSource, first: int, count: int, parallel: bool = False,
         The data ends before ``first + count`` (truncated or corrupt).
     """
     p = src.path
+    if src.compressed and (first or count < src.point_count):
+        variable = _variable_chunks(p, src.size, src.mtime_ns)
+        if variable is not None:  # laspy's seek in such a file (COPC's) gives other points, or zeros: no seek
+            return _read_variable_chunks(src, variable, first, count, selection)
     if parallel and first and src.compressed:
         pts = _read_whole_chunks(src, first, count, selection)
         if pts is not None:
@@ -576,6 +580,89 @@ def _laz_chunks(path: str, size: int, mtime_ns: int) -> _LazChunks | None:
             raise
         return None
     return _LazChunks(header, data, int(vlr.chunk_size()), table) if len(table) else None
+
+
+@dataclass(frozen=True)
+class _VariableChunks:
+    """A LAZ file of variable-size chunks (COPC's: one chunk per octree node): its header, LASzip VLR, each chunk's
+    byte offset and byte count (``table``, (C, 2)) and its first point (``firsts``, (C + 1,), the last the total)."""
+
+    header: laspy.LasHeader
+    vlr: bytes
+    table: np.ndarray
+    firsts: np.ndarray
+
+
+@functools.lru_cache(maxsize=8)
+def _variable_chunks(path: str, size: int, mtime_ns: int) -> _VariableChunks | None:
+    """The chunk table of a LAZ file of variable-size chunks (read once per file version), None for any other file.
+
+    Raises
+    ------
+    PatchcloudIOError
+        Such a file whose chunk table cannot be read, or whose chunks hold
+        other than the header's point count.
+    """
+    try:
+        with open(path, "rb") as f:
+            header = laspy.LasHeader.read_from(f)
+        vlrs = header.vlrs.get("LasZipVlr")
+        if not vlrs:
+            return None
+        data = bytes(vlrs[0].record_data)
+        vlr = lazrs.LazVlr(data)
+        if not vlr.uses_variable_size_chunks():
+            return None
+    except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
+        if isinstance(exc, INTERRUPTS):
+            raise
+        return None  # not such a file, or one laspy reports on when it reads it
+    try:
+        with open(path, "rb") as f:
+            f.seek(header.offset_to_point_data)
+            entries = lazrs.read_chunk_table(f, vlr)
+    except BaseException as exc:
+        if isinstance(exc, INTERRUPTS):
+            raise
+        raise PatchcloudIOError(f"{path}: damaged LAZ file: its table of variable-size chunks cannot be read ({exc})") from None
+    points = np.asarray([int(e[0]) for e in entries], dtype=np.int64)
+    sizes = np.asarray([int(e[1]) for e in entries], dtype=np.int64)
+    if int(points.sum()) != header.point_count:
+        raise PatchcloudIOError(f"{path}: damaged LAZ file: its chunks hold {int(points.sum()):,} points, its header says "
+                                f"{header.point_count:,}")
+    starts = header.offset_to_point_data + 8 + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    return _VariableChunks(header, data, np.column_stack([starts, sizes]), np.concatenate([[0], np.cumsum(points)]))
+
+
+def _read_variable_chunks(src: LasSource, plan: _VariableChunks, first: int, count: int,
+                          selection) -> laspy.ScaleAwarePointRecord:
+    """Points ``first`` to ``first + count`` of a LAZ file of variable-size chunks: the chunks that hold them decoded
+    from their bytes and the chunk table (lazrs; one thread in a worker process, see
+    :mod:`patchcloud.stream.engine.worker_setup`), the points before ``first`` in the first of them dropped."""
+    pf = plan.header.point_format
+    if count <= 0:
+        return laspy.ScaleAwarePointRecord.zeros(0, point_format=pf, scales=plan.header.scales, offsets=plan.header.offsets)
+    if first < 0 or first + count > int(plan.firsts[-1]):
+        raise PatchcloudIOError(f"{src.path}: truncated: the header says {src.point_count:,} points but the data ends "
+                                f"after {int(plan.firsts[-1]):,}")
+    c0 = int(np.searchsorted(plan.firsts, first, side="right")) - 1
+    c1 = int(np.searchsorted(plan.firsts, first + count, side="left"))
+    skip = first - int(plan.firsts[c0])
+    table = [(int(plan.firsts[c + 1] - plan.firsts[c]), int(plan.table[c, 1])) for c in range(c0, c1)]
+    out = np.empty(sum(n for n, _ in table) * pf.size, dtype=np.uint8)
+    sel = (selection if selection is not None else laspy.DecompressionSelection.all()).to_lazrs()
+    try:
+        with open(src.path, "rb") as f:
+            f.seek(int(plan.table[c0, 0]))
+            data = f.read(int(plan.table[c0:c1, 1].sum()))
+        lazrs.decompress_points_with_chunk_table(data, plan.vlr, out, table, sel)
+    except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
+        if isinstance(exc, INTERRUPTS):
+            raise
+        raise PatchcloudIOError(f"{src.path}: corrupt or truncated point data in points {first:,} to {first + count:,} "
+                                f"({exc})") from None
+    records = laspy.PackedPointRecord.from_buffer(out[skip * pf.size: (skip + count) * pf.size], pf)
+    return laspy.ScaleAwarePointRecord(records.array, pf, plan.header.scales, plan.header.offsets)
 
 
 def check_last_chunk(src: LasSource) -> None:
@@ -654,10 +741,12 @@ def read_chunks(src: LasSource, chunk: int, start_chunk: int = 0) -> Iterator[tu
         The data ends before the header's point count (truncated or corrupt).
     """
     p = src.path
+    if start_chunk:  # from a point inside the file: read_range, which reads every kind of LAZ file there
+        for first in range(start_chunk * chunk, src.point_count, chunk):
+            yield first, read_range(src, first, min(chunk, src.point_count - first))
+        return
     try:
         with laspy.open(p, laz_backend=laz_backend()) as reader:
-            if start_chunk:
-                reader.seek(start_chunk * chunk)
             done = start_chunk * chunk
             while done < src.point_count:
                 want = min(chunk, src.point_count - done)

@@ -59,7 +59,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.catalog import open_catalog
 from patchcloud.stream.io.crs import UNITS
-from patchcloud.stream.io.las import LasSource, check_not_input, laz_backend, open_source, read_chunks
+from patchcloud.stream.io.las import LasSource, check_not_input, open_source, read_chunks, read_range
 from patchcloud.stream.views.layout import MIN_WIDTH, FigureLayout, figure_layout, layout_around
 from patchcloud.stream.views.units import AxisNames, axis_names
 
@@ -753,13 +753,8 @@ def robust_heights(src: LasSource) -> tuple[float, float]:
     if n <= FRAME_WINDOWS * FRAME_WINDOW:
         zs = [np.asarray(pts.z, dtype=np.float64) for _, pts in read_chunks(src, 1 << 20)]
     else:
-        try:
-            with laspy.open(src.path, laz_backend=laz_backend()) as r:
-                for start in np.linspace(0, n - FRAME_WINDOW, FRAME_WINDOWS).astype(np.int64).tolist():
-                    r.seek(start)
-                    zs.append(np.asarray(r.read_points(FRAME_WINDOW).z, dtype=np.float64))
-        except Exception as exc:
-            raise PatchcloudIOError(f"{src.path}: cannot read point data ({exc})") from exc
+        for start in np.linspace(0, n - FRAME_WINDOW, FRAME_WINDOWS).astype(np.int64).tolist():
+            zs.append(np.asarray(read_range(src, start, FRAME_WINDOW).z, dtype=np.float64))
     z = np.sort(np.concatenate(zs)) if zs else np.zeros(0)
     zmin, zmax = float(src.mins[2]), float(src.maxs[2])
     if z.size == 0:
