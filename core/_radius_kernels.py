@@ -200,7 +200,9 @@ def ball_moments(
     whole cloud's values bit for bit.
 
     ``out[i]`` (query ``i``): n, sum(d) (3), sum(d d^T) (xx, xy, xz, yy, yz,
-    zz), d the offset from the query point.
+    zz), d the offset from the query point.  A query at the coordinates of the
+    one before it in its group takes its sums (a pile of copies of one point
+    costs one ball, not one per copy).
     """
     G = qgroup_start.size - 1
     R = rows.shape[0]
@@ -231,6 +233,12 @@ def ball_moments(
         for m in range(qgroup_start[g], qgroup_start[g + 1]):
             row = qorder[m]
             qx, qy, qz = query[row, 0], query[row, 1], query[row, 2]
+            if m > qgroup_start[g]:  # a copy of the query before it (a pile of copies, side by side): the same sums
+                prev = qorder[m - 1]
+                if query[prev, 0] == qx and query[prev, 1] == qy and query[prev, 2] == qz:
+                    for t in range(10):
+                        out[row, t] = out[prev, t]
+                    continue
             acc = np.zeros(10)
             exact = not voxels
             if voxels:

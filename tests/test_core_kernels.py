@@ -7,6 +7,7 @@ from patchcloud.core import _kernels
 from patchcloud.core.fallback import knn_normals
 from patchcloud.core.moments import EXPONENTS, point_moments
 from patchcloud.core.morton import encode, quantize
+from patchcloud.core.radius import radius_moments
 
 
 def test_cell_moments_match_numpy(rng):
@@ -207,3 +208,29 @@ def test_eigh3_of_a_diagonal_zero_or_nan_matrix():
     assert w.tolist() == [0.0, 0.0, 0.0] and v.tolist() == np.eye(3).tolist()
     w, v = eigh3(np.full((3, 3), np.nan))
     assert np.isnan(w).all() and np.isnan(v).all()
+
+
+def test_copies_of_a_point_get_the_answer_each_would_get_alone(rng):
+    """Piles of copies (a sorted cloud holds them side by side): each copy's neighbours and normal are searched once
+    per pile, and are those of the copy searched on its own; piles of fewer copies than k, of more, and copies apart."""
+    plane = np.column_stack([rng.uniform(0, 10, (3000, 2)), 0.01 * rng.normal(size=3000)])
+    piles = [np.repeat([[5.0, 5.0, 0.0]], 6, axis=0), np.repeat([[2.0, 7.0, 3.0]], 40, axis=0)]
+    pts = np.concatenate([plane[:1500], piles[0], piles[1], plane[1500:], piles[1][:3]])
+    query = np.arange(len(pts))
+    k = 16
+    got = knn_normals(pts, query, k)
+    for i in np.r_[1495:1560, len(pts) - 4:len(pts)]:  # the piles and the points around them, one call each
+        alone = knn_normals(pts, np.array([i]), k)
+        for a, b in zip(got, alone):
+            assert np.array_equal(a[i], b[0]), i
+    assert not got[6][1506:1546].any() and got[6][1500:1506].all()  # 40 copies: no direction; 6 copies and a plane: one
+
+
+def test_copies_of_a_query_get_the_ball_each_would_get_alone(rng):
+    plane = np.column_stack([rng.uniform(0, 10, (3000, 2)), 0.01 * rng.normal(size=3000)])
+    column = np.column_stack([np.full(20, 7.0), np.full(20, 3.0), np.linspace(0, 0.5, 20)])  # x and y alike, z not
+    pts = np.concatenate([plane[:1500], np.repeat([[5.0, 5.0, 0.05]], 50, axis=0), column, plane[1500:]])
+    for mode in ("exact", "fast"):
+        m = radius_moments(pts, 0.5, mode=mode)
+        for i in range(1490, 1580):
+            assert np.array_equal(m[i], radius_moments(pts, 0.5, mode=mode, at=np.array([i]))[0]), (mode, i)
