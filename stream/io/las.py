@@ -34,7 +34,7 @@ __all__ = [
     "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
-    "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS", "content_fingerprint", "FINGERPRINT_BLOCKS", "FINGERPRINT_BLOCK",
+    "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS", "content_fingerprint", "FINGERPRINT_BLOCKS", "FINGERPRINT_BLOCK", "holds",
 ]
 
 #: What a ``except BaseException`` around lazrs lets through: lazrs' Rust panics come as pyo3's PanicException, which
@@ -804,14 +804,32 @@ def output_header(src: LasSource, dims, provenance: laspy.VLR | None = None) -> 
     a VLR saying what made the file
     (:func:`patchcloud.stream.io.las_records.provenance_vlr`), appended.
 
-    A dimension of the same name and type already in the input (a file
-    that went through ``patchcloud normals`` before) is reused; one of
-    another type is an error.
+    A dimension of the same name already in the input (a file that went
+    through ``patchcloud normals`` or PDAL's ``filters.normal`` before) is
+    reused, with its type, where that type holds the new values
+    (:func:`holds`: PDAL's double ``NormalX`` takes the float32 normals
+    exactly, its int64 ``ClusterID`` the ids); else it is an error.
     """
     with laspy.open(src.path) as reader:
         header = reader.header
     vlrs, evlrs = file_records(src.path)
     return assemble_header(header, vlrs, evlrs, dims, provenance, where=src.path)
+
+
+def holds(existing, new) -> bool:
+    """Whether an input's dimension of type ``existing`` can take a run's values of type ``new`` without loss: the same
+    type, a wider float for a float, an integer at least as wide for an integer (signed for unsigned too: the values
+    patchcloud writes, method codes and cluster ids, lie far below the signed type's top).
+
+    >>> holds("float64", "float32"), holds("int64", "uint64"), holds("float32", "float64"), holds("uint8", "float32")
+    (True, True, False, False)
+    """
+    e, n = np.dtype(existing), np.dtype(new)
+    if e == n:
+        return True
+    if n.kind == "f":
+        return e.kind == "f" and e.itemsize >= n.itemsize
+    return n.kind in "iu" and e.kind in "iu" and e.itemsize >= n.itemsize
 
 
 def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[RawRecord], dims, provenance: laspy.VLR | None = None,
@@ -834,9 +852,11 @@ def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[
     new = []
     for name, dtype, desc, *no_data in dims:
         if name in existing:
-            if np.dtype(existing[name].dtype) != np.dtype(dtype):
+            if not holds(existing[name].dtype, dtype):
                 raise PatchcloudValueError(
-                    f"{where}: already has a dimension {name} of type {existing[name].dtype}, not {np.dtype(dtype)}"
+                    f"{where}: already has a dimension {name} of type {existing[name].dtype}, which cannot hold this "
+                    f"run's {np.dtype(dtype)} values: remove it first (e.g. pdal translate with "
+                    f"--filters.ferry or writers.las.extra_dims listing the dimensions to keep)"
                 )
             continue
         new.append(laspy.ExtraBytesParams(name=name, type=dtype, description=desc, no_data=no_data or None))

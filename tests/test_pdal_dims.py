@@ -1,0 +1,61 @@
+"""An input that already holds PDAL's dimensions with PDAL's types (double NormalX/Y/Z and Curvature from
+filters.normal, int64 ClusterID from filters.cluster) takes this run's values in them (found by a sweep of
+2026-11-27: PDAL's outputs were refused)."""
+
+import laspy
+import numpy as np
+import pytest
+from test_stream import write_scene
+
+from patchcloud.core import PatchcloudValueError
+from patchcloud.stream import normals, segment
+
+
+def with_dims(src, path, dims):
+    """``src`` with extra dimensions ``dims`` ((name, numpy type), ...) holding made-up values, as PDAL writes them."""
+    las = laspy.read(str(src))
+    las.add_extra_dims([laspy.ExtraBytesParams(name=n, type=t) for n, t in dims])
+    for i, (n, t) in enumerate(dims):
+        las[n] = np.full(len(las.points), 7 + i, dtype=t)
+    las.write(str(path))
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("pdaldims") / "scene.las"
+    write_scene(path, n=20_000, seed=3, point_format=6, extra=False)
+    return path
+
+
+def test_pdal_normals_are_overwritten_in_their_double_fields(scene, tmp_path):
+    src = tmp_path / "pdal.las"
+    with_dims(scene, src, [("NormalX", np.float64), ("NormalY", np.float64), ("NormalZ", np.float64), ("Curvature", np.float64)])
+    normals(scene, tmp_path / "plain.las", quiet=True)
+    normals(src, tmp_path / "out.las", quiet=True)
+    plain, out = laspy.read(str(tmp_path / "plain.las")), laspy.read(str(tmp_path / "out.las"))
+    for name in ("NormalX", "NormalY", "NormalZ", "Curvature"):
+        assert out.points.array.dtype[name] == np.float64, name
+        assert np.array_equal(np.asarray(out[name]), np.asarray(plain[name], dtype=np.float64)), name
+    assert np.array_equal(np.asarray(out.NormalMethod), np.asarray(plain.NormalMethod))
+    assert sorted(out.point_format.extra_dimension_names) == sorted(plain.point_format.extra_dimension_names)
+
+
+def test_pdal_cluster_ids_are_overwritten_in_their_int64_field(scene, tmp_path):
+    src = tmp_path / "pdal.las"
+    with_dims(scene, src, [("ClusterID", np.int64)])
+    args = dict(r_small=0.5, r_large=2.0, threshold=0.02, tolerance=1.0, min_points=5, quiet=True)
+    segment(scene, tmp_path / "plain.las", **args)
+    segment(src, tmp_path / "out.las", **args)
+    plain, out = laspy.read(str(tmp_path / "plain.las")), laspy.read(str(tmp_path / "out.las"))
+    assert out.points.array.dtype["ClusterID"] == np.int64
+    ids = np.asarray(plain.ClusterID)
+    assert np.unique(ids).size > 3  # segments, not only 0
+    assert np.array_equal(np.asarray(out.ClusterID), ids.astype(np.int64))
+
+
+def test_a_dimension_too_narrow_for_the_values_is_refused_before_anything_is_written(scene, tmp_path):
+    src = tmp_path / "narrow.las"
+    with_dims(scene, src, [("NormalX", np.uint8)])
+    with pytest.raises(PatchcloudValueError, match="NormalX of type uint8, which cannot hold"):
+        normals(src, tmp_path / "out.las", quiet=True)
+    assert not (tmp_path / "out.las").exists()
