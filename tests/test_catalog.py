@@ -317,6 +317,53 @@ def test_a_catalog_stopped_during_its_export_resumes_per_file(cut, tmp_path, mon
         normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, store=store, scheduler="synchronous")
 
 
+#: The CRS of an IGN tile written by older software: "RGF93 / Lambert-93", the flattening rounded, EPSG:2154.
+OLD_IGN_WKT = (
+    'PROJCRS["RGF93 / Lambert-93",BASEGEOGCRS["RGF93",DATUM["Reseau Geodesique Francais 1993",ELLIPSOID["GRS 1980",'
+    '6378137,298.2572221,LENGTHUNIT["metre",1]]],PRIMEM["Greenwich",0,ANGLEUNIT["degree",0.0174532925199433]],'
+    'ID["EPSG",4171]],CONVERSION["Lambert-93",METHOD["Lambert Conic Conformal (2SP)",ID["EPSG",9802]],'
+    'PARAMETER["Latitude of false origin",46.5,ANGLEUNIT["degree",0.0174532925199433]],PARAMETER["Longitude of false '
+    'origin",3,ANGLEUNIT["degree",0.0174532925199433]],PARAMETER["Latitude of 1st standard parallel",49,ANGLEUNIT['
+    '"degree",0.0174532925199433]],PARAMETER["Latitude of 2nd standard parallel",44,ANGLEUNIT["degree",'
+    '0.0174532925199433]],PARAMETER["Easting at false origin",700000,LENGTHUNIT["metre",1]],PARAMETER["Northing at '
+    'false origin",6600000,LENGTHUNIT["metre",1]]],CS[Cartesian,2],AXIS["easting (X)",east,ORDER[1],LENGTHUNIT['
+    '"metre",1]],AXIS["northing (Y)",north,ORDER[2],LENGTHUNIT["metre",1]],ID["EPSG",2154]]'
+)
+
+#: The same CRS as a newer GDAL writes it from GeoTIFF keys (an "unnamed" conversion): pyproj finds it equal to
+#: EPSG:2154, and OLD_IGN_WKT too, but not the two to each other.
+NEW_IGN_WKT = (
+    'PROJCRS["RGF93 v1 / Lambert-93",BASEGEOGCRS["RGF93 v1",DATUM["Reseau Geodesique Francais 1993 v1",ELLIPSOID['
+    '"GRS 1980",6378137,298.257222101,LENGTHUNIT["metre",1]]],PRIMEM["Greenwich",0,ANGLEUNIT["degree",'
+    '0.0174532925199433]],ID["EPSG",4171]],CONVERSION["unnamed",METHOD["Lambert Conic Conformal (2SP)",ID["EPSG",'
+    '9802]],PARAMETER["Latitude of false origin",46.5,ANGLEUNIT["degree",0.0174532925199433],ID["EPSG",8821]],'
+    'PARAMETER["Longitude of false origin",3,ANGLEUNIT["degree",0.0174532925199433],ID["EPSG",8822]],PARAMETER['
+    '"Latitude of 1st standard parallel",49,ANGLEUNIT["degree",0.0174532925199433],ID["EPSG",8823]],PARAMETER['
+    '"Latitude of 2nd standard parallel",44,ANGLEUNIT["degree",0.0174532925199433],ID["EPSG",8824]],PARAMETER['
+    '"Easting at false origin",700000,LENGTHUNIT["metre",1],ID["EPSG",8826]],PARAMETER["Northing at false origin",'
+    '6600000,LENGTHUNIT["metre",1],ID["EPSG",8827]]],CS[Cartesian,2],AXIS["easting",east,ORDER[1],LENGTHUNIT["metre",'
+    '1]],AXIS["northing",north,ORDER[2],LENGTHUNIT["metre",1]],ID["EPSG",2154]]'
+)
+
+
+@pytest.mark.parametrize("old_first", [True, False])
+def test_one_crs_written_by_two_versions_is_one_crs_whatever_the_order(cut, tmp_path, old_first):
+    """IGN's tiles say "RGF93 v1 / Lambert-93" or "RGF93 / Lambert-93" (a rounded flattening), both EPSG:2154: one CRS
+    (found by a sweep of 2026-11-27: refused as different CRSs, or not, by the files' order)."""
+    d, _ = cut
+    las = laspy.read(str(d / "in" / "tile_0.las"))
+    (tmp_path / "in").mkdir()
+    names = ["a.las", "b.las"] if old_first else ["b.las", "a.las"]
+    _split(las, np.arange(3000), tmp_path / "in" / names[0], crs=OLD_IGN_WKT)
+    _split(las, np.arange(3000, 6000), tmp_path / "in" / names[1], crs=NEW_IGN_WKT)
+    _split(las, np.arange(6000, 7000), tmp_path / "in" / "m.las", crs="EPSG:2154")
+    assert CRS.from_wkt(OLD_IGN_WKT) != CRS.from_wkt(NEW_IGN_WKT)  # pyproj alone says these two differ
+    assert CRS.from_wkt(open_catalog(tmp_path / "in").crs).to_epsg() == 2154
+    _split(las, np.arange(7000, 9000), tmp_path / "in" / "c.las", crs="EPSG:27572")  # another Lambert, another code
+    with pytest.raises(PatchcloudValueError, match="different CRSs"):
+        open_catalog(tmp_path / "in")
+
+
 def test_a_failed_catalog_run_leaves_no_output_directory_and_assume_crs_holds_for_one_file(cut, tmp_path):
     """A run refused after its checks (a tile size too small, the store given as the output directory) leaves no empty
     --out-dir behind; --assume-crs gives one file without a CRS its unit, refuses a file of another CRS, and a

@@ -29,6 +29,7 @@ True
 
 from __future__ import annotations
 
+import functools
 import glob
 import os
 from dataclasses import dataclass
@@ -40,7 +41,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 from .las import LasSource, is_copc_name, open_source
 
-__all__ = ["Catalog", "expand_inputs", "open_catalog", "output_name", "output_paths", "check_out_dir", "factor_and_shift", "LAS_SUFFIXES"]
+__all__ = ["Catalog", "expand_inputs", "open_catalog", "same_crs", "output_name", "output_paths", "check_out_dir", "factor_and_shift", "LAS_SUFFIXES"]
 
 #: File name endings taken from a directory (case-insensitive).
 LAS_SUFFIXES = (".las", ".laz")
@@ -246,10 +247,24 @@ def check_out_dir(out_dir: str | os.PathLike) -> Path:
     return out
 
 
-def _same_crs(a: str, b: str) -> bool:
+def same_crs(a: str, b: str) -> bool:
+    """Whether two CRSs (WKT) are one: the same text, equal to pyproj (axis order aside), or both naming the same
+    authority code (IGN's tiles say "RGF93 v1 / Lambert-93" or "RGF93 / Lambert-93", both EPSG:2154, by the
+    version of the software that wrote them)."""
+    if a == b:
+        return True
+    ca, cb = _parsed_crs(a), _parsed_crs(b)
+    if ca == cb or ca.equals(cb, ignore_axis_order=True):
+        return True
+    ida, idb = ca.to_json_dict().get("id"), cb.to_json_dict().get("id")
+    return isinstance(ida, dict) and ida == idb and "code" in ida
+
+
+@functools.lru_cache(maxsize=64)
+def _parsed_crs(wkt: str):
     from pyproj import CRS
 
-    return a == b or CRS.from_wkt(a) == CRS.from_wkt(b)
+    return CRS.from_wkt(wkt)
 
 
 def open_catalog(inputs, assume_crs: str | None = None) -> Catalog:
@@ -310,14 +325,19 @@ def _catalog_crs(sources: list[LasSource], assume_crs: str | None) -> str | None
         except CRSError as exc:
             raise PatchcloudValueError(f"assume_crs: not a CRS pyproj knows: {assume_crs!r} ({exc})") from exc
     first: LasSource | None = None
+    distinct: dict[str, LasSource] = {}  # each CRS text once, with the first file that has it
     for s in sources:
         if s.crs is None:
             continue
         if first is None:
             first = s
-        elif not _same_crs(first.crs, s.crs):
-            raise PatchcloudValueError(f"{first.path} and {s.path}: different CRSs; a catalog is in one CRS")
-    if assumed is not None and first is not None and not _same_crs(assumed, first.crs):
+        distinct.setdefault(s.crs, s)
+    texts = list(distinct)
+    for i, a in enumerate(texts):  # every pair (whatever the files' order: "the same" need not be transitive)
+        for b in texts[i + 1:]:
+            if not same_crs(a, b):
+                raise PatchcloudValueError(f"{distinct[a].path} and {distinct[b].path}: different CRSs; a catalog is in one CRS")
+    if assumed is not None and first is not None and not same_crs(assumed, first.crs):
         raise PatchcloudValueError(f"{first.path}: its CRS is not the assumed one ({assume_crs})")
     missing = [s for s in sources if s.crs is None]
     if missing and first is not None and assumed is None:
