@@ -429,16 +429,44 @@ def test_a_compressed_catalog_stopped_part_way_resumes_per_file(cut, tmp_path, m
         assert (out / f"tile_{k}.pcz").read_bytes() == (clean / f"tile_{k}.pcz").read_bytes()
 
 
+def test_a_compressed_catalog_killed_between_a_pcz_and_its_record_resumes(cut, tmp_path, monkeypatch):
+    """A .pcz renamed into place whose completion the record does not hold yet (a kill -9 between the two) is this
+    run's: the same command replaces it without --overwrite, and every .pcz is a clean run's (found by a sweep of
+    2026-11-27: the rerun said "exists")."""
+    from patchcloud.stream import compress
+    from patchcloud.stream.jobs import compress as compress_module
+
+    d, _ = cut
+    clean, out = tmp_path / "clean", tmp_path / "out"
+    compress(d / "in", out_dir=str(clean), max_error=0.05, tile_size=TILE, quiet=True)
+    real = compress_module._write_record
+
+    def killed_before_recording_a_finished_file(path, record):
+        if any("summary" in e for e in record.values()):
+            raise KeyboardInterrupt  # (as kill -9 would stop it: no clean-up of the .pcz)
+        real(path, record)
+
+    monkeypatch.setattr(compress_module, "_write_record", killed_before_recording_a_finished_file)
+    with pytest.raises(KeyboardInterrupt):
+        compress(d / "in", out_dir=str(out), max_error=0.05, tile_size=TILE, quiet=True)
+    monkeypatch.setattr(compress_module, "_write_record", real)
+    assert (out / "tile_0.pcz").is_file()  # in place, not recorded complete
+    compress(d / "in", out_dir=str(out), max_error=0.05, tile_size=TILE, quiet=True)
+    for k in range(4):
+        assert (out / f"tile_{k}.pcz").read_bytes() == (clean / f"tile_{k}.pcz").read_bytes()
+
+
 def test_a_catalog_stopped_in_memory_leaves_no_output_and_starts_over(cut, tmp_path, monkeypatch):
-    """In memory there is no store to resume from: a catalog stopped after two of its four outputs removes them and
-    says so, and the same command then runs whole without --overwrite (it found two outputs "exists")."""
+    """In memory there is no store to resume from: a catalog stopped after two of its four outputs were complete has
+    renamed none of them into place (the renames wait for the last: a kill -9 leaves only .partial files), and the
+    same command then runs whole without --overwrite (it found two outputs "exists")."""
     from patchcloud.stream.io import las_output
 
     d, _ = cut
     clean, out = tmp_path / "clean", tmp_path / "out"
     normals(d / "in", out_dir=str(clean), tile_size=TILE, quiet=True)
     finish = _stop_at_the_third_output(monkeypatch)
-    with pytest.raises(KeyboardInterrupt, match="the 2 output\\(s\\) it had written are removed; the same command starts over"):
+    with pytest.raises(KeyboardInterrupt):
         normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True)
     monkeypatch.setattr(las_output, "finish", finish)
     assert not out.exists()  # the directory it made, empty again, too
@@ -485,7 +513,7 @@ def test_a_run_in_memory_removes_only_the_outputs_it_wrote(cut, tmp_path, monkey
         return finish(*args, **kwargs)
 
     monkeypatch.setattr(las_output, "finish", full_disk_at_the_second)
-    with pytest.raises(PatchcloudIOError, match="No space left on device .*the 1 output\\(s\\) it had written are removed"):
+    with pytest.raises(PatchcloudIOError, match="tile_1.las: No space left on device"):  # none renamed yet: none removed
         normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True, overwrite=True)
     assert sorted(p.name for p in out.iterdir()) == ["tile_3.las"] and future.read_bytes() == b"kept"
 

@@ -76,6 +76,13 @@ def check_json_path(path: str, option: str) -> None:
         raise click.BadParameter(f"{path}: is a directory, or its directory does not exist", param_hint=option)
     if p.name == "zarr.json" or (p.resolve().parent / "zarr.json").exists():
         raise click.BadParameter(f"{path}: inside a zarr store (a patchcloud store): it would damage it", param_hint=option)
+    from patchcloud.core import PatchcloudIOError
+    from patchcloud.stream.io.las import check_directory_writable
+
+    try:  # a directory it cannot be written in: said now, not after the job
+        check_directory_writable(p.resolve().parent, path)
+    except PatchcloudIOError as exc:
+        raise click.BadParameter(str(exc), param_hint=option) from None
     if p.exists():
         import json
 

@@ -45,7 +45,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 from patchcloud.stream.engine.ingest import catalog_parts, pack_tile_keys, read_part, route_path, store_selection, tile_keys
 from patchcloud.stream.engine.runner import Runner
-from patchcloud.stream.io import las_output
+from patchcloud.stream.io import las_output, memory_group
 from patchcloud.stream.io.las import POSITION_AND_CLASS, check_writable, is_laz_name, output_header
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store
@@ -397,9 +397,19 @@ def export_columns(
                 # finds its output complete, not a file it may not replace
                 store.set_group_attrs("outputs", **{output_record_name(outs[f]): dict(
                     file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key, request=request)})
-                Path(tmps[f]).replace(outs[f])
+                if not in_memory:
+                    Path(tmps[f]).replace(outs[f])
+                else:
+                    complete.append(f)
 
+        # a store in memory records nothing a later run sees: the outputs are renamed when every one is complete, so a
+        # run killed before (kill -9: no clean-up) leaves only .partial files, which the same command replaces (a
+        # catalog's complete outputs, renamed one by one, were refused as "exists"; found by a sweep of 2026-11-27)
+        in_memory = memory_group.is_memory_url(store.url)
+        complete: list[int] = []
         runner.map(export_part, calls, "export", on_result=finish)
+        for f in complete:
+            Path(tmps[f]).replace(outs[f])
     finally:
         for tmp in tmps:
             las_output.remove_partial(tmp)

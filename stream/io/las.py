@@ -31,7 +31,7 @@ from .las_records import (
 )
 
 __all__ = [
-    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
+    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_directory_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
     "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS", "content_fingerprint", "FINGERPRINT_BLOCKS", "FINGERPRINT_BLOCK", "holds",
@@ -957,13 +957,30 @@ def check_not_input(output: str | os.PathLike, inputs) -> None:
 
 
 def check_writable(path: str | os.PathLike, overwrite: bool) -> Path:
-    """``path`` as a Path, after checking an output can be written there: absent (or ``overwrite``), its directory there."""
+    """``path`` as a Path, after checking an output can be written there: absent (or ``overwrite``, and then a file: not
+    a directory, a device or a pipe, which ``--overwrite`` would have replaced by a file), its directory there and
+    writable (a file made and removed there: a read-only mount or directory is refused before any work)."""
     p = Path(path)
+    if p.exists() and not p.is_file():
+        raise PatchcloudIOError(f"{p}: exists and is not a file (a directory, device or pipe): name a file to write")
     if p.exists() and not overwrite:
         raise PatchcloudExistsError(f"{p}: exists (use --overwrite to replace it)")
     if not p.parent.exists():
         raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
+    check_directory_writable(p.parent, p)
     return p
+
+
+def check_directory_writable(directory: str | os.PathLike, for_path: str | os.PathLike) -> None:
+    """A PatchcloudIOError naming ``for_path`` unless a file can be made in ``directory`` (made and removed at once)."""
+    import tempfile
+
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".patchcloud-probe-", dir=os.fspath(directory))
+    except OSError as exc:
+        raise PatchcloudIOError(f"{for_path}: cannot write in {directory} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 @contextmanager

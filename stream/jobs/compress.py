@@ -366,9 +366,11 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
     input and output is checked before the first is written.  Each file
     finished is recorded in ``OUT_DIR/``:data:`CATALOG_RECORD` (its input,
     its ``.pcz``, the parameters, its summary), removed when the last is
-    written: a run stopped part way (Ctrl-C, a failure) is resumed by the
-    same command, which keeps the ``.pcz`` recorded complete whose files
-    are unchanged and writes the others.
+    written: a run stopped part way (Ctrl-C, a failure, kill -9) is resumed
+    by the same command, which keeps the ``.pcz`` recorded complete whose
+    files are unchanged and writes the others (a file is recorded as
+    started before it is written, so one in place but not yet recorded
+    complete is replaced, not refused).
     """
     paths = expand_inputs(inputs)
     out_dir = check_out_dir(run.out_dir)
@@ -382,24 +384,30 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
     record_path = out_dir / CATALOG_RECORD
     record = _read_record(record_path)
     done = [_finished(record.get(o.name), key, p, o) for p, o in zip(paths, outs)]
+    ours = [_started(record.get(o.name), key, p) for p, o in zip(paths, outs)]  # a run stopped while writing it
     if out_dir.exists():
-        outs = [o if d else check_writable(o, run.overwrite) for o, d in zip(outs, done)]
+        outs = [o if d else check_writable(o, run.overwrite or w) for o, d, w in zip(outs, done, ours)]
     made = not out_dir.exists()
     out_dir.mkdir(exist_ok=True)
     one = dataclasses.replace(run, out_dir=None)
     summaries = []
     try:
-        for p, o, d in zip(paths, outs, done):
+        for p, o, d, w in zip(paths, outs, done, ours):
             if d:  # finished by a run stopped later: kept as it is
                 summaries.append(CompressSummary(**record[o.name]["summary"]))
                 continue
-            s = run_job(_job(options, record_source), p, o, one)
+            # recorded as started first: a .pcz in place but not yet recorded (stopped between the two) is this run's
+            record[o.name] = dict(key=key, input=file_record(Path(p)), started=True)
+            _write_record(record_path, record)
+            s = run_job(_job(options, record_source), p, o, dataclasses.replace(one, overwrite=one.overwrite or w))
             record[o.name] = dict(key=key, input=file_record(Path(p)), output=file_record(Path(o)), summary=dataclasses.asdict(s))
             _write_record(record_path, record)
             summaries.append(s)
     except BaseException:
         if made:  # refused before anything was written there (a tile size, say): no empty directory left
             try:
+                if not any(o.exists() for o in outs):
+                    record_path.unlink(missing_ok=True)
                 out_dir.rmdir()
             except OSError:  # not empty: a .pcz or the record is in it
                 pass
@@ -414,6 +422,13 @@ def _finished(entry: dict | None, key: str, source, output) -> bool:
     if not entry or entry.get("key") != key or not Path(output).is_file() or not Path(source).is_file():
         return False
     return entry.get("input") == file_record(Path(source)) and entry.get("output") == file_record(Path(output))
+
+
+def _started(entry: dict | None, key: str, source) -> bool:
+    """Whether a catalog's record ``entry`` says a run with these parameters started writing its output from
+    ``source`` (unchanged since) and stopped before recording it written: an output there is that run's."""
+    return bool(entry) and bool(entry.get("started")) and entry.get("key") == key and Path(source).is_file() and (
+        entry.get("input") == file_record(Path(source)))
 
 
 def _read_record(path: Path) -> dict:
