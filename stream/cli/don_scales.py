@@ -125,7 +125,9 @@ def don_scales_command(input, radii, small, large, classes_from, classes, sample
     small_v = parse_list("--small", small)
     large_v = parse_list("--large", large)
     classes_v = parse_list("--classes", classes, _class_value)
-    plot_path = None if no_plot else (plot or f"{Path(input).stem}_don_scales.png")
+    from patchcloud.stream.io.catalog import output_name  # x.copc.laz: x_don_scales.png
+
+    plot_path = None if no_plot else (plot or f"{Path(output_name(input)).stem}_don_scales.png")
     if plot_path is not None and not Path(plot_path).resolve().parent.exists():
         raise PatchcloudIOError(f"{plot_path}: the directory {Path(plot_path).parent} does not exist")
     if table is not None and not Path(table).resolve().parent.exists():

@@ -253,9 +253,9 @@ def decompress(
         if box.shape != (6,) or not np.isfinite(box).all() or np.any(box[:3] > box[3:]):
             raise PatchcloudValueError(f"bbox must be xmin ymin zmin xmax ymax zmax with each min <= max; got {bbox!r}")
     check_las_output(output)
+    check_not_input(output, [input])
     if Path(output).suffix.lower() not in (".las", ".laz"):
         raise PatchcloudValueError(f"{output}: an output's name ends in .las (LAS) or .laz (LAZ), any case")
-    check_not_input(output, [input])
     check_writable(output, overwrite)
     t0 = time.perf_counter()
     with pcz.open_pcz(input) as f:

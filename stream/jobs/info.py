@@ -174,6 +174,9 @@ def crs_line(c: dict | None) -> str:
 
     >>> crs_line({"label": "EPSG:2154 (RGF93 v1 / Lambert-93)", "horizontal_unit": ["metre", 1.0], "vertical_unit": ["metre", 1.0]})
     'EPSG:2154 (RGF93 v1 / Lambert-93); units: horizontal metre (1 m), vertical metre (1 m)'
+    >>> crs_line({"label": "EPSG:4326 (WGS 84)", "geographic": True, "horizontal_unit": ["degree", 0.0174532925199433],
+    ...           "vertical_unit": ["degree", 0.0174532925199433]})
+    'EPSG:4326 (WGS 84); units: horizontal degree (geographic: lengths need a projected CRS, or --units m|ft|us-ft)'
     >>> crs_line(None)
     'none (distances are taken in metres unless --units says otherwise)'
     """
@@ -181,6 +184,8 @@ def crs_line(c: dict | None) -> str:
         return "none (distances are taken in metres unless --units says otherwise)"
     if not c.get("horizontal_unit"):
         return c["label"]
+    if c.get("geographic"):  # degrees are angles, not lengths: no factor to metres, and no vertical unit from them
+        return f"{c['label']}; units: horizontal degree (geographic: lengths need a projected CRS, or --units m|ft|us-ft)"
     (hn, hf), (vn, vf) = c["horizontal_unit"], c["vertical_unit"]
     name = {"foot": "international foot"}  # pyproj's "foot" is 0.3048 m; "US survey foot" says itself
     return f"{c['label']}; units: horizontal {name.get(hn, hn)} ({hf:g} m), vertical {name.get(vn, vn)} ({vf:g} m)"
