@@ -556,6 +556,18 @@ class _LazChunks:
     table: np.ndarray  # (C, 2): each chunk's byte offset and byte count (laz_layers.chunk_table)
 
 
+def _laszip_vlr(path: str):
+    """(header, the LASzip VLR's bytes, lazrs.LazVlr) of a LAZ file, None for a file without that VLR; laspy's and
+    lazrs' errors (a Rust panic too) pass through."""
+    with open(path, "rb") as f:
+        header = laspy.LasHeader.read_from(f)
+    vlrs = header.vlrs.get("LasZipVlr")
+    if not vlrs:
+        return None
+    data = bytes(vlrs[0].record_data)
+    return header, data, lazrs.LazVlr(data)
+
+
 @functools.lru_cache(maxsize=8)
 def _laz_chunks(path: str, size: int, mtime_ns: int) -> _LazChunks | None:
     """The chunk table of a LAZ file of fixed-size chunks (read once per file version), or None (variable chunks, no
@@ -563,13 +575,10 @@ def _laz_chunks(path: str, size: int, mtime_ns: int) -> _LazChunks | None:
     from . import laz_layers  # (numba: not for a command that only reads headers)
 
     try:
-        with open(path, "rb") as f:
-            header = laspy.LasHeader.read_from(f)
-        vlrs = header.vlrs.get("LasZipVlr")
-        if not vlrs:
+        found = _laszip_vlr(path)
+        if found is None:
             return None
-        data = bytes(vlrs[0].record_data)
-        vlr = lazrs.LazVlr(data)
+        header, data, vlr = found
         if vlr.uses_variable_size_chunks() or struct.unpack("<H", data[:2])[0] == POINTWISE_COMPRESSOR:
             return None
         if vlr.item_size() != header.point_format.size:  # a damaged VLR: lazrs would panic splitting its buffers
@@ -604,15 +613,10 @@ def _variable_chunks(path: str, size: int, mtime_ns: int) -> _VariableChunks | N
         other than the header's point count.
     """
     try:
-        with open(path, "rb") as f:
-            header = laspy.LasHeader.read_from(f)
-        vlrs = header.vlrs.get("LasZipVlr")
-        if not vlrs:
+        found = _laszip_vlr(path)
+        if found is None or not found[2].uses_variable_size_chunks():
             return None
-        data = bytes(vlrs[0].record_data)
-        vlr = lazrs.LazVlr(data)
-        if not vlr.uses_variable_size_chunks():
-            return None
+        header, data, vlr = found
     except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
         if isinstance(exc, INTERRUPTS):
             raise
