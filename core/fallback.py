@@ -63,15 +63,9 @@ def knn_normals(
     n = points.shape[0]
     k = int(min(k, n))
     m = query.shape[0]
-    normals = np.zeros((m, 3))
-    sigma3 = np.zeros(m)
-    k1 = np.zeros(m)
-    k2 = np.zeros(m)
-    dir1 = np.zeros((m, 3))
-    neighbours = np.zeros((m, k), dtype=np.int64)
-    defined = np.ones(m, dtype=bool)
     if m == 0:
-        return normals, sigma3, k1, k2, dir1, neighbours, defined
+        return (np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 3)), np.zeros((0, k), dtype=np.int64),
+                np.ones(0, dtype=bool))
     if grids is None:
         grids = [point_grid(points, k)]
     # a query at the very coordinates of the one before it (copies of a point, which a sorted cloud holds side by
@@ -80,23 +74,23 @@ def knn_normals(
     qpts = points[query]
     repeat = np.zeros(m, dtype=bool)
     repeat[1:] = (qpts[1:] == qpts[:-1]).all(axis=1)
-    first = np.flatnonzero(~repeat)
-    for lo in range(0, first.size, chunk):
-        rows = first[lo : lo + chunk]
-        qi = query[rows]
-        nb = nearest_neighbours(grids, qpts[rows], k)[1]
-        neighbours[rows] = nb
-        out = [np.empty((rows.size, 3)), np.empty(rows.size), np.empty(rows.size), np.empty(rows.size), np.empty((rows.size, 3))]
-        _kernels.knn_pca(points, qi, nb, *out)
-        for dst, values in zip((normals, sigma3, k1, k2, dir1), out):
-            dst[rows] = values
-        defined[rows] = ~coincident(points, nb)
-    if first.size < m:
-        of = np.cumsum(~repeat) - 1  # each query's first copy, as a row of ``first``
-        for a in (normals, sigma3, k1, k2, dir1, neighbours, defined):
-            a[repeat] = a[first[of[repeat]]]
+    unique = query[~repeat]
+    u = unique.size
+    normals, sigma3, k1, k2, dir1 = np.zeros((u, 3)), np.zeros(u), np.zeros(u), np.zeros(u), np.zeros((u, 3))
+    neighbours = np.zeros((u, k), dtype=np.int64)
+    defined = np.ones(u, dtype=bool)
+    for lo in range(0, u, chunk):
+        qi = unique[lo : lo + chunk]
+        nb = nearest_neighbours(grids, points[qi], k)[1]
+        neighbours[lo : lo + chunk] = nb
+        hi = lo + qi.size
+        _kernels.knn_pca(points, qi, nb, normals[lo:hi], sigma3[lo:hi], k1[lo:hi], k2[lo:hi], dir1[lo:hi])
+        defined[lo:hi] = ~coincident(points, nb)
     for out in (normals, sigma3, k1, k2, dir1):
         out[~defined] = 0.0
+    if u < m:  # each copy gets its first copy's row
+        of = np.cumsum(~repeat) - 1
+        normals, sigma3, k1, k2, dir1, neighbours, defined = (a[of] for a in (normals, sigma3, k1, k2, dir1, neighbours, defined))
     return normals, sigma3, k1, k2, dir1, neighbours, defined
 
 

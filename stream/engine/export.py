@@ -378,6 +378,12 @@ def export_columns(
         left = {f: len(r) for f, r in results.items()}
         stitched = {f: 0 for f in todo}  # LAZ: the parts of each file already appended to its output, a prefix
 
+        # a store in memory records nothing a later run sees: the outputs are renamed when every one is complete, so a
+        # run killed before (kill -9: no clean-up) leaves only .partial files, which the same command replaces (a
+        # catalog's complete outputs, renamed one by one, were refused as "exists"; found by a sweep of 2026-11-27)
+        in_memory = memory_group.is_memory_url(store.url)
+        complete: list[int] = []  # in memory: the files complete, renamed after the last
+
         def finish(k: int, result) -> None:  # the part's file is complete once its last part is in: stitch, rename, record
             f, local = owner[k]
             results[f][local] = result
@@ -402,11 +408,6 @@ def export_columns(
                 else:
                     complete.append(f)
 
-        # a store in memory records nothing a later run sees: the outputs are renamed when every one is complete, so a
-        # run killed before (kill -9: no clean-up) leaves only .partial files, which the same command replaces (a
-        # catalog's complete outputs, renamed one by one, were refused as "exists"; found by a sweep of 2026-11-27)
-        in_memory = memory_group.is_memory_url(store.url)
-        complete: list[int] = []
         runner.map(export_part, calls, "export", on_result=finish)
         for f in complete:
             Path(tmps[f]).replace(outs[f])
