@@ -491,6 +491,25 @@ def test_review_fixes_glob_with_assume_crs_render_out_dir_and_compress_out_dir(c
     _cli_fails(["compress", str(d / "in"), "--out-dir", str(tmp_path / "nd"), "--tile-size", "0.05"], "--tile-size", tmp_path)
 
 
+def test_a_catalog_in_memory_renames_no_output_before_the_last_is_complete(cut, tmp_path, monkeypatch):
+    """What a kill -9 would find (no clean-up runs then): as the third of four outputs is finished, the two before are
+    still .partial files, none in place, so the same command is not refused by a killed run's outputs."""
+    from patchcloud.stream.io import las_output
+
+    d, _ = cut
+    out = tmp_path / "out"
+    finish, seen = las_output.finish, []
+
+    def look_at_the_third(*args, **kwargs):
+        seen.append(sorted(p.name for p in out.iterdir()))
+        return finish(*args, **kwargs)
+
+    monkeypatch.setattr(las_output, "finish", look_at_the_third)
+    normals(d / "in", out_dir=str(out), tile_size=TILE, quiet=True, in_memory=True)
+    assert len(seen) == 4 and not [n for n in seen[2] if n.endswith(".las")], seen[2]  # tile_*.las.partial only
+    assert sorted(p.name for p in out.iterdir()) == [f"tile_{k}.las" for k in range(4)]
+
+
 def test_a_run_in_memory_removes_only_the_outputs_it_wrote(cut, tmp_path, monkeypatch):
     """What a failed run in memory removes is what it wrote (the files not as they were), whatever the failure (an
     OSError too); an output it did not touch stays, even one dated in the future."""
