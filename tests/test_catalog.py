@@ -10,9 +10,11 @@ from pyproj import CRS
 from test_stream import write_scene
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
-from patchcloud.stream import compress, don, normals, segment
+from patchcloud.stream import compress, decompress, don, normals, segment
 from patchcloud.stream.cli import main
 from patchcloud.stream.io.catalog import open_catalog
+from patchcloud.stream.io.crs import is_crs_record
+from patchcloud.stream.io.las_records import file_records
 
 N = 40_000
 TILE = 16.0  # the 40 m scene in several tiles: file boundaries and tile faces both cut it
@@ -377,6 +379,9 @@ def test_a_failed_catalog_run_leaves_no_output_directory_and_assume_crs_holds_fo
     _split(las, np.arange(3000), tmp_path / "utm.las", crs="EPSG:32631")
     r = CliRunner().invoke(main, ["normals", str(tmp_path / "none.las"), str(tmp_path / "o.las"), "--assume-crs", "EPSG:2263"])
     assert r.exit_code == 0 and "units           us-ft (US survey foot" in r.output, r.output
+    out = laspy.read(str(tmp_path / "o.las"))  # the output says the CRS the run took (as PDAL's a_srs), in WKT for format 6+
+    assert out.header.parse_crs().to_epsg() == 2263 and out.header.global_encoding.wkt
+    assert np.array_equal(out.points.array["X"], las.points.array["X"][:3000])
     _cli_fails(["normals", str(tmp_path / "utm.las"), str(tmp_path / "u.las"), "--assume-crs", "EPSG:2154"],
                "its CRS is not the assumed one", tmp_path)
     _cli_fails(["normals", str(tmp_path / "utm.las"), str(tmp_path / "none.las"), "--out-dir", str(tmp_path / "o")],
@@ -546,3 +551,31 @@ def test_info_on_a_missing_path_says_no_such_file_as_every_command(tmp_path):
     (tmp_path / "d").mkdir()
     r = CliRunner().invoke(main, ["info", str(tmp_path / "d")])
     assert r.exit_code == 2 and "neither a LAS/LAZ file nor a patchcloud store" in r.output, r.output
+
+
+def test_assumed_crs_is_written_into_the_outputs_of_files_without_one(cut, tmp_path):
+    """--assume-crs: each output of a file without a CRS carries the assumed one (GeoTIFF keys for point formats 0 to 5,
+    WKT for 6 and up, as PDAL writes them); a file with its own CRS keeps its records as they were."""
+    d, _ = cut
+    las = laspy.read(str(d / "in" / "tile_0.las"))
+    (tmp_path / "in").mkdir()
+    _split(las, np.arange(3000), tmp_path / "in" / "a.las", crs="EPSG:2154")
+    _split(las, np.arange(3000, 6000), tmp_path / "in" / "b.las", point_format=1)
+    _split(las, np.arange(6000, 9000), tmp_path / "in" / "c.las", point_format=6)
+    normals(tmp_path / "in", out_dir=str(tmp_path / "out"), assume_crs="EPSG:2154", quiet=True)
+    a, b, c = (laspy.read(str(tmp_path / "out" / f"{k}.las")).header for k in "abc")
+    assert [h.parse_crs().to_epsg() for h in (a, b, c)] == [2154, 2154, 2154]
+    assert b.vlrs.get("GeoKeyDirectoryVlr") and not b.vlrs.get("WktCoordinateSystemVlr") and not b.global_encoding.wkt
+    assert c.vlrs.get("WktCoordinateSystemVlr") and c.global_encoding.wkt
+    def crs_records(path):  # its own CRS records, byte for byte
+        return [(r.record_id, r.data) for r in file_records(path)[0] if is_crs_record(r)]
+
+    assert crs_records(tmp_path / "out" / "a.las") == crs_records(tmp_path / "in" / "a.las") != []
+    # compress keeps it for decompress (both modes); without --assume-crs there is none
+    compress(tmp_path / "in" / "b.las", tmp_path / "b.pcz", assume_crs="EPSG:2154", quiet=True)
+    compress(tmp_path / "in" / "c.las", tmp_path / "c.pcz", keep_points=True, assume_crs="EPSG:2154", quiet=True)
+    compress(tmp_path / "in" / "c.las", tmp_path / "n.pcz", quiet=True)
+    for k in "bcn":
+        decompress(tmp_path / f"{k}.pcz", tmp_path / f"{k}.las")
+    got = [laspy.read(str(tmp_path / f"{k}.las")).header.parse_crs() for k in "bcn"]
+    assert [c.to_epsg() for c in got[:2]] == [2154, 2154] and got[2] is None

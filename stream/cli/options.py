@@ -234,8 +234,9 @@ def catalog_options(func):
     for option in reversed([
         out_dir,
         click.option("--assume-crs", default=None, metavar="CRS",
-                     help="The CRS of files that have none (e.g. EPSG:2154), which gives their unit; a file with another CRS is an "
-                     "error. Without it a file without a CRS among files with one is an error."),
+                     help="The CRS of files that have none (e.g. EPSG:2154), which gives their unit and is written into their "
+                     "outputs; a file with another CRS is an error. Without it a file without a CRS among files with one is an "
+                     "error."),
     ]):
         func = option(func)
     return func

@@ -185,7 +185,7 @@ def export_part(url: str, p: int, f: int, local: int, first: int, count: int, co
     store = Store.open(url)
     cat = store.catalog
     src = cat.sources[f]
-    header = las_output.prepare_header(output_header(src, dims), compressed)
+    header = las_output.prepare_header(output_header(src, dims, crs=cat.crs), compressed)
     # a layered LAZ input whose records the output keeps: its chunks are copied, only the new bytes coded
     layered = las_output.layered_source(src.path, header, [name for col in columns for name in col.dims])
     if layered is not None:
@@ -349,7 +349,7 @@ def export_columns(
     if all(done):
         return
     compressed = [is_laz_name(o) for o in outs]
-    headers = [las_output.prepare_header(output_header(src, dims, provenance), c) for src, c in zip(cat.sources, compressed)]
+    headers = [las_output.prepare_header(output_header(src, dims, provenance, cat.crs), c) for src, c in zip(cat.sources, compressed)]
     parts = catalog_parts(cat, int(store.attrs["part_points"]))
     first_part = np.searchsorted([f for f, _, _ in parts], np.arange(len(cat.sources) + 1))  # a file's parts are consecutive
     laz_parallel = runner.laz_parallel  # tasks in this process: lazrs may use the cores

@@ -148,8 +148,8 @@ class RunOptions:
         store is then ``OUT_DIR/patchcloud.store``.
     assume_crs : str, optional
         The CRS of the files that have none (``"EPSG:2154"``, WKT: what
-        pyproj takes), which gives their unit; a file with another CRS is
-        an error.  Without it a file without a CRS among files with one is
+        pyproj takes), which gives their unit and is written into their
+        outputs; a file with another CRS is an error.  Without it a file without a CRS among files with one is
         an error (one file alone is taken in metres, or ``units``).
     classes : tuple of int or str, optional
         Which points take part (:mod:`patchcloud.stream.io.classes`): only

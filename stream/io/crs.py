@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from patchcloud.core import PatchcloudValueError
 
-__all__ = ["Units", "UNITS", "units_of", "crs_name", "crs_description"]
+__all__ = ["Units", "UNITS", "units_of", "crs_name", "crs_description", "CRS_RECORD_IDS", "is_crs_record", "with_crs"]
 
 
 @dataclass(frozen=True)
@@ -154,3 +154,34 @@ def units_of(crs, mins, maxs, override: str | None = None, where: str = "") -> U
         raise PatchcloudValueError(f"{where}: its CRS {d['label']} is in {name} ({factor:g} m), not metres or feet: give --units "
                                    f"{'|'.join(UNITS)}")
     return Units(symbol, UNITS[symbol][0], UNITS[symbol][1], "CRS")
+
+
+#: The record ids of the CRS records (user id ``LASF_Projection``): OGC math transform WKT, OGC CRS WKT, and GeoTIFF's
+#: key directory, double and ASCII parameters.
+CRS_RECORD_IDS = (2111, 2112, 34735, 34736, 34737)
+
+
+def is_crs_record(r) -> bool:
+    """Whether the raw VLR or EVLR ``r`` (:class:`~patchcloud.stream.io.las_records.RawRecord`: ``name``, ``record_id``)
+    is one of a CRS."""
+    return r.name == "LASF_Projection" and r.record_id in CRS_RECORD_IDS
+
+
+def with_crs(header, wkt: str):
+    """``header`` (a ``laspy.LasHeader``, changed in place and returned) with the CRS ``wkt`` added after its VLRs, as
+    LAS 1.4 asks: WKT (and the global encoding's WKT bit) for point formats 6 and up, GeoTIFF keys below (laspy's
+    ``add_crs``, PDAL's choice too), or WKT where GeoTIFF keys cannot say the CRS (one without an EPSG code, say).
+
+    >>> import laspy
+    >>> h = with_crs(laspy.LasHeader(point_format=6, version="1.4"), "EPSG:2154")
+    >>> h.parse_crs().to_epsg(), h.global_encoding.wkt
+    (2154, True)
+    """
+    from pyproj import CRS
+
+    crs = CRS.from_user_input(wkt)
+    try:
+        header.add_crs(crs)
+    except Exception:  # GeoTIFF keys cannot hold this CRS: LAS 1.4 takes WKT for any point format
+        header.add_crs(crs, keep_compatibility=False)
+    return header

@@ -26,6 +26,7 @@ from laspy.vlrs.known import ExtraBytesStruct
 
 from patchcloud.core import PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
+from .crs import is_crs_record, with_crs
 from .las_records import (
     EVLR_BYTES, VLR_BYTES, RawRecord, as_vlr, ascii_text, file_records, header_record_fields, is_extra_bytes, kept, software_version,
 )
@@ -798,7 +799,7 @@ def writable_version(version) -> str:
 OUTPUT_VERSION = "1.4"
 
 
-def output_header(src: LasSource, dims, provenance: laspy.VLR | None = None) -> laspy.LasHeader:
+def output_header(src: LasSource, dims, provenance: laspy.VLR | None = None, crs: str | None = None) -> laspy.LasHeader:
     """The header of an output of the file ``src``: its point format, scales, offsets, VLRs and EVLRs (the CRS among
     them) with ``dims`` added, as LAS 1.4 (:func:`assemble_header`).
 
@@ -813,10 +814,19 @@ def output_header(src: LasSource, dims, provenance: laspy.VLR | None = None) -> 
     reused, with its type, where that type holds the new values
     (:func:`holds`: PDAL's double ``NormalX`` takes the float32 normals
     exactly, its int64 ``ClusterID`` the ids); else it is an error.
+
+    ``crs``: the CRS (WKT) the catalog is in (``Catalog.crs``).  An input
+    without a CRS of its own, taken to be in it by ``--assume-crs``
+    (``assume_crs``), gets it in its output (:func:`~patchcloud.stream.io.crs.with_crs`), as PDAL's
+    ``writers.las`` writes the ``a_srs`` it was given; an input with a CRS
+    keeps its own records.
     """
     with laspy.open(src.path) as reader:
         header = reader.header
     vlrs, evlrs = file_records(src.path)
+    if src.crs is None and crs is not None:
+        vlrs, evlrs = [r for r in vlrs if not is_crs_record(r)], [r for r in evlrs if not is_crs_record(r)]
+        return with_crs(assemble_header(header, vlrs, evlrs, dims, provenance, where=src.path), crs)
     return assemble_header(header, vlrs, evlrs, dims, provenance, where=src.path)
 
 

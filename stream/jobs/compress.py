@@ -264,7 +264,7 @@ class CompressJob(Job):
         head, evlrs = raw_header(src.path)
         self.counts = pcz.write_pcz(
             ctx.output, _parts(st, budget), max_error=budget, grid=st.grid.to_json(), header=head, evlrs=evlrs,
-            source=pcz_source(src, pf.id, self.record_source, ctx.units.symbol), record_bytes=pf.size - 12, overwrite=ctx.run.overwrite,
+            source=pcz_source(src, pf.id, self.record_source, ctx.units.symbol, ctx.catalog.crs), record_bytes=pf.size - 12, overwrite=ctx.run.overwrite,
             steps=self.params["steps"], dropped=self.params["dropped"],
         )
 
@@ -283,13 +283,17 @@ class CompressJob(Job):
         )
 
 
-def pcz_source(src: LasSource, point_format: int, record_source: bool = False, units: str | None = None) -> dict:
+def pcz_source(src: LasSource, point_format: int, record_source: bool = False, units: str | None = None,
+               assumed_crs: str | None = None) -> dict:
     """What a ``.pcz`` records of its input: its header's description, its file name and the symbol of its length unit
     (``units``: what ``max_error`` and the tile size are in); with ``record_source`` its absolute path and modification
-    time too (which make the ``.pcz`` depend on where and when the input was)."""
+    time too (which make the ``.pcz`` depend on where and when the input was); ``assumed_crs`` (WKT), the CRS
+    ``--assume-crs`` gave an input without one, which ``decompress`` writes into its output."""
     d = dict(src.to_json(), point_format=point_format)
     if units is not None:
         d["units"] = units
+    if assumed_crs is not None and src.crs is None:
+        d["assumed_crs"] = assumed_crs
     if not record_source:
         d["path"] = Path(src.path).name
         d.pop("mtime_ns")

@@ -120,7 +120,7 @@ class PointsJob(Job):
 
             self.counts = pcz.write_points_pcz(
                 ctx.output, blocks(), max_error=self.options.max_error, steps=self.steps_, dropped=self.dropped, grid=grid,
-                header=head, evlrs=evlrs, source=pcz_source(src, pf.id, self.record_source, ctx.units.symbol), record_bytes=pf.size - 12,
+                header=head, evlrs=evlrs, source=pcz_source(src, pf.id, self.record_source, ctx.units.symbol, ctx.catalog.crs), record_bytes=pf.size - 12,
                 overwrite=ctx.run.overwrite,
             )
         finally:
