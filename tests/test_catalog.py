@@ -12,6 +12,7 @@ from test_stream import write_scene
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import compress, decompress, don, normals, segment
 from patchcloud.stream.cli import main
+from patchcloud.stream.engine.ingest import auto_tile_size, check_points_per_tile
 from patchcloud.stream.io.catalog import open_catalog
 from patchcloud.stream.io.crs import is_crs_record
 from patchcloud.stream.io.las_records import file_records
@@ -579,3 +580,23 @@ def test_assumed_crs_is_written_into_the_outputs_of_files_without_one(cut, tmp_p
         decompress(tmp_path / f"{k}.pcz", tmp_path / f"{k}.las")
     got = [laspy.read(str(tmp_path / f"{k}.las")).header.parse_crs() for k in "bcn"]
     assert [c.to_epsg() for c in got[:2]] == [2154, 2154] and got[2] is None
+
+
+def test_files_far_apart_get_the_tile_size_of_their_density(cut, tmp_path):
+    """Two tiles of a survey 300 km apart: the default tile size and the --tile-size check see the files' boxes, not
+    the catalog's box (mostly empty), so the catalog gets the tiles its files would get alone (the box made the default
+    tiles 1,000x larger, each file one tile, and refused a tile size fine for each file)."""
+    d, _ = cut
+    las = laspy.read(str(d / "in" / "tile_0.las"))
+    (tmp_path / "in").mkdir()
+    _split(las, np.arange(len(las.x)), tmp_path / "in" / "a.las", crs="EPSG:2154")
+    far = laspy.read(str(tmp_path / "in" / "a.las"))
+    far.x = np.asarray(far.x) + 300_000.0
+    far.write(str(tmp_path / "in" / "b.las"))
+    one, two = open_catalog(tmp_path / "in" / "a.las"), open_catalog(tmp_path / "in")
+    assert two.maxs[0] - two.mins[0] > 300_000
+    assert auto_tile_size(two) == auto_tile_size(one) == 128.0  # the box: 4,096 (MAX_TILE)
+    check_points_per_tile(one, 1.0)
+    check_points_per_tile(two, 1.0)  # the box would leave 0.0007 points per tile
+    s = normals(tmp_path / "in", out_dir=str(tmp_path / "out"), tile_size=4.0, quiet=True)
+    assert s.points == 2 * len(las.x)

@@ -38,7 +38,7 @@ from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
-    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "FEW_TILES", "TILE_POINT_BYTES", "NothingToResumeError", "TileSizeError", "tile_size_for", "tile_size_of_tiles", "part_size", "part_ranges", "catalog_parts", "part_path",
+    "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "FEW_TILES", "TILE_POINT_BYTES", "NothingToResumeError", "TileSizeError", "tile_size_for", "tile_size_in", "footprint_area", "tile_size_of_tiles", "part_size", "part_ranges", "catalog_parts", "part_path",
     "scatter_part", "read_part", "route_path", "routes_pay", "part_selection", "store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
@@ -50,8 +50,25 @@ _BIAS = 1 << 20
 
 
 def auto_tile_size(src: LasSource | Catalog, target: int = TARGET_TILE_POINTS) -> float:
-    """A power-of-two tile size (metres) giving about ``target`` points per tile over the headers' extent."""
-    return tile_size_for(src.point_count, src.maxs[0] - src.mins[0], src.maxs[1] - src.mins[1], target)
+    """A power-of-two tile size (metres) giving about ``target`` points per tile over the headers' extent (a catalog's:
+    its files' boxes, :func:`footprint_area`)."""
+    return tile_size_in(src.point_count, footprint_area(src), target)
+
+
+def footprint_area(src: LasSource | Catalog, side: float = 1e-3) -> float:
+    """The area the input's points cover by its headers (square units): its x, y box, each side at least ``side``;
+    for a catalog, the sum of its files' boxes where that is smaller than the catalog's box (tiles of one survey far
+    apart leave most of that box empty: their density is that of the files, not of the box).
+
+    >>> from types import SimpleNamespace as F
+    >>> a, b = F(mins=(0, 0, 0), maxs=(1000, 1000, 1)), F(mins=(300_000, 0, 0), maxs=(301_000, 1000, 1))
+    >>> footprint_area(F(sources=(a, b), mins=(0, 0, 0), maxs=(301_000, 1000, 1)))  # 2 km², not 301
+    2000000.0
+    """
+    def box(s) -> float:
+        return max(s.maxs[0] - s.mins[0], side) * max(s.maxs[1] - s.mins[1], side)
+
+    return float(min(box(src), sum(box(s) for s in getattr(src, "sources", (src,)))))
 
 
 def tile_size_for(points: int, dx: float, dy: float, target: int = TARGET_TILE_POINTS) -> float:
@@ -61,8 +78,12 @@ def tile_size_for(points: int, dx: float, dy: float, target: int = TARGET_TILE_P
     >>> tile_size_for(1_000_000, 1000.0, 1000.0), tile_size_for(83_028, 0.0, 0.0)
     (512.0, 1.0)
     """
-    density = points / (max(dx, 1e-3) * max(dy, 1e-3))  # points per square metre of the footprint
-    t = np.sqrt(target / density)
+    return tile_size_in(points, max(dx, 1e-3) * max(dy, 1e-3), target)
+
+
+def tile_size_in(points: int, area: float, target: int = TARGET_TILE_POINTS) -> float:
+    """A power-of-two tile size (metres) giving about ``target`` of ``points`` per tile over ``area`` square metres."""
+    t = np.sqrt(target * area / max(points, 1))
     return float(np.clip(2.0 ** np.floor(np.log2(t)), 1.0, MAX_TILE))
 
 
@@ -102,13 +123,15 @@ TILE_POINT_BYTES = 300
 def check_points_per_tile(src: LasSource | Catalog, t: float) -> None:
     """Refuse tiles of edge ``t`` (metres) so small that the input's points spread over its footprint (x, y box) would
     leave fewer than :data:`MIN_POINTS_PER_TILE` per tile: a grid of many more tiles than useful, minutes of work on
-    nothing."""
+    nothing.  A catalog's footprint is its files' boxes (:func:`footprint_area`)."""
     ext = np.maximum(np.asarray(src.maxs) - np.asarray(src.mins), t)
-    tiles = float(ext[0] * ext[1]) / (t * t)
+    area = footprint_area(src, t)
+    tiles = area / (t * t)
     if src.point_count < MIN_POINTS_PER_TILE * tiles:
+        where = f"{ext[0]:g} x {ext[1]:g}" if area == float(ext[0] * ext[1]) else f"files' boxes of {area:.4g} square units"
         raise PatchcloudValueError(
             f"a tile size of {t:g} leaves about {src.point_count / tiles:.2g} points per tile over the input's "
-            f"{ext[0]:g} x {ext[1]:g} (in its unit; at least {MIN_POINTS_PER_TILE} needed); give a larger --tile-size, or leave it out"
+            f"{where} (in its unit; at least {MIN_POINTS_PER_TILE} needed); give a larger --tile-size, or leave it out"
         )
 
 
