@@ -240,6 +240,10 @@ def test_render_writes_a_png_and_the_cli_reports_a_missing_dimension(tmp_path):
     assert r.exit_code == 2 and "NormalX" in r.stderr and not bad.exists()
     r = CliRunner().invoke(main, ["render", str(tmp_path / "nope.las"), str(bad), "--color", "elevation"])
     assert r.exit_code == 2 and "nope.las" in r.stderr and not bad.exists()
+    r = CliRunner().invoke(main, ["render", str(path), str(bad), "--color", "classification", "--range", "0", "1"])
+    assert r.exit_code == 2 and not bad.exists(), r.output  # a colour range that would change nothing: said, not ignored
+    assert r.stderr.strip().splitlines() == ["error: --range sets the colour range of curvature, don, elevation, intensity; "
+                                             "colour classification has none: leave it out"], r.stderr
     r = CliRunner().invoke(main, ["render", str(path), str(out), "--color", "classification", "--view", "side", "--width", "90"])
     assert r.exit_code == 0, r.output
     assert "90 x" in r.output and "side view" in r.output

@@ -987,6 +987,9 @@ def render_arrays(
         low, high = (float(v) for v in value_range)
         if not (np.isfinite(low) and np.isfinite(high) and low < high):
             raise PatchcloudValueError(f"value_range must be two finite numbers, low < high; got {tuple(value_range)!r}")
+        if not any(c in CMAPS for c in colors):  # a range that would change nothing is a mistake to say, not to ignore
+            raise PatchcloudValueError(f"value_range sets the colour range of {', '.join(CMAPS)}; colour {', '.join(map(str, colors))} "
+                                       "has none: leave it out")
     sources, name = input_sources(input, assume_crs)
     if output is not None:  # where the caller will write the picture: never one of the inputs
         check_not_input(output, [s.path for s in sources])
