@@ -153,3 +153,14 @@ def test_an_unexpected_error_is_one_line_unless_debug(scene, tmp_path, monkeypat
     assert r.output.startswith("error: internal error: RuntimeError: boom (a bug in patchcloud: `patchcloud --debug ...`")
     r = CliRunner().invoke(main, ["--debug", *args])
     assert isinstance(r.exception, RuntimeError) and str(r.exception).startswith("boom")
+
+
+def test_a_full_disk_in_memory_names_the_output_even_when_the_error_names_no_file(scene, tmp_path, monkeypatch):
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")  # as a write() on an open file raises it: no file name
+
+    monkeypatch.setattr(las_output, "finish", full)
+    r = CliRunner().invoke(main, ["normals", str(scene), str(tmp_path / "out.las"), "--in-memory", "--quiet"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert r.output.startswith(f"error: {tmp_path / 'out.las'}: No space left on device"), r.output
+    assert not (tmp_path / "out.las").exists() and not (tmp_path / "out.las.partial").exists()

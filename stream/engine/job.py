@@ -671,8 +671,8 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
             raise KeyboardInterrupt(f"interrupted{_remove_written(outs, before)}") from None
         except PatchcloudError as exc:
             raise type(exc)(f"{exc}{_remove_written(outs, before)}") from exc
-        except OSError as exc:  # disk full, permission: named, as on disk
-            line = os_error_line(exc) if exc.filename else str(exc)
+        except OSError as exc:  # disk full, permission: named, as on disk (in memory, only the outputs are written)
+            line = os_error_line(exc) if exc.filename else f"{out}: {os_error_line(exc)}"
             raise PatchcloudIOError(f"{line}{_remove_written(outs, before)}") from exc
         except BaseException:  # a bug: its traceback as it is, the outputs removed all the same
             _remove_written(outs, before)
