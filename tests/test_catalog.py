@@ -600,3 +600,56 @@ def test_files_far_apart_get_the_tile_size_of_their_density(cut, tmp_path):
     check_points_per_tile(two, 1.0)  # the box would leave 0.0007 points per tile
     s = normals(tmp_path / "in", out_dir=str(tmp_path / "out"), tile_size=4.0, quiet=True)
     assert s.points == 2 * len(las.x)
+
+
+def _empty(path, crs="EPSG:2154", point_format=6):
+    h = laspy.LasHeader(point_format=point_format, version="1.4")
+    h.scales = np.array([0.05, 0.05, 0.05])  # not on the others' grid: an empty file's scale does not matter
+    if crs is not None:
+        h.add_crs(CRS.from_user_input(crs))
+    laspy.LasData(h).write(str(path))
+
+
+def test_empty_files_of_a_catalog_get_empty_outputs_and_change_nothing_else(cut, tmp_path):
+    """Empty tiles (no points; their header bounds 0) among a survey's: each gets an output of its header with the new
+    dimensions and no points, LAS and LAZ; the other outputs are those of the catalog without them, byte for byte
+    (the zero bounds neither widen the grid nor the tile size); info describes one; a catalog of only empty files is
+    one error."""
+    d, _ = cut
+    (tmp_path / "in").mkdir()
+    for k in range(4):
+        (tmp_path / "in" / f"tile_{k}.las").write_bytes((d / "in" / f"tile_{k}.las").read_bytes())
+    normals(tmp_path / "in", out_dir=str(tmp_path / "ref"), quiet=True)
+    _empty(tmp_path / "in" / "empty_a.las")
+    _empty(tmp_path / "in" / "empty_b.laz", point_format=1)
+    with_empty, without = open_catalog(tmp_path / "in"), open_catalog(sorted((tmp_path / "in").glob("tile_*.las")))
+    assert (with_empty.mins, with_empty.maxs, auto_tile_size(with_empty)) == (without.mins, without.maxs, auto_tile_size(without))
+    s = normals(tmp_path / "in", out_dir=str(tmp_path / "out"), quiet=True)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir() if p.suffix in (".las", ".laz")) == [
+        "empty_a.las", "empty_b.laz", "tile_0.las", "tile_1.las", "tile_2.las", "tile_3.las"]
+    n = sum(laspy.open(str(d / "in" / f"tile_{k}.las")).header.point_count for k in range(4))
+    assert s.points == n
+    for k in range(4):
+        a = laspy.read(str(tmp_path / "ref" / f"tile_{k}.las")).points.array
+        b = laspy.read(str(tmp_path / "out" / f"tile_{k}.las")).points.array
+        _same_records(b, a, a.dtype.names)
+    for name in ("empty_a.las", "empty_b.laz"):
+        e = laspy.read(str(tmp_path / "out" / name))
+        assert e.header.point_count == 0 and len(e.points) == 0
+        assert {"NormalX", "NormalY", "NormalZ", "Curvature", "NormalMethod", "PatchId"} <= set(e.point_format.extra_dimension_names)
+        assert e.header.parse_crs().to_epsg() == 2154
+    seg = segment(tmp_path / "in", out_dir=str(tmp_path / "seg"), quiet=True)
+    assert laspy.read(str(tmp_path / "seg" / "empty_b.laz")).header.point_count == 0 and seg.points == n
+    for job in ("normals", "don"):  # the report reads the empty outputs too
+        r = CliRunner().invoke(main, [job, str(tmp_path / "in"), "--out-dir", str(tmp_path / job), "-q", "--report", str(tmp_path / f"{job}.html")])
+        assert r.exit_code == 0 and (tmp_path / f"{job}.html").stat().st_size > 0, r.output
+        assert laspy.read(str(tmp_path / job / "empty_a.las")).header.point_count == 0
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "in" / "empty_a.las")])
+    assert r.exit_code == 0 and "points       0" in r.output and "bounds       none (no points)" in r.output, r.output
+    (tmp_path / "none").mkdir()
+    _empty(tmp_path / "none" / "a.las")
+    _empty(tmp_path / "none" / "b.las")
+    with pytest.raises(PatchcloudIOError, match=r"a.las and the 1 other files: every file holds no points"):
+        normals(tmp_path / "none", out_dir=str(tmp_path / "o2"), quiet=True)
+    with pytest.raises(PatchcloudIOError, match=r"a.las: the file holds no points"):  # one file: nothing to compute
+        normals(tmp_path / "none" / "a.las", tmp_path / "o3.las", quiet=True)

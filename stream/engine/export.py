@@ -384,6 +384,19 @@ def export_columns(
         in_memory = memory_group.is_memory_url(store.url)
         complete: list[int] = []  # in memory: the files complete, renamed after the last
 
+        def complete_file(f: int) -> None:  # every part of file f is in: finish, record, rename
+            mine = results.pop(f)
+            las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None,
+                              source=cat.sources[f].path)
+            # recorded before the rename (which keeps size and modification time): a run killed between the two
+            # finds its output complete, not a file it may not replace
+            store.set_group_attrs("outputs", **{output_record_name(outs[f]): dict(
+                file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key, request=request)})
+            if not in_memory:
+                Path(tmps[f]).replace(outs[f])
+            else:
+                complete.append(f)
+
         def finish(k: int, result) -> None:  # the part's file is complete once its last part is in: stitch, rename, record
             f, local = owner[k]
             results[f][local] = result
@@ -396,18 +409,11 @@ def export_columns(
                     las_output.stitch(tmps[f], range(stitched[f], ready))
                     stitched[f] = ready
             if left[f] == 0:
-                mine = results.pop(f)
-                las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None,
-                                  source=cat.sources[f].path)
-                # recorded before the rename (which keeps size and modification time): a run killed between the two
-                # finds its output complete, not a file it may not replace
-                store.set_group_attrs("outputs", **{output_record_name(outs[f]): dict(
-                    file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key, request=request)})
-                if not in_memory:
-                    Path(tmps[f]).replace(outs[f])
-                else:
-                    complete.append(f)
+                complete_file(f)
 
+        for f in todo:  # a file of no points (a catalog's empty tile) has no part: its output is its header
+            if left[f] == 0:
+                complete_file(f)
         runner.map(export_part, calls, "export", on_result=finish)
         for f in complete:
             Path(tmps[f]).replace(outs[f])

@@ -57,18 +57,18 @@ def auto_tile_size(src: LasSource | Catalog, target: int = TARGET_TILE_POINTS) -
 
 def footprint_area(src: LasSource | Catalog, side: float = 1e-3) -> float:
     """The area the input's points cover by its headers (square units): its x, y box, each side at least ``side``;
-    for a catalog, the sum of its files' boxes where that is smaller than the catalog's box (tiles of one survey far
-    apart leave most of that box empty: their density is that of the files, not of the box).
+    for a catalog, the sum of the boxes of its files that hold points, where that is smaller than the catalog's box
+    (tiles of one survey far apart leave most of that box empty: their density is that of the files, not of the box).
 
     >>> from types import SimpleNamespace as F
     >>> a, b = F(mins=(0, 0, 0), maxs=(1000, 1000, 1)), F(mins=(300_000, 0, 0), maxs=(301_000, 1000, 1))
-    >>> footprint_area(F(sources=(a, b), mins=(0, 0, 0), maxs=(301_000, 1000, 1)))  # 2 km², not 301
+    >>> footprint_area(F(holding=(a, b), mins=(0, 0, 0), maxs=(301_000, 1000, 1)))  # 2 km², not 301
     2000000.0
     """
     def box(s) -> float:
         return max(s.maxs[0] - s.mins[0], side) * max(s.maxs[1] - s.mins[1], side)
 
-    return float(min(box(src), sum(box(s) for s in getattr(src, "sources", (src,)))))
+    return float(min(box(src), sum(box(s) for s in getattr(src, "holding", (src,)))))
 
 
 def tile_size_for(points: int, dx: float, dy: float, target: int = TARGET_TILE_POINTS) -> float:
@@ -578,7 +578,7 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
         store = Store.create(url)
     for attempt in range(2):
         if "part_points" not in store.attrs:
-            store.update(source=cat.sources[0].to_json(), catalog=cat.to_json(), grid=grid.to_json(), selection=selection.to_json(),
+            store.update(source=cat.holding[0].to_json(), catalog=cat.to_json(), grid=grid.to_json(), selection=selection.to_json(),
                          part_points=part_size(cat.point_count, runner.slots, chunk))
         if not store.step_done("bucket"):
             _scatter(store, runner, "xyz", "tile: read")

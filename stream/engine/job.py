@@ -753,7 +753,7 @@ def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep
         if job.tiled:
             store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk, _tiles_selection(job, run))
             windows["tile"] = [(w0, time.time())]
-        ctx = JobContext(source=catalog.sources[0], output=out, store=store, runner=runner, run=run, catalog=catalog, outputs=outs,
+        ctx = JobContext(source=catalog.holding[0], output=out, store=store, runner=runner, run=run, catalog=catalog, outputs=outs,
                          kept_store=url if keep else "")
         if tile_seconds is not None:
             ctx.seconds["tile"] = tile_seconds

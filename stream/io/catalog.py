@@ -14,6 +14,10 @@ the common scale and its offset to differ from the first file's by a whole
 number of common steps; otherwise the files cannot be merged without
 rounding and the catalog is refused with one error naming two files.
 
+**Empty files.**  A file of no points (an empty tile of a survey) takes
+part in nothing but the CRS check: its output is its header with the new
+dimensions and no points.  A catalog whose every file is empty is refused.
+
 **One CRS.**  CRSs are compared as CRSs (pyproj's equality, not their
 bytes); two different ones are an error naming a file of each.  A file
 without a CRS among files with one is an error unless ``assume_crs`` says
@@ -81,12 +85,17 @@ class Catalog:
         return np.r_[0, np.cumsum([s.point_count for s in self.sources])].astype(np.int64)
 
     @property
+    def holding(self) -> tuple[LasSource, ...]:
+        """The files that hold points (an empty file's header bounds say nothing of where the cloud is)."""
+        return tuple(s for s in self.sources if s.point_count > 0) or self.sources
+
+    @property
     def mins(self) -> tuple[float, float, float]:
-        return tuple(float(min(s.mins[a] for s in self.sources)) for a in range(3))
+        return tuple(float(min(s.mins[a] for s in self.holding)) for a in range(3))
 
     @property
     def maxs(self) -> tuple[float, float, float]:
-        return tuple(float(max(s.maxs[a] for s in self.sources)) for a in range(3))
+        return tuple(float(max(s.maxs[a] for s in self.holding)) for a in range(3))
 
     @property
     def path(self) -> str:
@@ -281,19 +290,27 @@ def open_catalog(inputs, assume_crs: str | None = None) -> Catalog:
     Raises
     ------
     PatchcloudIOError
-        A file that is not a complete LAS/LAZ (see :func:`open_source`).
+        A file that is not a complete LAS/LAZ (see :func:`open_source`), or
+        every file empty (one empty file among others is taken: see above).
     PatchcloudValueError
         Different CRSs, a missing CRS, or grids that cannot be merged exactly;
         the message names the files.
     """
     paths = expand_inputs(inputs)
-    sources = [open_source(p) for p in paths]
+    sources = [open_source(p, allow_empty=len(paths) > 1) for p in paths]
+    holding = [s for s in sources if s.point_count > 0]
+    if not holding:
+        raise PatchcloudIOError(f"{sources[0].path} and the {len(sources) - 1} other files: every file holds no points")
     crs = _catalog_crs(sources, assume_crs)
-    scale = tuple(min(s.scale[a] for s in sources) for a in range(3))
-    ref = next((s for s in sources if s.scale == scale), sources[0])  # the first file on the finest grid
+    scale = tuple(min(s.scale[a] for s in holding) for a in range(3))
+    ref = next(s for s in holding if s.scale == scale)  # the first file on the finest grid
     offset = ref.offset
     factor, shift = [], []
     for s in sources:
+        if s.point_count == 0:  # no integers to put on the grid (whatever its header's scale and bounds)
+            factor.append((1, 1, 1))
+            shift.append((0, 0, 0))
+            continue
         fs = factor_and_shift(s.scale, s.offset, scale, offset)
         if fs is None:
             raise PatchcloudValueError(

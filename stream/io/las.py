@@ -221,8 +221,11 @@ def without_copc(header: laspy.LasHeader) -> laspy.LasHeader:
     return header
 
 
-def open_source(path: str | os.PathLike) -> LasSource:
+def open_source(path: str | os.PathLike, allow_empty: bool = False) -> LasSource:
     """Check that ``path`` is a readable, non-empty, complete LAS/LAZ file and describe it.
+
+    ``allow_empty``: a file of no points is described too (a catalog's
+    empty tile), not refused.
 
     Raises
     ------
@@ -269,14 +272,15 @@ def open_source(path: str | os.PathLike) -> LasSource:
         raise
     except Exception as exc:
         raise PatchcloudIOError(f"{p}: not a readable LAS/LAZ file ({exc})") from exc
-    if src.point_count == 0:
+    if src.point_count == 0 and not allow_empty:
         raise PatchcloudIOError(f"{p}: the file holds no points")
     if compressed:
         held = laz_point_range(p, start, record, src.point_format)
         if held is not None and not held[0] <= src.point_count <= held[1]:
             what = f"{held[0]:,}" if held[0] == held[1] else f"{held[0]:,} to {held[1]:,} (its chunks of fixed size)"
             raise PatchcloudIOError(f"{p}: the header says {src.point_count:,} points but the LAZ chunk table holds {what}")
-        check_last_chunk(src)
+        if src.point_count:
+            check_last_chunk(src)
     if not compressed:
         end = start + src.point_count * record
         if st.st_size < end:

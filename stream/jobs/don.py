@@ -122,7 +122,7 @@ def default_viewpoint_of(src: LasSource | Catalog) -> np.ndarray:
 def catalog_step(catalog: Catalog) -> float:
     """The step a catalog's coordinates are rounded to: its files' largest scale (file units), the ``rounding`` of
     :func:`patchcloud.core.radius_normals` (a ball collinear up to it has no normal)."""
-    return max(s.step for s in catalog.sources)
+    return max(s.step for s in catalog.holding)
 
 
 def cloud_density(st: Store, edge: float) -> float:

@@ -111,7 +111,7 @@ def info(path: str | os.PathLike) -> dict:
                     "grid": a["grid"], "steps": list(f.steps), "dropped": f.dropped,
                     **({"intensity_shifts": _span(f.intensity_shift)} if hasattr(f, "intensity_shift") else {})}
     if os.path.isfile(p):
-        src = open_source(p)
+        src = open_source(p, allow_empty=True)  # an empty tile is described as any file (0 points)
         with laspy.open(p) as r:
             dims = list(r.header.point_format.dimension_names)
             extra = list(r.header.point_format.extra_dimension_names)
@@ -243,7 +243,8 @@ def format_info(d: dict) -> str:
         lines = [
             f"{d['path']}: LAS {d['version']} point format {d['point_format']}{' (LAZ)' if d['compressed'] else ''}",
             f"  points       {d['point_count']:,}",
-            f"  bounds       x {d['mins'][0]:.3f} .. {d['maxs'][0]:.3f}, y {d['mins'][1]:.3f} .. {d['maxs'][1]:.3f}, z {d['mins'][2]:.3f} .. {d['maxs'][2]:.3f}",
+            f"  bounds       x {d['mins'][0]:.3f} .. {d['maxs'][0]:.3f}, y {d['mins'][1]:.3f} .. {d['maxs'][1]:.3f}, z {d['mins'][2]:.3f} .. {d['maxs'][2]:.3f}"
+            if d["point_count"] else "  bounds       none (no points)",
             f"  scale        {d['scale']}  offset {d['offset']}",
             f"  dimensions   {', '.join(d['dimensions'])}",
             f"  CRS          {crs_line(d.get('crs_info'))}",

@@ -896,7 +896,7 @@ def input_sources(input, assume_crs: str | None = None) -> tuple[list[LasSource]
     if isinstance(input, (str, os.PathLike)) and Path(input).is_file():
         return [open_source(input)], str(input)
     cat = open_catalog(input, assume_crs)
-    return list(cat.sources), cat.path
+    return list(cat.holding), cat.path
 
 
 def check_modes(sources: Sequence[LasSource], colors: Sequence[str], shade: bool | None) -> bool:

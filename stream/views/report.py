@@ -498,7 +498,7 @@ def normal_statistics(
         A file that cannot be read, an output without normals, or an input
         whose point count differs from the output's.
     """
-    out_src = open_source(output)
+    out_src = open_source(output, allow_empty=True)  # (a catalog's empty tile: no point in any bin)
     out_dims = _dims(out_src.path)
     if not {"NormalX", "NormalY", "NormalZ", "Curvature"} <= out_dims:
         raise PatchcloudIOError(f"{out_src.path}: no NormalX/Y/Z and Curvature (not a patchcloud normals output)")
@@ -507,7 +507,7 @@ def normal_statistics(
     reference = None
     ref_in_output = False
     if input is not None:
-        in_src = open_source(input)
+        in_src = open_source(input, allow_empty=True)
         in_dims = _dims(in_src.path)
         for dims in REFERENCE_DIMS:
             if set(dims) <= in_dims:
@@ -588,7 +588,7 @@ def segment_sizes(output, *, chunk: int = 1 << 20) -> np.ndarray:
     (S,) int64
         ``sizes[i]`` points carry ClusterID ``i + 1``.
     """
-    sources = [open_source(p) for p in ([output] if isinstance(output, (str, os.PathLike)) else output)]
+    sources = [open_source(p, allow_empty=True) for p in ([output] if isinstance(output, (str, os.PathLike)) else output)]
     for src in sources:
         if "ClusterID" not in _dims(src.path):
             raise PatchcloudIOError(f"{src.path}: no ClusterID (not a patchcloud segment output)")
