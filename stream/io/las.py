@@ -521,14 +521,10 @@ def read_range(src: LasSource, first: int, count: int, parallel: bool = False,
         The data ends before ``first + count`` (truncated or corrupt).
     """
     p = src.path
-    if src.compressed and (first or count < src.point_count):
-        variable = _variable_chunks(p, src.size, src.mtime_ns)
-        if variable is not None:  # laspy's seek in such a file (COPC's) gives other points, or zeros: no seek
-            return _read_variable_chunks(src, variable, first, count, selection)
-    if parallel and first and src.compressed:
-        pts = _read_whole_chunks(src, first, count, selection)
-        if pts is not None:
-            return pts
+    if src.compressed:
+        plan = _chunk_plan(p, src.size, src.mtime_ns)
+        if plan is not None:  # chunks decoded from the chunk table (laspy's seek in COPC's gives other points, or zeros)
+            return _decode_chunks(src, plan, first, count, parallel, selection)
     try:
         extra = {} if selection is None else {"decompression_selection": selection}
         with laspy.open(p, laz_backend=laz_backend(parallel), **extra) as reader:
@@ -551,14 +547,16 @@ def read_range(src: LasSource, first: int, count: int, parallel: bool = False,
 
 
 @dataclass(frozen=True)
-class _LazChunks:
-    """What :func:`_read_whole_chunks` needs of a LAZ file of fixed-size chunks: its header, LASzip VLR, and where each
-    chunk's bytes begin and how many there are."""
+class _ChunkPlan:
+    """Where a LAZ file's points are: its header, LASzip VLR, each chunk's byte offset and byte count (``table``,
+    (C, 2)), each chunk's first point (``firsts``, (C + 1,), the last the total), and the fixed chunk size (``chunk``;
+    0 for variable-size chunks, COPC's: one chunk per octree node)."""
 
     header: laspy.LasHeader
     vlr: bytes
+    table: np.ndarray
+    firsts: np.ndarray
     chunk: int
-    table: np.ndarray  # (C, 2): each chunk's byte offset and byte count (laz_layers.chunk_table)
 
 
 def _laszip_vlr(path: str):
@@ -574,9 +572,18 @@ def _laszip_vlr(path: str):
 
 
 @functools.lru_cache(maxsize=8)
-def _laz_chunks(path: str, size: int, mtime_ns: int) -> _LazChunks | None:
-    """The chunk table of a LAZ file of fixed-size chunks (read once per file version), or None (variable chunks, no
-    table, or anything unexpected: the caller then reads as laspy does)."""
+def _chunk_plan(path: str, size: int, mtime_ns: int) -> _ChunkPlan | None:
+    """The chunks of a LAZ file (read once per file version), fixed or variable in size; None for a file whose points
+    are not in chunks with a table (LASzip's point-wise compressor, a LAS file), or a fixed-chunk file whose table or
+    VLR cannot be read (the caller then reads as laspy does, and reports what it finds).
+
+    Raises
+    ------
+    PatchcloudIOError
+        A file of variable-size chunks whose chunk table cannot be read, or
+        whose chunks hold other than the header's point count (no reader
+        but the chunk table's can read such a file in parts).
+    """
     from . import laz_layers  # (numba: not for a command that only reads headers)
 
     try:
@@ -584,44 +591,17 @@ def _laz_chunks(path: str, size: int, mtime_ns: int) -> _LazChunks | None:
         if found is None:
             return None
         header, data, vlr = found
-        if vlr.uses_variable_size_chunks() or struct.unpack("<H", data[:2])[0] == POINTWISE_COMPRESSOR:
+        variable = vlr.uses_variable_size_chunks()
+        if not variable and (struct.unpack("<H", data[:2])[0] == POINTWISE_COMPRESSOR
+                             or vlr.item_size() != header.point_format.size):  # (a damaged VLR: lazrs would panic)
             return None
-        if vlr.item_size() != header.point_format.size:  # a damaged VLR: lazrs would panic splitting its buffers
-            return None
-        table = laz_layers.chunk_table(path, header.offset_to_point_data, data)
-    except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
-        if isinstance(exc, INTERRUPTS):
-            raise
-        return None
-    return _LazChunks(header, data, int(vlr.chunk_size()), table) if len(table) else None
-
-
-@dataclass(frozen=True)
-class _VariableChunks:
-    """A LAZ file of variable-size chunks (COPC's: one chunk per octree node): its header, LASzip VLR, each chunk's
-    byte offset and byte count (``table``, (C, 2)) and its first point (``firsts``, (C + 1,), the last the total)."""
-
-    header: laspy.LasHeader
-    vlr: bytes
-    table: np.ndarray
-    firsts: np.ndarray
-
-
-@functools.lru_cache(maxsize=8)
-def _variable_chunks(path: str, size: int, mtime_ns: int) -> _VariableChunks | None:
-    """The chunk table of a LAZ file of variable-size chunks (read once per file version), None for any other file.
-
-    Raises
-    ------
-    PatchcloudIOError
-        Such a file whose chunk table cannot be read, or whose chunks hold
-        other than the header's point count.
-    """
-    try:
-        found = _laszip_vlr(path)
-        if found is None or not found[2].uses_variable_size_chunks():
-            return None
-        header, data, vlr = found
+        if not variable:
+            table = laz_layers.chunk_table(path, header.offset_to_point_data, data)
+            if not len(table):
+                return None
+            chunk, n = int(vlr.chunk_size()), int(header.point_count)
+            firsts = np.minimum(np.arange(len(table) + 1, dtype=np.int64) * chunk, n)
+            return _ChunkPlan(header, data, table, firsts, chunk)
     except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
         if isinstance(exc, INTERRUPTS):
             raise
@@ -640,14 +620,20 @@ def _variable_chunks(path: str, size: int, mtime_ns: int) -> _VariableChunks | N
         raise PatchcloudIOError(f"{path}: damaged LAZ file: its chunks hold {int(points.sum()):,} points, its header says "
                                 f"{header.point_count:,}")
     starts = header.offset_to_point_data + 8 + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    return _VariableChunks(header, data, np.column_stack([starts, sizes]), np.concatenate([[0], np.cumsum(points)]))
+    return _ChunkPlan(header, data, np.column_stack([starts, sizes]), np.concatenate([[0], np.cumsum(points)]), 0)
 
 
-def _read_variable_chunks(src: LasSource, plan: _VariableChunks, first: int, count: int,
-                          selection) -> laspy.ScaleAwarePointRecord:
-    """Points ``first`` to ``first + count`` of a LAZ file of variable-size chunks: the chunks that hold them decoded
-    from their bytes and the chunk table (lazrs; one thread in a worker process, see
-    :mod:`patchcloud.stream.engine.worker_setup`), the points before ``first`` in the first of them dropped."""
+def _decode_chunks(src: LasSource, plan: _ChunkPlan, first: int, count: int, parallel: bool,
+                   selection) -> laspy.ScaleAwarePointRecord:
+    """Points ``first`` to ``first + count`` of a LAZ file in chunks: the chunks that hold them read and decoded from
+    their bytes and the chunk table (lazrs), the points before ``first`` in the first of them dropped; no seek.
+
+    laspy's seek in a file of variable-size chunks (COPC's) gives other points,
+    or zeros, and lazrs' parallel decoder takes about as long to seek as to
+    decode 100,000 points.  ``parallel``: the chunks decoded on lazrs'
+    threads in one call; else one chunk a call, on one core (a worker
+    process's tasks, or a run told to use one core).
+    """
     pf = plan.header.point_format
     if count <= 0:
         return laspy.ScaleAwarePointRecord.zeros(0, point_format=pf, scales=plan.header.scales, offsets=plan.header.offsets)
@@ -664,7 +650,14 @@ def _read_variable_chunks(src: LasSource, plan: _VariableChunks, first: int, cou
         with open(src.path, "rb") as f:
             f.seek(int(plan.table[c0, 0]))
             data = f.read(int(plan.table[c0:c1, 1].sum()))
-        lazrs.decompress_points_with_chunk_table(data, plan.vlr, out, table, sel)
+        if parallel:
+            lazrs.decompress_points_with_chunk_table(data, plan.vlr, out, table, sel)
+        else:
+            at, written, view = 0, 0, memoryview(data)
+            for n, size in table:
+                lazrs.decompress_points_with_chunk_table(view[at: at + size], plan.vlr, out[written: written + n * pf.size],
+                                                         [(n, size)], sel)
+                at, written = at + size, written + n * pf.size
     except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
         if isinstance(exc, INTERRUPTS):
             raise
@@ -684,8 +677,11 @@ def check_last_chunk(src: LasSource) -> None:
 
 @functools.lru_cache(maxsize=64)
 def _check_last_chunk(path: str, size: int, mtime_ns: int, point_count: int) -> None:
-    plan = _laz_chunks(path, size, mtime_ns)
-    if plan is None:
+    try:
+        plan = _chunk_plan(path, size, mtime_ns)
+    except PatchcloudIOError:  # (variable-size chunks: not this check's)
+        return
+    if plan is None or not plan.chunk:
         return
     c = len(plan.table) - 1
     n = point_count - c * plan.chunk
@@ -704,41 +700,6 @@ def _check_last_chunk(path: str, size: int, mtime_ns: int, point_count: int) -> 
             raise
         raise PatchcloudIOError(f"{path}: corrupt or truncated point data: its last LAZ chunk does not hold the "
                                 f"{n:,} points the header's count of {point_count:,} implies ({exc})") from None
-
-
-def _read_whole_chunks(src: LasSource, first: int, count: int, selection) -> laspy.ScaleAwarePointRecord | None:
-    """Points ``first`` to ``first + count`` of a LAZ file whose chunks hold a fixed count, ``first`` the start of
-    one, decoded on lazrs' threads from the chunks' bytes and the chunk table.
-
-    What laspy's multi-threaded reader gives after a seek, without the seek:
-    lazrs' parallel decoder takes about as long to seek as to decode 100,000
-    points (17 ms on the IGN extra-bytes tile), once per part of a run in
-    memory.  None where the file is not such a LAZ file or anything goes
-    wrong (a damaged chunk, ...): the caller then reads as laspy does and
-    reports what it finds.
-    """
-    plan = _laz_chunks(src.path, src.size, src.mtime_ns)
-    if plan is None or first % plan.chunk or first + count > src.point_count:
-        return None
-    c0, c1 = first // plan.chunk, -(-(first + count) // plan.chunk)
-    if c1 > len(plan.table):
-        return None
-    pf = plan.header.point_format
-    starts, sizes = plan.table[:, 0], plan.table[:, 1]
-    table = [(min(plan.chunk, src.point_count - c * plan.chunk), int(sizes[c])) for c in range(c0, c1)]
-    out = np.empty(sum(n for n, _ in table) * pf.size, dtype=np.uint8)
-    sel = (selection if selection is not None else laspy.DecompressionSelection.all()).to_lazrs()
-    try:
-        with open(src.path, "rb") as f:
-            f.seek(int(starts[c0]))
-            data = f.read(int(sizes[c0:c1].sum()))
-        lazrs.decompress_points_with_chunk_table(data, plan.vlr, out, table, sel)
-    except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
-        if isinstance(exc, INTERRUPTS):
-            raise
-        return None
-    records = laspy.PackedPointRecord.from_buffer(out[: count * pf.size], pf)
-    return laspy.ScaleAwarePointRecord(records.array, pf, plan.header.scales, plan.header.offsets)
 
 
 def read_chunks(src: LasSource, chunk: int, start_chunk: int = 0) -> Iterator[tuple[int, laspy.ScaleAwarePointRecord]]:
