@@ -40,11 +40,13 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.checks': ('MODES', 'check_rounding'),
     '.radius': ('check_points', 'coordinate_step', 'default_viewpoint', 'grid_origin', 'halo_width', 'radius_normals'),
     '.threads': ('single_threaded',),
+    '.version': ('__version__',),
     '.tiles': ('SKIN_HALO', 'Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
 }
 
 __all__ = [
     # the user API
+    "__version__",
     "estimate_normals",
     "NormalsResult",
     "NormalsParameters",

@@ -48,8 +48,14 @@ def las():
 
 
 def test_version_is_the_projects():
+    """One version, written once (core/version.py, which pyproject.toml reads), the installed metadata's."""
+    from importlib.metadata import version
+
     with open(ROOT / "pyproject.toml", "rb") as f:
-        assert patchcloud.__version__ == tomllib.load(f)["project"]["version"]
+        project = tomllib.load(f)
+    assert "version" in project["project"]["dynamic"]
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "patchcloud.core.version.__version__"}
+    assert patchcloud.__version__ == version("patchcloud") == patchcloud.core.__version__
 
 
 def test_import_patchcloud_is_cheap():

@@ -24,7 +24,6 @@ A record of ``patchcloud`` (:func:`provenance_vlr`) says what made the file.
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 import struct
@@ -142,15 +141,11 @@ def as_vlr(r: RawRecord) -> laspy.VLR:
     return laspy.VLR(ascii_text(r.user_id.split(b"\0", 1)[0]), r.record_id, ascii_text(r.description.split(b"\0", 1)[0]), r.data)
 
 
-@functools.lru_cache(maxsize=1)
 def software_version() -> str:
-    """patchcloud's installed version (read once: reading a package's metadata takes milliseconds)."""
-    from importlib.metadata import PackageNotFoundError, version
+    """patchcloud's version (:mod:`patchcloud.core.version`)."""
+    from patchcloud.core import __version__
 
-    try:
-        return version("patchcloud")
-    except PackageNotFoundError:  # run from a source tree that is not installed
-        return "unknown"
+    return __version__
 
 
 def provenance_vlr(job: str, parameters: dict) -> laspy.VLR:

@@ -38,11 +38,7 @@ Examples
 True
 """
 
-from importlib.metadata import version as _version
-
-from patchcloud.core import lazy_exports
-
-__version__ = _version("patchcloud")
+from patchcloud.core import __version__, lazy_exports
 
 _SOURCES = {  # where each name lives: the package that re-exports it, imported on first use (PEP 562)
     "patchcloud.core": (

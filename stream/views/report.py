@@ -200,12 +200,9 @@ def render_html(
 ) -> str:
     """The report page as a string (see :func:`write_report`)."""
     e = html.escape
-    try:
-        from importlib.metadata import version
+    from patchcloud.core import __version__
 
-        made_by = f"patchcloud {version('patchcloud')}"
-    except Exception:  # pragma: no cover - not installed
-        made_by = "patchcloud"
+    made_by = f"patchcloud {__version__}"
     when = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z").strip()
     out = [
         "<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
