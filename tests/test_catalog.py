@@ -580,6 +580,24 @@ def test_assumed_crs_is_written_into_the_outputs_of_files_without_one(cut, tmp_p
         decompress(tmp_path / f"{k}.pcz", tmp_path / f"{k}.las")
     got = [laspy.read(str(tmp_path / f"{k}.las")).header.parse_crs() for k in "bcn"]
     assert [c.to_epsg() for c in got[:2]] == [2154, 2154] and got[2] is None
+    # a CRS without an EPSG code is written as WKT whatever the point format (GeoTIFF keys would name a near one,
+    # another datum), the same CRS back; degrees and heights alone are refused before anything is written
+    lcc = "+proj=lcc +lat_1=45 +lat_2=46 +lat_0=44 +lon_0=3 +x_0=700000 +y_0=6600000 +ellps=GRS80 +units=ft +no_defs"
+    normals(tmp_path / "in" / "b.las", tmp_path / "b_lcc.las", assume_crs=lcc, quiet=True)
+    h = laspy.read(str(tmp_path / "b_lcc.las")).header
+    assert h.vlrs.get("WktCoordinateSystemVlr") and not h.vlrs.get("GeoKeyDirectoryVlr") and h.parse_crs() == CRS(lcc)
+    # compress takes files one by one but checks them all first: a file of another CRS leaves nothing written
+    (tmp_path / "two").mkdir()
+    for k, name in (("b", "a"), ("a", "b")):  # the file without a CRS first, which the assumed CRS would take
+        (tmp_path / "two" / f"{name}.las").write_bytes((tmp_path / "in" / f"{k}.las").read_bytes())
+    r = CliRunner().invoke(main, ["compress", str(tmp_path / "two"), "--out-dir", str(tmp_path / "pcz"), "--assume-crs", "EPSG:32631"])
+    assert r.exit_code == 2 and "b.las: its CRS is not the assumed one" in r.stderr and not (tmp_path / "pcz").exists(), r.stderr
+    for bad, says in (("EPSG:4326", "geographic"), ("EPSG:5720", "a vertical CRS alone")):
+        r = CliRunner().invoke(main, ["normals", str(tmp_path / "in" / "b.las"), str(tmp_path / "bad.las"), "--assume-crs", bad])
+        assert r.exit_code == 2 and f"--assume-crs {bad} is {says}" in r.stderr and not (tmp_path / "bad.las").exists(), r.stderr
+        r = CliRunner().invoke(main, ["normals", str(tmp_path / "in" / "b.las"), str(tmp_path / "bad.las"), "--assume-crs", bad,
+                                      "--units", "m"])
+        assert r.exit_code == 2 and says in r.stderr, r.stderr
 
 
 def test_files_far_apart_get_the_tile_size_of_their_density(cut, tmp_path):
@@ -622,18 +640,21 @@ def test_empty_files_of_a_catalog_get_empty_outputs_and_change_nothing_else(cut,
     normals(tmp_path / "in", out_dir=str(tmp_path / "ref"), quiet=True)
     _empty(tmp_path / "in" / "empty_a.las")
     _empty(tmp_path / "in" / "empty_b.laz", point_format=1)
+    _empty(tmp_path / "empty_c.laz", point_format=8)  # and one that ends with its header (no chunk table), as PDAL reads
+    raw = (tmp_path / "empty_c.laz").read_bytes()
+    (tmp_path / "in" / "empty_c.laz").write_bytes(raw[: laspy.open(str(tmp_path / "empty_c.laz")).header.offset_to_point_data])
     with_empty, without = open_catalog(tmp_path / "in"), open_catalog(sorted((tmp_path / "in").glob("tile_*.las")))
     assert (with_empty.mins, with_empty.maxs, auto_tile_size(with_empty)) == (without.mins, without.maxs, auto_tile_size(without))
     s = normals(tmp_path / "in", out_dir=str(tmp_path / "out"), quiet=True)
     assert sorted(p.name for p in (tmp_path / "out").iterdir() if p.suffix in (".las", ".laz")) == [
-        "empty_a.las", "empty_b.laz", "tile_0.las", "tile_1.las", "tile_2.las", "tile_3.las"]
+        "empty_a.las", "empty_b.laz", "empty_c.laz", "tile_0.las", "tile_1.las", "tile_2.las", "tile_3.las"]
     n = sum(laspy.open(str(d / "in" / f"tile_{k}.las")).header.point_count for k in range(4))
     assert s.points == n
     for k in range(4):
         a = laspy.read(str(tmp_path / "ref" / f"tile_{k}.las")).points.array
         b = laspy.read(str(tmp_path / "out" / f"tile_{k}.las")).points.array
         _same_records(b, a, a.dtype.names)
-    for name in ("empty_a.las", "empty_b.laz"):
+    for name in ("empty_a.las", "empty_b.laz", "empty_c.laz"):
         e = laspy.read(str(tmp_path / "out" / name))
         assert e.header.point_count == 0 and len(e.points) == 0
         assert {"NormalX", "NormalY", "NormalZ", "Curvature", "NormalMethod", "PatchId"} <= set(e.point_format.extra_dimension_names)
@@ -649,7 +670,7 @@ def test_empty_files_of_a_catalog_get_empty_outputs_and_change_nothing_else(cut,
     (tmp_path / "none").mkdir()
     _empty(tmp_path / "none" / "a.las")
     _empty(tmp_path / "none" / "b.las")
-    with pytest.raises(PatchcloudIOError, match=r"a.las and the 1 other files: every file holds no points"):
+    with pytest.raises(PatchcloudIOError, match=r"a.las and the other file: every file holds no points"):
         normals(tmp_path / "none", out_dir=str(tmp_path / "o2"), quiet=True)
     with pytest.raises(PatchcloudIOError, match=r"a.las: the file holds no points"):  # one file: nothing to compute
         normals(tmp_path / "none" / "a.las", tmp_path / "o3.las", quiet=True)

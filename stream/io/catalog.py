@@ -300,7 +300,8 @@ def open_catalog(inputs, assume_crs: str | None = None) -> Catalog:
     sources = [open_source(p, allow_empty=len(paths) > 1) for p in paths]
     holding = [s for s in sources if s.point_count > 0]
     if not holding:
-        raise PatchcloudIOError(f"{sources[0].path} and the {len(sources) - 1} other files: every file holds no points")
+        others = f"the {len(sources) - 1} other files" if len(sources) > 2 else "the other file"
+        raise PatchcloudIOError(f"{sources[0].path} and {others}: every file holds no points")
     crs = _catalog_crs(sources, assume_crs)
     scale = tuple(min(s.scale[a] for s in holding) for a in range(3))
     ref = next(s for s in holding if s.scale == scale)  # the first file on the finest grid
@@ -338,9 +339,16 @@ def _catalog_crs(sources: list[LasSource], assume_crs: str | None) -> str | None
         from pyproj.exceptions import CRSError
 
         try:
-            assumed = CRS.from_user_input(assume_crs).to_wkt()
+            parsed = CRS.from_user_input(assume_crs)
         except CRSError as exc:
             raise PatchcloudValueError(f"assume_crs: not a CRS pyproj knows: {assume_crs!r} ({exc})") from exc
+        if not (parsed.is_projected or parsed.is_geocentric):  # what the files' x, y, z are in: lengths, not degrees
+            kind = "geographic (degrees are not lengths)" if parsed.is_geographic else "a vertical CRS alone (nothing of x and y)"
+            raise PatchcloudValueError(
+                f"assume_crs {assume_crs!r} is {kind}: give the projected CRS the files' coordinates are in (a compound "
+                f"one, e.g. EPSG:2154+5720, for their heights too), or reproject them first (PDAL's filters.reprojection)"
+            )
+        assumed = parsed.to_wkt()
     first: LasSource | None = None
     distinct: dict[str, LasSource] = {}  # each CRS text once, with the first file that has it
     for s in sources:

@@ -170,7 +170,8 @@ def is_crs_record(r) -> bool:
 def with_crs(header, wkt: str):
     """``header`` (a ``laspy.LasHeader``, changed in place and returned) with the CRS ``wkt`` added after its VLRs, as
     LAS 1.4 asks: WKT (and the global encoding's WKT bit) for point formats 6 and up, GeoTIFF keys below (laspy's
-    ``add_crs``, PDAL's choice too), or WKT where GeoTIFF keys cannot say the CRS (one without an EPSG code, say).
+    ``add_crs``, PDAL's choice too), or WKT where GeoTIFF keys cannot say the CRS exactly (one without an EPSG code:
+    a PROJ string, a custom WKT).
 
     >>> import laspy
     >>> h = with_crs(laspy.LasHeader(point_format=6, version="1.4"), "EPSG:2154")
@@ -180,6 +181,9 @@ def with_crs(header, wkt: str):
     from pyproj import CRS
 
     crs = CRS.from_user_input(wkt)
+    if crs.to_epsg(min_confidence=100) is None:  # GeoTIFF keys name a CRS by its code: a near one would be another datum
+        header.add_crs(crs, keep_compatibility=False)
+        return header
     try:
         header.add_crs(crs)
     except Exception:  # GeoTIFF keys cannot hold this CRS: LAS 1.4 takes WKT for any point format

@@ -33,11 +33,11 @@ from patchcloud.core import (
 from patchcloud.stream.engine.export import file_record
 from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
 from patchcloud.stream.engine.job import (
-    Job, JobContext, RunOptions, left_out_lines, params_key, run_job, run_request, split_options, time_and_memory_lines,
+    Job, JobContext, RunOptions, catalog_units, left_out_lines, params_key, run_job, run_request, split_options, time_and_memory_lines,
 )
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io import pcz
-from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
+from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import LasSource, atomic_output, check_not_input, check_writable, open_source, raw_header
 from patchcloud.stream.io.point_coding import check_drop, coarse_steps, dropped_fields
 from patchcloud.stream.io.residual_points import (
@@ -379,8 +379,8 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
     paths = expand_inputs(inputs)
     out_dir = check_out_dir(run.out_dir)
     outs = output_paths(paths, out_dir, inputs, suffix=".pcz")
-    for p in paths:
-        open_source(p)
+    for p in paths:  # each file as its own run will take it (its CRS, the assumed one, its units), before any is written
+        catalog_units(open_catalog([p], run.assume_crs) if run.assume_crs is not None else Catalog.of(open_source(p)), run)
     for o in outs:
         check_not_input(o, paths)
     # what the run was asked (the same request kept outputs record), the source recording and the parts read
