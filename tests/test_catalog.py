@@ -582,7 +582,8 @@ def test_assumed_crs_is_written_into_the_outputs_of_files_without_one(cut, tmp_p
     assert [c.to_epsg() for c in got[:2]] == [2154, 2154] and got[2] is None
     # a CRS without an EPSG code is written as WKT whatever the point format (GeoTIFF keys would name a near one,
     # another datum), the same CRS back; degrees and heights alone are refused before anything is written
-    lcc = "+proj=lcc +lat_1=45 +lat_2=46 +lat_0=44 +lon_0=3 +x_0=700000 +y_0=6600000 +ellps=GRS80 +units=ft +no_defs"
+    lcc = "+proj=lcc +lat_0=41.75 +lon_0=-120.5 +lat_1=43 +lat_2=45.5 +x_0=400000 +y_0=0 +ellps=GRS80 +units=ft +no_defs"
+    assert CRS(lcc).to_epsg() == 2992 and CRS(lcc).to_epsg(min_confidence=100) is None  # near EPSG:2992 (NAD83), not it
     normals(tmp_path / "in" / "b.las", tmp_path / "b_lcc.las", assume_crs=lcc, quiet=True)
     h = laspy.read(str(tmp_path / "b_lcc.las")).header
     assert h.vlrs.get("WktCoordinateSystemVlr") and not h.vlrs.get("GeoKeyDirectoryVlr") and h.parse_crs() == CRS(lcc)
