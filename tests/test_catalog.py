@@ -666,6 +666,9 @@ def test_empty_files_of_a_catalog_get_empty_outputs_and_change_nothing_else(cut,
         r = CliRunner().invoke(main, [job, str(tmp_path / "in"), "--out-dir", str(tmp_path / job), "-q", "--report", str(tmp_path / f"{job}.html")])
         assert r.exit_code == 0 and (tmp_path / f"{job}.html").stat().st_size > 0, r.output
         assert laspy.read(str(tmp_path / job / "empty_a.las")).header.point_count == 0
+    r = CliRunner().invoke(main, ["render", str(tmp_path / "in"), "--out-dir", str(tmp_path / "png"), "--width", "120", "--color", "elevation"])
+    assert r.exit_code == 0 and f"{tmp_path / 'in' / 'empty_a.las'}: no points, no picture" in r.output, r.output
+    assert sorted(p.name for p in (tmp_path / "png").iterdir()) == [f"tile_{k}.png" for k in range(4)]
     r = CliRunner().invoke(main, ["info", str(tmp_path / "in" / "empty_a.las")])
     assert r.exit_code == 0 and "points       0" in r.output and "bounds       none (no points)" in r.output, r.output
     (tmp_path / "none").mkdir()

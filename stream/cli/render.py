@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from patchcloud.core import PatchcloudValueError
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError
 
 from . import options
 
@@ -65,7 +65,7 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
       patchcloud render tiles_normals/ --out-dir pictures/ --color normals
     """
     from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
-    from patchcloud.stream.io.las import check_not_input
+    from patchcloud.stream.io.las import check_not_input, open_source
     from patchcloud.stream.views.plots import check_png_path
     from patchcloud.stream.views.render import check_modes, input_sources, render
 
@@ -83,6 +83,10 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
         inputs = expand_inputs(list(paths))
         directory = check_out_dir(out_dir)
         jobs = list(zip(inputs, output_paths(inputs, directory, list(paths), suffix=".png")))
+        empty = [input for input in inputs if open_source(input, allow_empty=True).point_count == 0]
+        if len(empty) == len(inputs):
+            raise PatchcloudIOError(f"{empty[0]}: the file holds no points" + (", nor do the others" if len(empty) > 1 else ""))
+        jobs = [(input, output) for input, output in jobs if input not in empty]  # nothing to draw: said below, no picture
         for input, output in jobs:
             sources = input_sources(input, assume_crs)[0]
             check_modes(sources, [color], shade)
@@ -90,6 +94,9 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
             if directory.exists():
                 check_png_path(output)  # an existing file there that is not a PNG: refused before the first is drawn
         directory.mkdir(exist_ok=True)
+        if not quiet:
+            for input in empty:
+                click.echo(f"{input}: no points, no picture")
     summaries = []
     for input, output in jobs:
         s = render(input, output, color=color, view=view, bbox=bbox, width=width, shade=shade, value_range=value_range, fill=fill,
