@@ -678,3 +678,25 @@ def test_empty_files_of_a_catalog_get_empty_outputs_and_change_nothing_else(cut,
         normals(tmp_path / "none", out_dir=str(tmp_path / "o2"), quiet=True)
     with pytest.raises(PatchcloudIOError, match=r"a.las: the file holds no points"):  # one file: nothing to compute
         normals(tmp_path / "none" / "a.las", tmp_path / "o3.las", quiet=True)
+
+
+def test_a_crs_record_that_cannot_be_read_is_said_not_taken_for_none(cut, tmp_path):
+    """A LASF_Projection WKT record that is not WKT: info says it is unreadable, a run says its metres are assumed for
+    that reason, a catalog with a file of another CRS names it; --assume-crs replaces it in the output."""
+    d, _ = cut
+    las = laspy.read(str(d / "in" / "tile_0.las"))
+    (tmp_path / "in").mkdir()
+    _split(las, np.arange(3000), tmp_path / "in" / "a.las", crs="EPSG:2154")
+    _split(las, np.arange(3000, 6000), tmp_path / "in" / "b.las", point_format=6)
+    b = laspy.read(str(tmp_path / "in" / "b.las"))
+    b.header.vlrs.append(laspy.VLR("LASF_Projection", 2112, "OGC WKT", b"THIS IS NOT WKT[garbage]\0"))
+    b.header.global_encoding.wkt = True
+    b.write(str(tmp_path / "in" / "b.las"))
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "in" / "b.las")])
+    assert r.exit_code == 0 and "CRS          unreadable: its CRS record (CRSError" in r.output, r.output
+    r = CliRunner().invoke(main, ["normals", str(tmp_path / "in" / "b.las"), str(tmp_path / "b_out.las")])
+    assert r.exit_code == 0 and "assumed: its CRS record cannot be read" in r.output, r.output
+    r = CliRunner().invoke(main, ["normals", str(tmp_path / "in"), "--out-dir", str(tmp_path / "out")])
+    assert r.exit_code == 2 and "b.las: its CRS record cannot be read (CRSError" in r.stderr and "a.las has one" in r.stderr
+    normals(tmp_path / "in", out_dir=str(tmp_path / "out"), assume_crs="EPSG:2154", quiet=True)
+    assert laspy.read(str(tmp_path / "out" / "b.las")).header.parse_crs().to_epsg() == 2154

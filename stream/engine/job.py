@@ -340,7 +340,8 @@ def units_line(units: dict) -> str:
     >>> units_line({"symbol": "ft", "name": "foot", "metres": 0.3048, "source": "CRS"})
     '  units           ft (foot, 0.3048 m; from the CRS): every length here and every distance option'
     """
-    source = {"CRS": "from the CRS", "--units": "from --units", "assumed": "assumed: no CRS"}.get(units.get("source"), "")
+    source = {"CRS": "from the CRS", "--units": "from --units", "assumed": "assumed: no CRS",
+              "unreadable": "assumed: its CRS record cannot be read, see patchcloud info"}.get(units.get("source"), "")
     return (f"  units           {units['symbol']} ({units.get('name', '')}, {units.get('metres', 1.0):g} m; {source}): "
             "every length here and every distance option")
 
@@ -588,8 +589,13 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
 
 
 def catalog_units(catalog: Catalog, run: RunOptions) -> Units:
-    """The unit of the catalog's coordinates (:func:`patchcloud.stream.io.crs.units_of`; ``run.units`` overrides its CRS)."""
-    return units_of(catalog.crs, catalog.mins, catalog.maxs, run.units, where=catalog.path)
+    """The unit of the catalog's coordinates (:func:`patchcloud.stream.io.crs.units_of`; ``run.units`` overrides its CRS).
+
+    Metres assumed for files whose CRS record cannot be read say so (source ``unreadable``), not "no CRS"."""
+    units = units_of(catalog.crs, catalog.mins, catalog.maxs, run.units, where=catalog.path)
+    if units.source == "assumed" and any(s.crs_error for s in catalog.sources):
+        return dataclasses.replace(units, source="unreadable")
+    return units
 
 
 def run_job(job: Job, input, output, run: RunOptions) -> Any:

@@ -366,8 +366,9 @@ def _catalog_crs(sources: list[LasSource], assume_crs: str | None) -> str | None
         raise PatchcloudValueError(f"{first.path}: its CRS is not the assumed one ({assume_crs})")
     missing = [s for s in sources if s.crs is None]
     if missing and first is not None and assumed is None:
+        what = f"its CRS record cannot be read ({missing[0].crs_error})" if missing[0].crs_error else "no CRS"
         raise PatchcloudValueError(
-            f"{missing[0].path}: no CRS, while {first.path} has one; give --assume-crs (assume_crs) to say which CRS files without one are in"
+            f"{missing[0].path}: {what}, while {first.path} has one; give --assume-crs (assume_crs) to say which CRS files without one are in"
         )
     if first is not None:
         return first.crs

@@ -67,6 +67,7 @@ class LasSource:
     compressed: bool
     crs: str | None
     fingerprint: int = 0  # content_fingerprint of the file (0: not known, a store written before 2026-11-27)
+    crs_error: str | None = None  # why a CRS record it has cannot be read (then crs is None): said, not taken for none
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
@@ -83,6 +84,7 @@ class LasSource:
         for k in ("scale", "offset", "mins", "maxs"):
             d[k] = tuple(d[k])
         d.setdefault("fingerprint", 0)
+        d.setdefault("crs_error", None)
         return cls(**{f: d[f] for f in cls.__dataclass_fields__})
 
     def same_file(self, other: dict) -> bool:
@@ -250,17 +252,17 @@ def open_source(path: str | os.PathLike, allow_empty: bool = False) -> LasSource
             h = reader.header
             check_header_values(p, h)
             compressed = bool(h.are_points_compressed)
-            crs = None
+            crs, crs_error = None, None
             try:
                 c = h.parse_crs()
                 crs = None if c is None else c.to_wkt()
-            except Exception:  # pyproj missing or an unparsable CRS VLR: not fatal
-                crs = None
+            except Exception as exc:  # an unparsable CRS record: not fatal, but said wherever the CRS is (info, units, catalogs)
+                crs, crs_error = None, f"{type(exc).__name__}: {str(exc)[:160]}"
             src = LasSource(
                 path=str(p.resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns), point_count=int(h.point_count),
                 point_format=int(h.point_format.id), version=str(h.version), scale=tuple(map(float, h.scales)),
                 offset=tuple(map(float, h.offsets)), mins=tuple(map(float, h.mins)), maxs=tuple(map(float, h.maxs)),
-                compressed=compressed, crs=crs, fingerprint=content_fingerprint(p, int(st.st_size)),
+                compressed=compressed, crs=crs, fingerprint=content_fingerprint(p, int(st.st_size)), crs_error=crs_error,
             )
             record = int(h.point_format.size)
             start = int(h.offset_to_point_data)
