@@ -164,3 +164,19 @@ def test_a_full_disk_in_memory_names_the_output_even_when_the_error_names_no_fil
     assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
     assert r.output.startswith(f"error: {tmp_path / 'out.las'}: No space left on device"), r.output
     assert not (tmp_path / "out.las").exists() and not (tmp_path / "out.las.partial").exists()
+
+
+def test_point_data_that_cannot_be_decoded_leaves_no_store_and_offers_no_resume(tmp_path):
+    """A LAZ whose first chunk fails to decode (one byte flipped; its last chunk, which opening it checks, is sound) is
+    one line naming the file and the points, exit 2; the run's store is removed, not offered for resuming (a rerun
+    reads the file anew)."""
+    write_scene(tmp_path / "scene.las", n=120_000, seed=9, point_format=6, extra=False)
+    laspy.read(str(tmp_path / "scene.las")).write(str(tmp_path / "good.laz"))
+    raw = bytearray((tmp_path / "good.laz").read_bytes())
+    raw[len(raw) // 10] ^= 0xFF  # in the first of its three chunks of 50,000 points
+    (tmp_path / "bad.laz").write_bytes(bytes(raw))
+    for how in (["--scheduler", "synchronous"], ["--scheduler", "processes", "--workers", "2"]):
+        r = CliRunner().invoke(main, ["normals", str(tmp_path / "bad.laz"), str(tmp_path / "out.laz"), "--on-disk", "-q", *how])
+        assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+        assert "bad.laz: corrupt or truncated point data in points 0 to " in r.output, r.output
+        assert "store" not in r.output and sorted(p.name for p in tmp_path.iterdir()) == ["bad.laz", "good.laz", "scene.las"]

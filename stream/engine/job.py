@@ -64,7 +64,7 @@ from patchcloud.stream.io.crs import UNITS, Units, units_of
 from patchcloud.stream.io.las_records import provenance_vlr
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
-from patchcloud.stream.io.las import LasSource, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source, same_file
+from patchcloud.stream.io.las import CorruptPointsError, LasSource, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
 from patchcloud.stream.io.budget import check_memory, max_memory
@@ -690,7 +690,8 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
         summary = _run(job, catalog, outs, out, url, keep, run)
     except PatchcloudStoreError:
         raise
-    except NothingToResumeError:  # the same command would fail again: nothing to resume (no points, too small tiles)
+    except (NothingToResumeError, CorruptPointsError):  # the same command would fail again, or read the file anew: nothing
+        # to resume (no points, too small tiles; point data that cannot be decoded, a good copy of the file tiled again)
         if not keep:
             Store.discard(url)
         raise

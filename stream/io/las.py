@@ -32,7 +32,7 @@ from .las_records import (
 )
 
 __all__ = [
-    "LasSource", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_directory_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
+    "LasSource", "CorruptPointsError", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_directory_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
     "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS", "content_fingerprint", "FINGERPRINT_BLOCKS", "FINGERPRINT_BLOCK", "holds",
@@ -41,6 +41,11 @@ __all__ = [
 #: What a ``except BaseException`` around lazrs lets through: lazrs' Rust panics come as pyo3's PanicException, which
 #: is not an Exception (a fuzzed LASzip VLR made ``info`` print a traceback), but these are the user's or Python's.
 INTERRUPTS = (KeyboardInterrupt, SystemExit, GeneratorExit)
+
+class CorruptPointsError(PatchcloudIOError):
+    """An input's point data that cannot be decoded (corrupt, or ending before its header's count): a run's store is
+    not kept for it, since a rerun reads the file anew (a file replaced by a good copy is tiled again anyway)."""
+
 
 #: The fields of a LAS 1.4 layered LAZ record (point formats 6 to 10) that say where a point is and whether it takes
 #: part: coordinates, return numbers and channel, classification and its flags (withheld).  What the ingest decodes.
@@ -534,14 +539,14 @@ def read_range(src: LasSource, first: int, count: int, parallel: bool = False,
             try:
                 pts = reader.read_points(count)
             except Exception as exc:
-                raise PatchcloudIOError(f"{p}: corrupt or truncated point data in points {first:,} to {first + count:,} "
+                raise CorruptPointsError(f"{p}: corrupt or truncated point data in points {first:,} to {first + count:,} "
                                         f"({exc})") from exc
     except PatchcloudIOError:
         raise
     except Exception as exc:
-        raise PatchcloudIOError(f"{p}: cannot read point data ({exc})") from exc
+        raise CorruptPointsError(f"{p}: cannot read point data ({exc})") from exc
     if len(pts) != count:
-        raise PatchcloudIOError(
+        raise CorruptPointsError(
             f"{p}: truncated: the header says {src.point_count:,} points but the data ends after {first + len(pts):,}"
         )
     return pts
@@ -639,7 +644,7 @@ def _decode_chunks(src: LasSource, plan: _ChunkPlan, first: int, count: int, par
     if count <= 0:
         return laspy.ScaleAwarePointRecord.zeros(0, point_format=pf, scales=plan.header.scales, offsets=plan.header.offsets)
     if first < 0 or first + count > int(plan.firsts[-1]):
-        raise PatchcloudIOError(f"{src.path}: truncated: the header says {src.point_count:,} points but the data ends "
+        raise CorruptPointsError(f"{src.path}: truncated: the header says {src.point_count:,} points but the data ends "
                                 f"after {int(plan.firsts[-1]):,}")
     c0 = int(np.searchsorted(plan.firsts, first, side="right")) - 1
     c1 = int(np.searchsorted(plan.firsts, first + count, side="left"))
@@ -662,7 +667,7 @@ def _decode_chunks(src: LasSource, plan: _ChunkPlan, first: int, count: int, par
     except BaseException as exc:  # (a Rust panic too: pyo3's PanicException)
         if isinstance(exc, INTERRUPTS):
             raise
-        raise PatchcloudIOError(f"{src.path}: corrupt or truncated point data in points {first:,} to {first + count:,} "
+        raise CorruptPointsError(f"{src.path}: corrupt or truncated point data in points {first:,} to {first + count:,} "
                                 f"({exc})") from None
     records = laspy.PackedPointRecord.from_buffer(out[skip * pf.size: (skip + count) * pf.size], pf)
     return laspy.ScaleAwarePointRecord(records.array, pf, plan.header.scales, plan.header.offsets)
@@ -724,9 +729,9 @@ def read_chunks(src: LasSource, chunk: int, start_chunk: int = 0) -> Iterator[tu
                 try:
                     pts = reader.read_points(want)
                 except Exception as exc:
-                    raise PatchcloudIOError(f"{p}: corrupt or truncated point data after point {done:,} ({exc})") from exc
+                    raise CorruptPointsError(f"{p}: corrupt or truncated point data after point {done:,} ({exc})") from exc
                 if len(pts) != want:
-                    raise PatchcloudIOError(
+                    raise CorruptPointsError(
                         f"{p}: truncated: the header says {src.point_count:,} points but the data ends after {done + len(pts):,}"
                     )
                 yield done, pts
