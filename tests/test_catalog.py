@@ -1,5 +1,6 @@
 """Catalogs: several files taken as one cloud give, per point, what the merged file gives; bad catalogs give one clear error."""
 
+import json
 import os
 
 import laspy
@@ -671,6 +672,9 @@ def test_empty_files_of_a_catalog_get_empty_outputs_and_change_nothing_else(cut,
     assert sorted(p.name for p in (tmp_path / "png").iterdir()) == [f"tile_{k}.png" for k in range(4)]
     r = CliRunner().invoke(main, ["info", str(tmp_path / "in" / "empty_a.las")])
     assert r.exit_code == 0 and "points       0" in r.output and "bounds       none (no points)" in r.output, r.output
+    r = CliRunner().invoke(main, ["info", str(tmp_path / "in" / "empty_a.las"), "--json"])
+    d = json.loads(r.output)
+    assert r.exit_code == 0 and d["point_count"] == 0 and d["mins"] is None and d["maxs"] is None, r.output
     (tmp_path / "none").mkdir()
     _empty(tmp_path / "none" / "a.las")
     _empty(tmp_path / "none" / "b.las")

@@ -116,8 +116,10 @@ def info(path: str | os.PathLike) -> dict:
             dims = list(r.header.point_format.dimension_names)
             extra = list(r.header.point_format.extra_dimension_names)
         classes, withheld = class_counts(src)
-        return {"kind": "las", **src.to_json(), "dimensions": dims, "extra_dimensions": extra, "crs_info": _crs_info(src.crs) if src.crs or not src.crs_error else
-                {"label": f"unreadable: its CRS record ({src.crs_error})", "horizontal_unit": None, "vertical_unit": None},
+        crs_info = _crs_info(src.crs) if src.crs or not src.crs_error else {
+            "label": f"unreadable: its CRS record ({src.crs_error})", "horizontal_unit": None, "vertical_unit": None}
+        bounds = {} if src.point_count else {"mins": None, "maxs": None}  # an empty file's header bounds bound nothing
+        return {"kind": "las", **src.to_json(), **bounds, "dimensions": dims, "extra_dimensions": extra, "crs_info": crs_info,
                 "classes": {str(c): n for c, n in classes.items()}, "withheld": withheld, "patchcloud_dimensions": patchcloud_dims(extra)}
     if Store.exists(p):
         st = Store.open(p, mode="r")
