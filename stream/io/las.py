@@ -281,12 +281,14 @@ def open_source(path: str | os.PathLike, allow_empty: bool = False) -> LasSource
         raise PatchcloudIOError(f"{p}: not a readable LAS/LAZ file ({exc})") from exc
     if src.point_count == 0 and not allow_empty:
         raise PatchcloudIOError(f"{p}: the file holds no points")
-    if compressed and src.point_count:  # (a LAZ of no points may end with its header: PDAL and laspy read it so)
+    if compressed and (src.point_count or st.st_size > start + 8):  # (a LAZ of no points may end with its header, or
+        # its chunk table's offset: PDAL and laspy read it so; one that holds chunks is checked as any)
         held = laz_point_range(p, start, record, src.point_format)
         if held is not None and not held[0] <= src.point_count <= held[1]:
             what = f"{held[0]:,}" if held[0] == held[1] else f"{held[0]:,} to {held[1]:,} (its chunks of fixed size)"
             raise PatchcloudIOError(f"{p}: the header says {src.point_count:,} points but the LAZ chunk table holds {what}")
-        check_last_chunk(src)
+        if src.point_count:
+            check_last_chunk(src)
     if not compressed:
         end = start + src.point_count * record
         if st.st_size < end:
