@@ -704,3 +704,19 @@ def test_a_crs_record_that_cannot_be_read_is_said_not_taken_for_none(cut, tmp_pa
     assert r.exit_code == 2 and "b.las: its CRS record cannot be read (CRSError" in r.stderr and "a.las has one" in r.stderr
     normals(tmp_path / "in", out_dir=str(tmp_path / "out"), assume_crs="EPSG:2154", quiet=True)
     assert laspy.read(str(tmp_path / "out" / "b.las")).header.parse_crs().to_epsg() == 2154
+
+
+def test_a_laz_that_says_no_points_but_holds_chunks_is_refused(cut, tmp_path):
+    """Empty files are taken in a catalog, but a LAZ whose header counts 0 points over chunks of points is damaged: one
+    error naming what its chunk table holds (taken as empty, its points would be lost without a word)."""
+    d, _ = cut
+    laspy.read(str(d / "in" / "tile_0.las")).write(str(tmp_path / "z.laz"))
+    raw = bytearray((tmp_path / "z.laz").read_bytes())
+    n = laspy.open(str(tmp_path / "z.laz")).header.point_count
+    raw[107:111] = bytes(4)  # the legacy count
+    raw[247:255] = bytes(8)  # LAS 1.4's count
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "z.laz").write_bytes(bytes(raw))
+    (tmp_path / "in" / "tile_1.las").write_bytes((d / "in" / "tile_1.las").read_bytes())
+    with pytest.raises(PatchcloudIOError, match=rf"z.laz: the header says 0 points but the LAZ chunk table holds {n:,}"):
+        open_catalog(tmp_path / "in")
