@@ -167,6 +167,7 @@ def test_ctrl_c_while_the_worker_processes_start_is_one_line(tmp_path):
         assert p.returncode == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted"), (delay, err[-3000:])
 
 
+@pytest.mark.slow  # 15-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_a_run_started_ignoring_ctrl_c_still_ignores_it(tmp_path):
     """A run started with SIGINT ignored (``patchcloud ... &`` in a script, which a Ctrl-C meant for the script must not
     stop) keeps ignoring it: the console script's handler is not put over that (it was, for a day)."""

@@ -103,6 +103,7 @@ def test_a_run_with_tiles_in_pieces_writes_the_same_bytes(tmp_path, monkeypatch,
     assert (las.NormalMethod != 0).all()
 
 
+@pytest.mark.slow  # 15-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_a_store_finished_in_pieces_then_whole_then_in_pieces_reads_the_last(tmp_path, monkeypatch):
     # one kept store, the finish step redone each time (always_up asked, then not): in pieces, whole, in pieces
     src = tmp_path / "scene.las"
@@ -127,6 +128,7 @@ def _cut_for_20_workers(monkeypatch):
     monkeypatch.setattr(normals_job, "pieces_for", lambda counts, slots, min_points=None: real(counts, 20, min_points=2_000))
 
 
+@pytest.mark.slow  # 15-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_pieces_left_by_a_killed_run_are_not_taken_for_those_of_other_parameters(tmp_path, monkeypatch):
     # killed once the pieces are written (before the tile is recorded), then run with always_up, then without again:
     # the third run may reuse the first run's pieces, never the second's
@@ -152,6 +154,7 @@ def test_pieces_left_by_a_killed_run_are_not_taken_for_those_of_other_parameters
     assert (tmp_path / "a3.las").read_bytes() == (tmp_path / "fresh_False.las").read_bytes()
 
 
+@pytest.mark.slow  # 15-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_recording_the_pieces_keeps_what_the_tasks_recorded_of_the_fit(tmp_path, monkeypatch):
     # a kept store run again with another fit parameter: the client records the tiles in pieces after the workers
     # recorded their new fit; the fit's record and its counts must survive

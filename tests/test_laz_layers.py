@@ -235,6 +235,7 @@ def test_routes_are_recorded_where_an_output_can_copy_the_chunks_only():
     assert not routes_pay(open_catalog([shared_file("lidar-lastools/fusa.laz")]).sources[0])  # format 1: point-wise LAZ
 
 
+@pytest.mark.slow  # 15-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_segment_numbers_its_clusters_from_the_routes_and_writes_the_bytes_of_a_run_that_decodes(channels_laz, tmp_path,
                                                                                                   monkeypatch):
     from patchcloud.stream import segment
