@@ -67,7 +67,7 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
     from patchcloud.stream.io.catalog import check_out_dir, expand_inputs, output_paths
     from patchcloud.stream.io.las import check_not_input, open_source
     from patchcloud.stream.views.plots import check_png_path
-    from patchcloud.stream.views.render import check_modes, input_sources, render
+    from patchcloud.stream.views.render import check_modes, render
 
     from patchcloud.stream.views.layout import MIN_WIDTH
     from patchcloud.stream.views.render import MAX_WIDTH
@@ -83,14 +83,14 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
         inputs = expand_inputs(list(paths))
         directory = check_out_dir(out_dir)
         jobs = list(zip(inputs, output_paths(inputs, directory, list(paths), suffix=".png")))
-        empty = [input for input in inputs if open_source(input, allow_empty=True).point_count == 0]
+        opened = {input: open_source(input, allow_empty=True) for input in inputs}  # each file is drawn alone
+        empty = [input for input in inputs if opened[input].point_count == 0]
         if len(empty) == len(inputs):
             raise PatchcloudIOError(f"{empty[0]}: the file holds no points" + (", nor do the others" if len(empty) > 1 else ""))
         jobs = [(input, output) for input, output in jobs if input not in empty]  # nothing to draw: said below, no picture
         for input, output in jobs:
-            sources = input_sources(input, assume_crs)[0]
-            check_modes(sources, [color], shade)
-            check_not_input(output, [s.path for s in sources])
+            check_modes([opened[input]], [color], shade)
+            check_not_input(output, [opened[input].path])
             if directory.exists():
                 check_png_path(output)  # an existing file there that is not a PNG: refused before the first is drawn
         directory.mkdir(exist_ok=True)

@@ -149,8 +149,9 @@ class RunOptions:
     assume_crs : str, optional
         The CRS of the files that have none (``"EPSG:2154"``, WKT: what
         pyproj takes), which gives their unit and is written into their
-        outputs; a file with another CRS is an error.  Without it a file without a CRS among files with one is
-        an error (one file alone is taken in metres, or ``units``).
+        outputs; a file with another CRS is an error.  Without it a file
+        without a CRS among files with one is an error (one file alone is
+        taken in metres, or ``units``).
     classes : tuple of int or str, optional
         Which points take part (:mod:`patchcloud.stream.io.classes`): only
         those of these ASPRS classes ("2,6" or ``(2, 6)``) are computed and

@@ -42,6 +42,7 @@ __all__ = [
 #: is not an Exception (a fuzzed LASzip VLR made ``info`` print a traceback), but these are the user's or Python's.
 INTERRUPTS = (KeyboardInterrupt, SystemExit, GeneratorExit)
 
+
 class CorruptPointsError(PatchcloudIOError):
     """An input's point data that cannot be decoded (corrupt, or ending before its header's count): a run's store is
     not kept for it, since a rerun reads the file anew (a file replaced by a good copy is tiled again anyway)."""
@@ -797,10 +798,7 @@ def output_header(src: LasSource, dims, provenance: laspy.VLR | None = None, crs
     with laspy.open(src.path) as reader:
         header = reader.header
     vlrs, evlrs = file_records(src.path)
-    if src.crs is None and crs is not None:
-        vlrs, evlrs = [r for r in vlrs if not is_crs_record(r)], [r for r in evlrs if not is_crs_record(r)]
-        return with_crs(assemble_header(header, vlrs, evlrs, dims, provenance, where=src.path), crs)
-    return assemble_header(header, vlrs, evlrs, dims, provenance, where=src.path)
+    return assemble_header(header, vlrs, evlrs, dims, provenance, where=src.path, crs=crs if src.crs is None else None)
 
 
 def holds(existing, new) -> bool:
@@ -820,7 +818,7 @@ def holds(existing, new) -> bool:
 
 
 def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[RawRecord], dims, provenance: laspy.VLR | None = None,
-                    where: str = "") -> laspy.LasHeader:
+                    where: str = "", crs: str | None = None) -> laspy.LasHeader:
     """``header`` (laspy's parse of an input, changed in place and returned) made the header of an output.
 
     - version :data:`OUTPUT_VERSION`, the same point format;
@@ -832,8 +830,13 @@ def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[
       input's descriptors first, each as its bytes (their min and max set
       to the output's points when they declare them), then those of
       ``dims``, each with its no-data value (the options' no-data bit set);
-    - generating software: ``patchcloud VERSION``; ``provenance`` appended.
+    - generating software: ``patchcloud VERSION``; ``provenance`` appended;
+    - ``crs`` (WKT or anything pyproj takes), where given: written in place
+      of the input's CRS records (:func:`~patchcloud.stream.io.crs.with_crs`;
+      the CRS ``--assume-crs`` gives an input without one).
     """
+    if crs is not None:  # (an input's unreadable CRS records among them)
+        vlrs, evlrs = [r for r in vlrs if not is_crs_record(r)], [r for r in evlrs if not is_crs_record(r)]
     header.version = laspy.header.Version.from_str(OUTPUT_VERSION)
     existing = {d.name: d for d in header.point_format.dimensions}
     new = []
@@ -865,7 +868,7 @@ def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[
     header.evlrs = laspy.vlrs.vlrlist.VLRList([as_vlr(r) for r in evlrs if kept(r)])
     header.system_identifier = ascii_text(header.system_identifier)
     header.generating_software = f"patchcloud {software_version()}"
-    return header
+    return header if crs is None else with_crs(header, crs)
 
 
 #: The name and description laspy gives the bytes of a record that no extra-bytes VLR entry describes.

@@ -25,7 +25,6 @@ from patchcloud.core import MASK_SIDE, PatchcloudIOError, PatchcloudValueError, 
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.store import tile_name
-from patchcloud.stream.io.crs import is_crs_record, with_crs
 from patchcloud.stream.io.las import assemble_header, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, wave_packets_break_laz
 from patchcloud.stream.io.las_output import copy_records, legacy_counts, point_stats, restate
 from patchcloud.stream.io.las_records import parse_records, provenance_vlr
@@ -125,14 +124,13 @@ def _output_header(f, input, dims, parameters: dict) -> tuple[laspy.LasHeader, n
     evlrs = parse_records(f.evlr_bytes(n_evlrs), 0, n_evlrs, True, f"{input}: the input's EVLRs")
     kept = header.point_format.dtype()
     assumed = f.attrs["source"].get("assumed_crs")
-    if isinstance(assumed, str):
-        vlrs, evlrs = [r for r in vlrs if not is_crs_record(r)], [r for r in evlrs if not is_crs_record(r)]
-    assemble_header(header, vlrs, evlrs, dims, provenance_vlr("decompress", parameters), where=str(input))
-    if isinstance(assumed, str):
-        try:
-            with_crs(header, assumed)
-        except Exception as exc:  # pyproj refuses the recorded text: a damaged file
-            raise PatchcloudIOError(f"{input}: damaged .pcz file (its assumed CRS is not a CRS: {exc})") from exc
+    from pyproj.exceptions import CRSError
+
+    try:
+        assemble_header(header, vlrs, evlrs, dims, provenance_vlr("decompress", parameters), where=str(input),
+                        crs=assumed if isinstance(assumed, str) else None)
+    except CRSError as exc:  # pyproj refuses the recorded text: a damaged file
+        raise PatchcloudIOError(f"{input}: damaged .pcz file (its assumed CRS is not a CRS: {exc})") from exc
     return header, kept
 
 

@@ -116,10 +116,9 @@ def info(path: str | os.PathLike) -> dict:
             dims = list(r.header.point_format.dimension_names)
             extra = list(r.header.point_format.extra_dimension_names)
         classes, withheld = class_counts(src)
-        crs_info = _crs_info(src.crs) if src.crs or not src.crs_error else {
-            "label": f"unreadable: its CRS record ({src.crs_error})", "horizontal_unit": None, "vertical_unit": None}
         bounds = {} if src.point_count else {"mins": None, "maxs": None}  # an empty file's header bounds bound nothing
-        return {"kind": "las", **src.to_json(), **bounds, "dimensions": dims, "extra_dimensions": extra, "crs_info": crs_info,
+        return {"kind": "las", **src.to_json(), **bounds, "dimensions": dims, "extra_dimensions": extra,
+                "crs_info": _crs_info(src.crs, src.crs_error),
                 "classes": {str(c): n for c, n in classes.items()}, "withheld": withheld, "patchcloud_dimensions": patchcloud_dims(extra)}
     if Store.exists(p):
         st = Store.open(p, mode="r")
@@ -162,10 +161,12 @@ def _starts_as_zip(path: str) -> bool:
         return f.read(4) == b"PK\x03\x04"
 
 
-def _crs_info(wkt: str | None) -> dict | None:
-    """:func:`patchcloud.stream.io.crs.crs_description` of a CRS (None for none; a CRS pyproj cannot read: its error)."""
+def _crs_info(wkt: str | None, error: str | None = None) -> dict | None:
+    """:func:`patchcloud.stream.io.crs.crs_description` of a CRS (None for none; a CRS pyproj cannot read: its error;
+    ``error``: why the file's CRS record could not be read, where it has one but ``wkt`` is None)."""
     if wkt is None:
-        return None
+        return None if error is None else {"label": f"unreadable: its CRS record ({error})", "horizontal_unit": None,
+                                           "vertical_unit": None}
     try:
         return crs_description(wkt)
     except Exception as exc:  # a CRS pyproj does not read: say so, the file is still described
