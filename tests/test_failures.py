@@ -125,8 +125,9 @@ def test_sigterm_stops_the_console_script_as_ctrl_c_does(tmp_path):
 
 @pytest.mark.slow
 def test_ctrl_c_while_the_worker_processes_start_is_one_line(tmp_path):
-    """SIGINT to the whole process group while the local cluster's worker processes are still starting (importing,
-    before their set-up ignores it): they inherit SIGINT blocked, so they print nothing; the run prints one line."""
+    """SIGINT to the whole process group while the local cluster's worker processes are still starting (the fork server
+    importing what they need, the workers before their set-up ignores it): they inherit SIGINT blocked, so they print
+    nothing; the run prints one line."""
     import os
     import signal
     import subprocess
@@ -139,17 +140,17 @@ def test_ctrl_c_while_the_worker_processes_start_is_one_line(tmp_path):
     cmd = [sys.executable, "-c", "from patchcloud.stream.cli import run; run()", "normals", str(src), str(out),
            "--scheduler", "processes", "--workers", "2", "-q"]
 
-    def worker_processes(pid):  # the children of the run spawned by multiprocessing (the workers, its resource tracker)
-        found = []
+    def worker_processes(pid):  # the run's children that start its workers: the fork server (which imports what they
+        found = []  # need, then forks them), or spawned workers
         for d in os.listdir("/proc"):
             try:
                 with open(f"/proc/{d}/stat") as f:
                     ppid = int(f.read().rsplit(")", 1)[1].split()[1])
                 with open(f"/proc/{d}/cmdline", "rb") as f:
-                    spawned = b"spawn_main" in f.read()
+                    line = f.read()
             except (OSError, ValueError, IndexError):
                 continue
-            if ppid == pid and spawned:
+            if ppid == pid and (b"spawn_main" in line or b"forkserver" in line):
                 found.append(int(d))
         return found
 

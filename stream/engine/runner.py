@@ -8,6 +8,7 @@ those calls.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -24,6 +25,7 @@ from typing import Any
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, single_threaded
 
 from patchcloud.stream.engine.compiling import CompileClock
+from patchcloud.stream.engine.forkserver import forked_workers
 from patchcloud.stream.engine.progress import Progress
 
 __all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "ADDRESS_SCHEMES", "resolve_scheduler", "check_scheduler", "scheduler_from_file"]
@@ -213,10 +215,12 @@ class Runner:
                 signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
             from dask.distributed import Client, LocalCluster
 
-            self.cluster = LocalCluster(  # workers log nothing but critical: a task's error reaches the user as one line
-                processes=processes, n_workers=n if processes else 1, threads_per_worker=1 if processes else n, dashboard_address=":0",
-                silence_logs=logging.CRITICAL, **({"preload": ["patchcloud.stream.engine.worker_setup"]} if processes else {}),
-            )
+            with forked_workers() if processes else contextlib.nullcontext():  # the worker processes forked, not spawned
+                self.cluster = LocalCluster(  # workers log nothing but critical: a task's error reaches the user as one line
+                    processes=processes, n_workers=n if processes else 1, threads_per_worker=1 if processes else n,
+                    dashboard_address=":0", silence_logs=logging.CRITICAL,
+                    **({"preload": ["patchcloud.stream.engine.worker_setup"]} if processes else {}),
+                )
             self._client = Client(self.cluster)
             self.ready_at = time.time()
         except BaseException as exc:  # handed to the first caller of .client

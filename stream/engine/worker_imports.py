@@ -1,0 +1,41 @@
+"""Imported once by the fork server of a local cluster, so that every worker process forked from it has it already.
+
+A local cluster's worker processes were started with ``spawn``: each a new
+interpreter that imported dask.distributed, numpy, numba, zarr, laspy and
+patchcloud's task modules itself, 1.5-2 s of CPU each.  On 16 cores the
+16 workers did it all at once, and their start took 3.3 s of a 13.5 s run
+of a 20M-point LAZ (the tools/results/bench_scale_16core-*.txt runs).
+With the ``forkserver`` method (:func:`patchcloud.stream.engine.forkserver.forked_workers`)
+one server process imports this module, then forks each worker from
+itself: the imports are done once, and each worker starts in a few
+milliseconds.
+
+The server does here what the console script and
+:mod:`~patchcloud.stream.engine.worker_setup` do before their imports
+(numba's BLAS probe and laspy's HTTP support skipped, numba's cache loaded
+lightly), so the forked workers are the processes they would have been.
+Nothing here starts a thread: a process is forked from the server.
+"""
+
+from __future__ import annotations
+
+from patchcloud.stream.engine.laspy_start import skip_laspy_http
+from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
+
+skip_numba_blas_probe()
+load_cached_kernels_lightly()
+skip_laspy_http()
+
+import distributed.nanny  # noqa: E402,F401  what a worker process runs
+import distributed.worker  # noqa: E402,F401
+import lazrs  # noqa: E402,F401
+import numba  # noqa: E402,F401
+import zarr  # noqa: E402,F401
+
+import patchcloud.stream.engine.worker_setup  # noqa: E402,F401  the workers' preload
+import patchcloud.stream.jobs.compress  # noqa: E402,F401  the jobs, whose task modules (and kernels) they import
+import patchcloud.stream.jobs.don  # noqa: E402,F401
+import patchcloud.stream.jobs.normals  # noqa: E402,F401
+import patchcloud.stream.jobs.segment  # noqa: E402,F401
+
+__all__: list[str] = []
