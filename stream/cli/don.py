@@ -35,6 +35,7 @@ def don_command(paths, r_small, r_large, mode, viewpoint, report, **run):
     Example:
       patchcloud don street.laz street_don.laz --rs 0.2 --rl 2.0 --report street_don.html
     """
+    options.start_workers_early(paths, run, "patchcloud.stream.jobs.don")  # before the job's imports
     from patchcloud.stream import don
 
     run = options.run_options(run)

@@ -59,6 +59,7 @@ def normals_command(paths, criterion, threshold, orient, always_up, k_fallback, 
       patchcloud normals city.laz city_normals.laz --report city_normals.html
       patchcloud normals tiles/ --out-dir tiles_normals/
     """
+    options.start_workers_early(paths, run, "patchcloud.stream.jobs.normals")  # before the job's imports
     from patchcloud.stream import normals
 
     if viewpoint:  # PDAL's meaning: a viewpoint given orients the normals towards it

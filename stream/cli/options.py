@@ -331,6 +331,37 @@ def finish_job(summary, quiet: bool, report: str | None, write_report: str) -> N
             click.echo(f"  report          {report}")
 
 
+def start_workers_early(paths: tuple[str, ...], values: dict, job: str) -> None:
+    """Start the fork server of the run's local worker processes now, while this process imports the job (0.6 s), when
+    the run will start them (:func:`patchcloud.stream.engine.placement.starts_local_processes`: the options ``values``
+    of :func:`job_options` and the inputs' point counts, read from their headers); it imports the job's module ``job``
+    too (e.g. ``"patchcloud.stream.jobs.normals"``).  Anything wrong with the inputs or
+    options is left to the job to report: then nothing is started here."""
+    from patchcloud.stream.engine.placement import starts_local_processes
+
+    scheduler = values.get("scheduler") or "auto"
+    if values.get("scheduler_file") or scheduler not in ("auto", "processes"):
+        return
+    points = None
+    if scheduler == "auto":
+        import laspy
+
+        from patchcloud.stream.io.catalog import expand_inputs
+
+        try:
+            points = 0
+            for path in expand_inputs(list(paths if values.get("out_dir") else paths[:1])):
+                with laspy.open(path) as f:
+                    points += int(f.header.point_count)
+        except Exception:  # the job says what is wrong with its inputs
+            return
+    if starts_local_processes(points, scheduler, values.get("workers"), values.get("store"), values.get("keep_store") or None,
+                              values.get("in_memory")):
+        from patchcloud.stream.engine.forkserver import start_server
+
+        start_server([job])
+
+
 def run_options(values: dict):
     """The :class:`patchcloud.stream.RunOptions` of the options :func:`job_options` (and :func:`catalog_options`) add,
     ``values`` by their names (a command's ``**run``; ``--keep-store`` absent: the default rule)."""

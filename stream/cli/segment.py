@@ -45,6 +45,7 @@ def segment_command(
     Example:
       patchcloud segment street.laz segments.laz --rs 0.2 --rl 2.0 --threshold 0.25 --tolerance 0.2 --min-points 50
     """
+    options.start_workers_early(paths, run, "patchcloud.stream.jobs.segment")  # before the job's imports
     from patchcloud.stream import segment
 
     run = options.run_options(run)

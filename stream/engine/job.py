@@ -58,6 +58,8 @@ from patchcloud.stream.engine.background import stops_what_it_starts
 from patchcloud.stream.engine.compiling import CompileClock, announce_on_stderr, compiling_line, merge_intervals, seconds_within
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
 from patchcloud.stream.engine.ingest import NothingToResumeError, check_tile_size, ensure_tiled
+from patchcloud.stream.engine.placement import (FEW_CORES, IN_MEMORY_BASE, IN_MEMORY_POINT_BYTES, IN_MEMORY_POINTS,
+                                                IN_MEMORY_POINTS_FEW_CORES, in_memory_by_default, in_memory_points)
 from patchcloud.stream.engine.runner import Runner, check_scheduler
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.crs import UNITS, Units, units_of
@@ -67,7 +69,7 @@ from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, 
 from patchcloud.stream.io.las import CorruptPointsError, LasSource, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
-from patchcloud.stream.io.budget import check_memory, max_memory
+from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store_dir, removing_path
 
@@ -75,32 +77,6 @@ __all__ = [
     "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "default_store_path", "write_profile",
     "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines",
 ]
-
-#: Inputs of at most this many points run in memory by default (:attr:`RunOptions.in_memory`): measured peak 0.97 GiB
-#: (city LAZ, 2-core machine, two tiles at a time; 1.05 GiB at 4M points, 2.02 GiB at 10M:
-#: tools/results/bench_small_modes-2026-11-26.txt).
-IN_MEMORY_POINTS = 2_000_000
-#: The same on a machine of at most :data:`FEW_CORES` cores: there worker processes do not win (2 cores, city LAZ,
-#: tools/results/bench_small_modes-2026-11-26.txt: in memory 6.29 s against 10.18 s on disk at 4M points, 13.43 s
-#: against 20.05 s at 10M, peak 2.02 GiB).
-IN_MEMORY_POINTS_FEW_CORES = 10_000_000
-FEW_CORES = 2
-
-
-def in_memory_points(cores: int | None = None) -> int:
-    """The largest input (points) that runs in memory by default on a machine of ``cores`` cores (default: this one's).
-
-    >>> in_memory_points(2), in_memory_points(16)
-    (10000000, 2000000)
-    """
-    cores = (os.cpu_count() or 1) if cores is None else int(cores)
-    return IN_MEMORY_POINTS_FEW_CORES if cores <= FEW_CORES else IN_MEMORY_POINTS
-#: Peak memory of a run in memory: at most this much, plus :data:`IN_MEMORY_POINT_BYTES` per point (measured on the city,
-#: 2M to 10M points, a step's tiles two at a time: 0.97, 1.14 and 2.01 GiB; the line 0.73 GiB + 140 B per point lies
-#: above each).
-IN_MEMORY_BASE = 750 << 20
-IN_MEMORY_POINT_BYTES = 140
-
 
 @dataclass(frozen=True)
 class RunOptions:
@@ -234,13 +210,12 @@ class RunOptions:
         >>> RunOptions().runs_in_memory(60_000), RunOptions().runs_in_memory(10**8), RunOptions(scheduler="threads").runs_in_memory(60_000)
         (True, False, False)
         """
-        need = IN_MEMORY_BASE + IN_MEMORY_POINT_BYTES * int(points)
         if self.in_memory:
-            check_memory(need, f"a run in memory of {int(points):,} points", "--on-disk runs in bounded memory")
+            check_memory(IN_MEMORY_BASE + IN_MEMORY_POINT_BYTES * int(points), f"a run in memory of {int(points):,} points",
+                         "--on-disk runs in bounded memory")
         if self.in_memory is not None:
             return self.in_memory
-        return (points <= in_memory_points() and self.store is None and not self.keep_store and self.scheduler == "auto"
-                and self.workers is None and need <= max_memory())
+        return in_memory_by_default(points, self.scheduler, self.workers, self.store, self.keep_store)
 
 
 def split_options(kwargs: dict, options, kind: type, run: RunOptions | None) -> tuple[Any, RunOptions]:

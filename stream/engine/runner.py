@@ -26,6 +26,7 @@ from patchcloud.core import PatchcloudIOError, PatchcloudValueError, single_thre
 
 from patchcloud.stream.engine.compiling import CompileClock
 from patchcloud.stream.engine.forkserver import forked_workers
+from patchcloud.stream.engine.placement import AUTO_PROCESSES_POINTS, resolve_scheduler
 from patchcloud.stream.engine.progress import Progress
 
 __all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "ADDRESS_SCHEMES", "resolve_scheduler", "check_scheduler", "scheduler_from_file"]
@@ -78,9 +79,6 @@ def scheduler_from_file(path) -> str:
         raise PatchcloudIOError(f"{path}: not a dask scheduler file with an address ({type(exc).__name__}: {exc})") from None
     return check_scheduler(address)
 
-#: From this many points on, "auto" runs worker processes (below, threads: no processes to start).
-AUTO_PROCESSES_POINTS = 2_000_000
-
 
 def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> tuple[Any, tuple[float, float, str], list]:
     """Run ``func`` with numba limited to ``numba_threads`` threads (the tasks themselves run in parallel).
@@ -106,22 +104,6 @@ def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> tupl
 
 def _peak_rss_bytes() -> int:
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
-
-
-def resolve_scheduler(scheduler: str, points: int | None) -> str:
-    """The scheduler "auto" stands for with a file of ``points`` points; any other name as it is.
-
-    lazrs holds the GIL for a whole call and zarr and numpy parts of a task
-    hold it too, so on files of millions of points worker processes scale
-    where threads do not (measured in the README); below
-    :data:`AUTO_PROCESSES_POINTS`, starting processes costs more than it gains.
-
-    >>> resolve_scheduler("auto", 10_000_000), resolve_scheduler("auto", 60_000), resolve_scheduler("threads", 10**9)
-    ('processes', 'threads', 'threads')
-    """
-    if scheduler != "auto":
-        return scheduler
-    return "processes" if points is not None and points >= AUTO_PROCESSES_POINTS else "threads"
 
 
 class Runner:

@@ -14,7 +14,11 @@ The server does here what the console script and
 :mod:`~patchcloud.stream.engine.worker_setup` do before their imports
 (numba's BLAS probe and laspy's HTTP support skipped, numba's cache loaded
 lightly), so the forked workers are the processes they would have been.
-Nothing here starts a thread: a process is forked from the server.
+Nothing here starts a thread: a process is forked from the server.  The
+job's own modules (``patchcloud.stream.jobs.normals``, ...) are named by
+the console script, which knows the job
+(:func:`patchcloud.stream.engine.forkserver.start_server`); otherwise each
+worker imports them at its first task (0.1 s).
 """
 
 from __future__ import annotations
@@ -32,10 +36,10 @@ import lazrs  # noqa: E402,F401
 import numba  # noqa: E402,F401
 import zarr  # noqa: E402,F401
 
+import patchcloud.stream.engine.export  # noqa: E402,F401  the engine's tasks (and the kernels they use)
+import patchcloud.stream.engine.ingest  # noqa: E402,F401
+import patchcloud.stream.engine.job  # noqa: E402,F401
+import patchcloud.stream.engine.tasks  # noqa: E402,F401
 import patchcloud.stream.engine.worker_setup  # noqa: E402,F401  the workers' preload
-import patchcloud.stream.jobs.compress  # noqa: E402,F401  the jobs, whose task modules (and kernels) they import
-import patchcloud.stream.jobs.don  # noqa: E402,F401
-import patchcloud.stream.jobs.normals  # noqa: E402,F401
-import patchcloud.stream.jobs.segment  # noqa: E402,F401
 
 __all__: list[str] = []

@@ -1,0 +1,61 @@
+"""Local worker processes forked from one fork server (stream/engine/forkserver.py), started early by the console script
+when the run will start them (stream/cli/options.py: start_workers_early; stream/engine/placement.py)."""
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from patchcloud.stream.cli import options
+from patchcloud.stream.engine import forkserver
+from patchcloud.stream.engine.placement import starts_local_processes
+
+JOB = "patchcloud.stream.jobs.normals"
+SAMPLE = str(Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz")
+
+
+def test_workers_are_forked_from_one_server_that_imported_what_they_need():
+    code = textwrap.dedent("""
+        import os, sys
+        from patchcloud.stream.engine.runner import Runner
+        if __name__ == "__main__":
+            with Runner("processes", 2, quiet=True) as r:
+                ppid = r.client.run(os.getppid)
+                had = r.client.run(lambda: sorted(m for m in ("numba", "zarr", "laspy", "patchcloud.stream.engine.ingest") if m in sys.modules))
+                print(len(ppid), len(set(ppid.values())), os.getpid() in ppid.values(), sorted(set(map(tuple, had.values()))))
+    """)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    # two workers, one parent (the server), not this process; each has the modules the server imported
+    assert run.stdout.strip() == "2 1 False [('laspy', 'numba', 'patchcloud.stream.engine.ingest', 'zarr')]", run.stdout
+
+
+def test_placement_starts_processes_exactly_when_the_runner_would():
+    assert starts_local_processes(None, "processes")
+    assert starts_local_processes(50_000_000, "auto") and starts_local_processes(3_000_000, "auto", workers=4)
+    assert not starts_local_processes(1_000_000, "auto", workers=4)  # threads below 2 million points
+    assert not starts_local_processes(60_000, "auto")  # in memory
+    assert not starts_local_processes(50_000_000, "threads") and not starts_local_processes(50_000_000, "synchronous")
+    assert not starts_local_processes(50_000_000, "tcp://127.0.0.1:8786")
+    assert not starts_local_processes(50_000_000, "auto", in_memory=True)
+
+
+@pytest.fixture
+def started(monkeypatch):
+    calls = []
+    monkeypatch.setattr(forkserver, "start_server", lambda modules: calls.append(list(modules)) or True)
+    return calls
+
+
+def test_the_console_script_starts_the_server_only_for_runs_on_local_processes(started, tmp_path):
+    out = str(tmp_path / "o.las")
+    options.start_workers_early((SAMPLE, out), {"scheduler": "auto"}, JOB)  # 60,000 points: in memory
+    options.start_workers_early((SAMPLE, out), {"scheduler": "threads", "workers": 2}, JOB)
+    options.start_workers_early((SAMPLE, out), {"scheduler": "tcp://127.0.0.1:8786"}, JOB)
+    options.start_workers_early((str(tmp_path / "absent.las"), out), {"scheduler": "auto", "workers": 2}, JOB)  # the job says it
+    assert started == []
+    options.start_workers_early((SAMPLE, out), {"scheduler": "processes"}, JOB)
+    options.start_workers_early((SAMPLE, out), {"scheduler": "auto", "in_memory": False}, JOB)  # threads below 2M points
+    assert started == [[JOB]]
