@@ -2,7 +2,7 @@
 
     python tools/bench_scale.py [--laz-points 10000000] [--las-points 30000000] [--workers 1 2]
                                 [--repeats 1] [--scheduler processes] [--tile-size METRES] [--workdir DIR]
-                                [--out tools/results/bench_scale-DATE.txt]
+                                [--out tools/results/bench_scale-DATE.txt] [--keep-profiles DIR]
 
 For each file (a synthetic city, ``tools/city_las.py`` seed 0: a LAZ of
 ``--laz-points`` and a LAS of ``--las-points``; 0 skips one) and each
@@ -39,6 +39,7 @@ import multiprocessing as mp
 import os
 import platform
 import resource
+import shutil
 import subprocess
 import sys
 import threading
@@ -244,6 +245,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tile-size", type=float, default=None, help="passed to patchcloud normals (default: its own)")
     ap.add_argument("--workdir", default="/tmp/bench_scale")
     ap.add_argument("--out", default=None, help="also write the table there")
+    ap.add_argument("--keep-profiles", default=None, metavar="DIR",
+                    help="keep each run's task stream there, as profile-FILE-wW.json (tools/task_stream.py reads them)")
     a = ap.parse_args(argv)
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
@@ -283,6 +286,9 @@ def main(argv=None) -> int:
                                                     "--scheduler", a.scheduler, "--profile", str(prof)]
                                                   + (["--tile-size", f"{a.tile_size:g}"] if a.tile_size else []))
                 runs.append((wall, peak, cpu, json.loads(prof.read_text()), floor))
+                if a.keep_profiles:
+                    Path(a.keep_profiles).mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(prof, Path(a.keep_profiles) / f"profile-{path.stem}-w{w}.json")
             runs.sort(key=lambda r: r[0])
             wall, peak, cpu, profile, floor = runs[(len(runs) - 1) // 2]  # the median run (the lower one of an even count)
             spread = f"{runs[0][0]:.1f}-{runs[-1][0]:.1f}"
