@@ -14,11 +14,14 @@ worker count, it runs ``patchcloud normals IN OUT --workers W --scheduler S
 - the I/O floor measured in the same run: W processes each reading its
   share of the file with laspy (lazrs' sequential codec) and writing it
   back as the same format; the job's time as a multiple of it;
-- peak memory: the sum of the resident sizes of the job's processes (the
-  command and every worker it starts), sampled together every 0.1 s;
+- peak memory: the sum of the proportional set sizes of the job's
+  processes (the command, the workers' fork server and every worker),
+  sampled together every 0.1 s (a page k processes share counts 1/k in
+  each: the workers share the fork server's);
 - CPU time in user and system mode and minor page faults, summed over the
-  job's processes (``getrusage(RUSAGE_CHILDREN)`` around the run: the
-  command waits for its workers, so theirs are counted);
+  command and its workers, as the run's ``--profile`` records them (the
+  fork server's own, about a second of imports, is not counted); before
+  the profile recorded them, ``getrusage(RUSAGE_CHILDREN)`` around the run;
 - from the task stream (``--profile``): ``idle`` the share of the wall
   time during which fewer tasks run than there are workers (start-up and
   the client's own work included), ``client`` the share during which no
@@ -54,20 +57,16 @@ HERE = Path(__file__).resolve().parent
 
 
 def _tree_rss(root: int) -> int:
-    """Resident bytes of ``root`` and all its descendants (from /proc)."""
-    parent, rss = {}, {}
+    """Memory of ``root`` and all its descendants (from /proc): their proportional set sizes summed (a page shared by
+    k processes counts 1/k in each: the worker processes forked from one server share its pages), or their resident
+    sizes where /proc has no ``smaps_rollup``."""
+    parent = {}
     for d in os.listdir("/proc"):
         if not d.isdigit():
             continue
         try:
             with open(f"/proc/{d}/stat") as f:
-                parts = f.read().rsplit(")", 1)[1].split()
-            parent[int(d)] = int(parts[1])
-            with open(f"/proc/{d}/status") as f:
-                for line in f:
-                    if line.startswith("VmRSS:"):
-                        rss[int(d)] = int(line.split()[1]) * 1024
-                        break
+                parent[int(d)] = int(f.read().rsplit(")", 1)[1].split()[1])
         except (OSError, IndexError, ValueError):
             continue
     keep = {root}
@@ -78,7 +77,20 @@ def _tree_rss(root: int) -> int:
             if pp in keep and pid not in keep:
                 keep.add(pid)
                 changed = True
-    return sum(rss.get(p, 0) for p in keep)
+    return sum(_memory(p) for p in keep)
+
+
+def _memory(pid: int) -> int:
+    """Proportional set size of ``pid`` (bytes), else its resident size, else 0 (a process gone)."""
+    for path, key in ((f"/proc/{pid}/smaps_rollup", "Pss:"), (f"/proc/{pid}/status", "VmRSS:")):
+        try:
+            with open(path) as f:
+                for line in f:
+                    if line.startswith(key):
+                        return int(line.split()[1]) * 1024
+        except OSError:
+            continue
+    return 0
 
 
 def run_measured(cmd: list[str]) -> tuple[float, int, str, dict]:
@@ -285,7 +297,10 @@ def main(argv=None) -> int:
                 wall, peak, _, cpu = run_measured(exe + ["normals", str(path), str(out), "--overwrite", "-q", "--workers", str(w),
                                                     "--scheduler", a.scheduler, "--profile", str(prof)]
                                                   + (["--tile-size", f"{a.tile_size:g}"] if a.tile_size else []))
-                runs.append((wall, peak, cpu, json.loads(prof.read_text()), floor))
+                profile = json.loads(prof.read_text())
+                # the workers are the fork server's children, not this command's: their CPU time is in the profile
+                cpu = profile.get("cpu", cpu)
+                runs.append((wall, peak, cpu, profile, floor))
                 if a.keep_profiles:
                     Path(a.keep_profiles).mkdir(parents=True, exist_ok=True)
                     shutil.copyfile(prof, Path(a.keep_profiles) / f"profile-{path.stem}-w{w}.json")
@@ -307,8 +322,9 @@ def main(argv=None) -> int:
         "",
         "# tiles: the store's tiles (fit tasks); wall: the whole `patchcloud normals` process (start-up and export included), the",
         "# median of --repeats runs (range: all of them; the other columns are the median run's); floor: W processes reading and writing",
-        "# their shares of the file with laspy + lazrs' sequential codec; peak: RSS summed over the job's processes, sampled",
-        "# together every 0.1 s; user, sys: CPU seconds of the job's processes; faults: their minor page faults (millions);",
+        "# their shares of the file with laspy + lazrs' sequential codec; peak: proportional set sizes summed over the job's",
+        "# processes, sampled together every 0.1 s; user, sys: CPU seconds of the command and its workers (the run's profile);",
+        "# faults: their minor page faults (millions);",
         "# idle: share of the wall time with fewer tasks running than workers; client: with none;",
         "# Amdahl N: (c + w) / (c + w / N), c the time no task runs, w the summed task time (speed-up bound over one worker);",
         "# list N: (c + w) / (c + sum of the steps' makespans on N workers), tiles' tasks as recorded, parts recut for N, the big",

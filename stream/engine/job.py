@@ -468,10 +468,11 @@ class Job:
 
 
 def write_profile(path: str | os.PathLike, runner: Runner, seconds: dict, started: float, ready: float, ended: float) -> None:
-    """Write a run's task stream as JSON: ``tasks`` [step, start, end, worker], ``steps`` (seconds), the run's times."""
+    """Write a run's task stream as JSON: ``tasks`` [step, start, end, worker], ``steps`` (seconds), the run's times,
+    ``cpu``: CPU seconds (``user``, ``sys``) and minor page faults of the command and its workers."""
     data = dict(
         scheduler=runner.scheduler, slots=runner.slots, started=started, ready=ready, ended=ended, steps=seconds,
-        tasks=[list(t) for t in runner.tasks],
+        tasks=[list(t) for t in runner.tasks], cpu=runner.cpu_usage(),
     )
     tmp = Path(str(path) + ".partial")
     tmp.write_text(json.dumps(data))

@@ -102,6 +102,11 @@ def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> tupl
     return out, (t0, time.time(), f"{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}"), clock.intervals
 
 
+def _cpu_usage() -> dict:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return dict(user=r.ru_utime, sys=r.ru_stime, faults=r.ru_minflt)
+
+
 def _peak_rss_bytes() -> int:
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
 
@@ -290,6 +295,18 @@ class Runner:
                 took(index[f.key], out)
         bar.close()
         return results
+
+    def cpu_usage(self) -> dict:
+        """CPU seconds in user and system mode and minor page faults (``user``, ``sys``, ``faults``) of this process and
+        every local worker process so far (a remote cluster's workers too, when they answer)."""
+        total = _cpu_usage()
+        if self.client is not None and self.scheduler != "threads":
+            try:
+                for usage in self.client.run(_cpu_usage).values():
+                    total = {k: total[k] + usage[k] for k in total}
+            except Exception:
+                pass
+        return total
 
     def peak_memory(self) -> int:
         """Peak resident memory (bytes) summed over this process and every worker process."""
