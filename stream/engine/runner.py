@@ -102,6 +102,15 @@ def _call(func: Callable, numba_threads: int, args: tuple, kwargs: dict) -> tupl
     return out, (t0, time.time(), f"{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}"), clock.intervals
 
 
+#: Tasks a worker gets, at least, from a step of small calls run in batches (:meth:`Runner.map` with ``small``).
+SMALL_TASKS_PER_WORKER = 4
+
+
+def _run_calls(func: Callable, calls: list[tuple[tuple, dict]]) -> list:
+    """``[func(*args, **kwargs) for args, kwargs in calls]``: one task of a batched map."""
+    return [func(*args, **kwargs) for args, kwargs in calls]
+
+
 def _cpu_usage() -> dict:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return dict(user=r.ru_utime, sys=r.ru_stime, faults=r.ru_minflt)
@@ -248,13 +257,20 @@ class Runner:
         return self.pool and self._threads > 1 and tasks >= self._threads
 
     def map(self, func: Callable, calls: Sequence[tuple[tuple, dict]], label: str,
-            on_result: Callable[[int, Any], None] | None = None) -> list:
+            on_result: Callable[[int, Any], None] | None = None, small: bool = False) -> list:
         """``[func(*args, **kwargs) for args, kwargs in calls]``, run in parallel, results in call order.
 
         ``on_result(k, result)``, when given, runs in this process as each
         call ``k`` completes (in the order they complete), e.g. to finish an
         output as soon as its last part is written.
+
+        ``small``: the calls take milliseconds each (the seam pass's), so on a
+        dask cluster, where each task costs the scheduler and the worker about
+        as much, the calls are dealt to :data:`SMALL_TASKS_PER_WORKER` tasks a
+        worker (the same results).
         """
+        if small and self.client is not None and len(calls) > SMALL_TASKS_PER_WORKER * self.slots:
+            return self._map_batched(func, calls, label, on_result)
         bar = Progress(label, len(calls), quiet=self.quiet, unit=" tasks")
         results: list = [None] * len(calls)
 
@@ -294,6 +310,23 @@ class Runner:
             for f, out in as_completed(futures, with_results=True):
                 took(index[f.key], out)
         bar.close()
+        return results
+
+    def _map_batched(self, func: Callable, calls: Sequence[tuple[tuple, dict]], label: str,
+                     on_result: Callable[[int, Any], None] | None) -> list:
+        """:meth:`map` of the ``calls`` dealt to :data:`SMALL_TASKS_PER_WORKER` tasks a worker in turn (task ``b``: calls
+        ``b``, ``b + n``, ``b + 2 n``, ...: calls sorted largest first make even tasks); the results in call order."""
+        n = SMALL_TASKS_PER_WORKER * self.slots
+        batches = [((func, list(calls[b::n])), {}) for b in range(n)]
+        results: list = [None] * len(calls)
+
+        def took(b: int, outs: list) -> None:
+            for j, out in enumerate(outs):
+                results[b + j * n] = out
+                if on_result is not None:
+                    on_result(b + j * n, out)
+
+        self.map(_run_calls, batches, label, on_result=took)
         return results
 
     def cpu_usage(self) -> dict:

@@ -49,6 +49,7 @@ def map_tiles(
     runner: Runner | None = None,
     label: str | None = None,
     pieces: Mapping[tuple, int] | None = None,
+    small: bool = False,
     **kwargs,
 ) -> dict[tuple, Any]:
     """Run ``func(store.url, ijk, **kwargs)`` for every tile, in parallel.
@@ -69,6 +70,9 @@ def map_tiles(
         Tiles cut into several tasks (:func:`pieces_for`): tile ``ijk`` gets
         ``pieces[ijk]`` calls, each with ``piece=(j, pieces[ijk])``, and its
         result is the list of theirs.
+    small : bool
+        The tasks take milliseconds each: on a dask cluster they go in
+        batches, a few a worker (:meth:`Runner.map`).
     kwargs :
         Passed to every call.
 
@@ -119,7 +123,7 @@ def map_tiles(
             size.append(counts.get(ijk, 0) / k)
     # largest first, so the last tasks of the step are small ones and no worker waits long for them
     order = sorted(range(len(calls)), key=lambda c: (-size[c], c))
-    results = runner.map(tile_task, [calls[c] for c in order], label or getattr(func, "__name__", "tiles"))
+    results = runner.map(tile_task, [calls[c] for c in order], label or getattr(func, "__name__", "tiles"), small=small)
     by_call = dict(zip(order, results))
     out: dict[tuple, Any] = {}
     for c, ijk in enumerate(owner):

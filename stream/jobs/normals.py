@@ -137,7 +137,8 @@ def resolve_parameters(store: Store, options: NormalsOptions, runner) -> dict:
             if cached and cached.get("key") == key:
                 threshold = cached["threshold"]
             else:
-                hists = map_tiles(normals_tiles.calibrate_tile, store, runner=runner, label="calibrate", d_min=d_min, n_min=options.n_min)
+                hists = map_tiles(normals_tiles.calibrate_tile, store, runner=runner, label="calibrate", small=True, d_min=d_min,
+                                  n_min=options.n_min)
                 threshold = threshold_from_histograms(np.sum(list(hists.values()), axis=0), d_min, spacing)
                 store.update(calibration={"key": key, "threshold": threshold})
     return dict(spacing=float(spacing), d_min=float(d_min), max_edge=float(max_edge), threshold=float(threshold))

@@ -230,7 +230,7 @@ def orient_tiles(store: Store, runner: Runner, orient: str, bits: int = BLOCK_BI
     url = store.url
     # 1. face links
     pairs = tile_pairs(tiles)
-    counts = runner.map(face_links, [((url, a, b, axis), {}) for a, b, axis in pairs], "seams: faces") if pairs else []
+    counts = runner.map(face_links, [((url, a, b, axis), {}) for a, b, axis in pairs], "seams: faces", small=True) if pairs else []
     # 2. up: tiles, then blocks of 2**bits a side, until one block holds every tile
     low = tuple(min(0, min(int(t[k]) for t in tiles)) for k in range(3))
     top = 0
@@ -241,7 +241,7 @@ def orient_tiles(store: Store, runner: Runner, orient: str, bits: int = BLOCK_BI
         faces[a].append((_face_path(a, axis), 0, 2 * axis + 1))
         faces[b].append((_face_path(a, axis), 1, 2 * axis))
     calls = [((url, t, offset_of[t], rule, faces[t], flip), {}) for t in tiles]
-    runner.map(reduce_tile, calls, "seams: tiles")
+    runner.map(reduce_tile, calls, "seams: tiles", small=True)
     for level in range(1, top + 1):
         blocks: dict[tuple, dict] = {}
         for t in tiles:
@@ -255,7 +255,7 @@ def orient_tiles(store: Store, runner: Runner, orient: str, bits: int = BLOCK_BI
             ((url, level, k, sorted(v["children"]), v["pairs"], v["tiles"], [offset_of[t] for t in v["tiles"]], rule, bits, flip), {})
             for k, v in sorted(blocks.items())
         ]
-        runner.map(reduce_block, calls, f"seams: level {level}")
+        runner.map(reduce_block, calls, f"seams: level {level}", small=True)
     # 3. down: each block reads its parent's signs
     def parent(b: tuple, level: int) -> tuple | None:
         if level == top:
@@ -264,8 +264,8 @@ def orient_tiles(store: Store, runner: Runner, orient: str, bits: int = BLOCK_BI
 
     for level in range(top, 0, -1):
         calls = [((url, level, b, parent(b, level)), {}) for b in sorted({_block_of(t, level, bits, low) for t in tiles})]
-        runner.map(expand_block, calls, f"seams: down {level}")
-    ruled = runner.map(expand_block, [((url, 0, t, parent(t, 0)), {}) for t in tiles], "seams: signs")
+        runner.map(expand_block, calls, f"seams: down {level}", small=True)
+    ruled = runner.map(expand_block, [((url, 0, t, parent(t, 0)), {}) for t in tiles], "seams: signs", small=True)
     store.remove_blobs("seams")
     store.update(patch_offsets=offsets[:-1].tolist())
     return dict(patches=rule, cross_links=int(sum(counts)), ruled=int(sum(ruled)), levels=top + 1)
