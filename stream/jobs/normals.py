@@ -163,6 +163,8 @@ class NormalsJob(Job):
         self.always_up = bool(always_up)
         self.params: dict = {}
         self.key = ""
+        #: Whether no tile of the store can be marked fitted (finished): set by :meth:`calibrate`.
+        self.none_fitted = self.none_finished = False
 
     def steps(self):
         return [("calibrate", self.calibrate), ("fit", self.fit), ("seams", self.seams), ("finish", self.finish)]
@@ -180,8 +182,14 @@ class NormalsJob(Job):
         )
         self.params["halo"] = SKIN_HALO * self.params["d_min"]
         self.key = params_key(self.params)
+        # a tile is marked fitted (finished) only after the store records the parameters (the finish's key): a store
+        # without them has no tile to clear or to skip, and its tiles' records are not read (one each, in this process)
+        self.none_fitted = st.attrs.get("params_key") is None
+        self.none_finished = st.attrs.get("finish_key") is None
         if st.attrs.get("params_key") != self.key:
-            st.clear_tile_steps(["fit", "finish"])
+            if not self.none_fitted:
+                st.clear_tile_steps(["fit", "finish"])
+            self.none_fitted = self.none_finished = True
             st.mark_step("seams", None)
             st.update(params=self.params, params_key=self.key)
         # what only the finish step depends on: asking for the principal curvatures or always_up redoes that step, not the fit
@@ -189,27 +197,31 @@ class NormalsJob(Job):
         self.params["always_up"] = self.always_up
         finish_key = params_key(self.params)
         if st.attrs.get("finish_key") != finish_key:
-            st.clear_tile_steps(["finish"])
+            if not self.none_finished:
+                st.clear_tile_steps(["finish"])
+            self.none_finished = True
             st.update(finish_key=finish_key)
 
     def asked_parameters(self) -> dict:
         return dict(super().asked_parameters(), principal_curvatures=self.principal_curvatures, always_up=self.always_up)
 
     def fit(self, ctx: JobContext) -> None:
-        todo = [t for t in ctx.store.tiles if not ctx.store.tile_done(t, "fit")]
+        todo = ctx.store.tiles if self.none_fitted else [t for t in ctx.store.tiles if not ctx.store.tile_done(t, "fit")]
         ctx.map_tiles(normals_tiles.fit_one_tile, tiles=todo, label="fit", params=self.params)
 
     def seams(self, ctx: JobContext) -> None:
         if ctx.store.step_done("seams") != self.key:
             orient_tiles(ctx.store, ctx.runner, self.options.orient)
-            ctx.store.clear_tile_steps(["finish"])
+            if not self.none_finished:
+                ctx.store.clear_tile_steps(["finish"])
+                self.none_finished = True
             ctx.store.mark_step("seams", self.key)
 
     def finish(self, ctx: JobContext) -> None:
         """One task per tile, a big tile cut into pieces side by side (:func:`pieces_for`): with many workers, the
         biggest tile's task would otherwise be the step's length."""
         st = ctx.store
-        todo = [t for t in st.tiles if not st.tile_done(t, "finish")]
+        todo = st.tiles if self.none_finished else [t for t in st.tiles if not st.tile_done(t, "finish")]
         counts = dict(zip(st.tiles, st.tile_counts.tolist()))
         pieces = pieces_for({t: counts[t] for t in todo}, ctx.runner.slots)
         ctx.map_tiles(normals_tiles.finish_one_tile, tiles=todo, halo=1, label="finish", params=self.params, pieces=pieces)
