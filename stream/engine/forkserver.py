@@ -3,10 +3,12 @@
 dask's nanny starts each worker process with the ``spawn`` method (a new
 interpreter, which imports everything anew) unless its configuration says
 otherwise.  :func:`forked_workers` has it use ``forkserver``: the first
-worker's start starts one server process, which imports
+worker's start (or the console script, earlier: :func:`start_server`)
+starts one server process, which imports
 :mod:`patchcloud.stream.engine.worker_imports` (dask.distributed, numba,
-zarr, laspy, patchcloud's jobs) once; each worker is then forked from it,
-with those modules already imported.  A worker's start no longer costs an
+zarr, laspy, patchcloud's engine; the job's own module when the console
+script names it) once; each worker is then forked from it, with those
+modules already imported.  A worker's start no longer costs an
 interpreter's imports, nor do 16 workers' starts compete for the cores.
 The processes run the same code on the same data: outputs are unchanged.
 
