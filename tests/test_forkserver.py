@@ -32,6 +32,30 @@ def test_workers_are_forked_from_one_server_that_imported_what_they_need():
     assert run.stdout.strip() == "2 1 False [('laspy', 'numba', 'patchcloud.stream.engine.ingest', 'zarr')]", run.stdout
 
 
+@pytest.mark.parametrize("early", [False, True])
+def test_forked_workers_have_the_environment_dask_gives_its_workers(early):
+    """One thread for OpenMP/MKL/OpenBLAS and one string hash for every worker, whether the server was started early (by the
+    console script, before any nanny set them) or by the cluster's first worker."""
+    code = textwrap.dedent(f"""
+        import os
+        from patchcloud.stream.engine import forkserver
+        from patchcloud.stream.engine.runner import Runner
+        if __name__ == "__main__":
+            for k in ("PYTHONHASHSEED", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+                os.environ.pop(k, None)
+            if {early}:
+                forkserver.start_server(["patchcloud.stream.jobs.normals"])
+            with Runner("processes", 2, quiet=True) as r:
+                got = r.client.run(lambda: (os.environ.get("OPENBLAS_NUM_THREADS"), os.environ.get("OMP_NUM_THREADS"), hash("patchcloud")))
+                print(sorted(set(got.values())))
+    """)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    seeded = subprocess.run([sys.executable, "-c", "print(hash('patchcloud'))"], capture_output=True, text=True,
+                            env={**__import__("os").environ, "PYTHONHASHSEED": "6640"}).stdout.strip()
+    assert run.stdout.strip() == f"[('1', '1', {seeded})]", run.stdout
+
+
 def test_placement_starts_processes_exactly_when_the_runner_would():
     assert starts_local_processes(None, "processes")
     assert starts_local_processes(50_000_000, "auto") and starts_local_processes(3_000_000, "auto", workers=4)

@@ -18,12 +18,16 @@ Where ``forkserver`` does not exist (Windows), workers are spawned as before.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import multiprocessing
+import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 
-__all__ = ["forked_workers", "start_server", "PRELOAD", "METHOD_KEY"]
+__all__ = ["forked_workers", "start_server", "nanny_environ", "PRELOAD", "METHOD_KEY"]
 
 #: The modules the server imports before it forks any worker.
 PRELOAD = ("patchcloud.stream.engine.worker_imports",)
@@ -74,12 +78,55 @@ def _start(modules: tuple[str, ...]) -> None:
     from multiprocessing import forkserver, resource_tracker
 
     try:  # (dask is told to keep this preload list by forked_workers, as the cluster starts)
+        nanny_environ()
         multiprocessing.get_context("forkserver").set_forkserver_preload([*PRELOAD, *modules])
         resource_tracker.ensure_running()  # first: starting it unblocks SIGINT in the thread that does
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         forkserver.ensure_running()
     except Exception:  # a server that cannot start now is started (or its error met) by the cluster's first worker
         pass
+
+
+def nanny_environ() -> dict:
+    """Set in this process's environment what dask's nanny sets there before it starts a worker process, and return it.
+
+    That is ``distributed.nanny.pre-spawn-environ`` (one thread for OpenMP,
+    MKL and OpenBLAS; malloc's trim threshold), each variable already set
+    keeping its value, and ``PYTHONHASHSEED`` 6640 where it is unset or 0,
+    so that every worker hashes strings alike (dask's nanny does the same).
+    A worker forked from the fork server has the environment the server
+    started with, and the server's interpreter read these as it started:
+    :func:`start_server`, which starts the server before any nanny, sets
+    them first.
+    """
+    import dask.config
+
+    _distributed_defaults()
+    wanted = dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}
+    env = {str(k): os.environ.get(str(k), str(v)) for k, v in wanted.items() if v is not None}
+    if env.get("PYTHONHASHSEED", os.environ.get("PYTHONHASHSEED")) in (None, "0"):
+        env["PYTHONHASHSEED"] = "6640"
+    os.environ.update(env)
+    return env
+
+
+def _distributed_defaults() -> None:
+    """dask's configuration given the defaults of dask.distributed's (its ``distributed.yaml``), as ``import
+    distributed`` gives them (``distributed/config.py``), without that import (0.3 s, numpy with it) when it is not
+    done yet: :func:`start_server`'s thread would hold this process's imports back."""
+    if "distributed" in sys.modules:
+        return
+    import dask.config
+    import yaml
+
+    spec = importlib.util.find_spec("distributed")
+    if spec is None or spec.origin is None:
+        return
+    try:
+        defaults = yaml.safe_load(Path(spec.origin).with_name("distributed.yaml").read_text())
+    except (OSError, yaml.YAMLError):
+        return
+    dask.config.update_defaults(defaults)
 
 
 @contextlib.contextmanager
