@@ -83,3 +83,21 @@ def test_the_console_script_starts_the_server_only_for_runs_on_local_processes(s
     options.start_workers_early((SAMPLE, out), {"scheduler": "processes"}, JOB)
     options.start_workers_early((SAMPLE, out), {"scheduler": "auto", "in_memory": False}, JOB)  # threads below 2M points
     assert started == [[JOB]]
+
+
+def test_a_catalog_compressed_file_by_file_is_judged_by_its_largest_file(started, tmp_path, monkeypatch):
+    """compress runs each file of a catalog on its own: 60,000-point files in memory, however many there are."""
+    import shutil
+
+    from patchcloud.stream.engine import placement
+
+    for k in range(3):
+        shutil.copy(SAMPLE, tmp_path / f"t{k}.laz")
+    monkeypatch.setattr(placement, "in_memory_points", lambda cores=None: 100_000)  # the three together: 181,959 points
+    run = {"scheduler": "auto", "out_dir": str(tmp_path / "out")}
+    monkeypatch.setattr(placement, "AUTO_PROCESSES_POINTS", 150_000)
+    options.start_workers_early((str(tmp_path),), run, JOB, each_file=True)  # each file in memory
+    assert started == []
+    options.start_workers_early((str(tmp_path),), run, JOB)  # as one cloud: on worker processes
+    assert started == [[JOB]]
+

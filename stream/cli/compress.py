@@ -54,7 +54,7 @@ def compress_command(paths, max_error, keep_points, drop, record_source, report,
       patchcloud compress tiles/ --out-dir tiles_pcz/
       patchcloud decompress city.pcz preview.laz --lod 2
     """
-    options.start_workers_early(paths, run, "patchcloud.stream.jobs.compress")  # before the job's imports
+    options.start_workers_early(paths, run, "patchcloud.stream.jobs.compress", each_file=True)  # before the job's imports
     from patchcloud.stream import compress
 
     run = options.run_options(run)

@@ -331,11 +331,12 @@ def finish_job(summary, quiet: bool, report: str | None, write_report: str) -> N
             click.echo(f"  report          {report}")
 
 
-def start_workers_early(paths: tuple[str, ...], values: dict, job: str) -> None:
+def start_workers_early(paths: tuple[str, ...], values: dict, job: str, each_file: bool = False) -> None:
     """Start the fork server of the run's local worker processes now, while this process imports the job (0.6 s), when
     the run will start them (:func:`patchcloud.stream.engine.placement.starts_local_processes`: the options ``values``
     of :func:`job_options` and the inputs' point counts, read from their headers); it imports the job's module ``job``
-    too (e.g. ``"patchcloud.stream.jobs.normals"``).  Anything wrong with the inputs or
+    too (e.g. ``"patchcloud.stream.jobs.normals"``).  ``each_file``: a catalog's files are runs of their own
+    (``compress``), so its largest file decides, not their sum.  Anything wrong with the inputs or
     options is left to the job to report: then nothing is started here."""
     from patchcloud.stream.engine.placement import starts_local_processes
 
@@ -349,12 +350,13 @@ def start_workers_early(paths: tuple[str, ...], values: dict, job: str) -> None:
         from patchcloud.stream.io.catalog import expand_inputs
 
         try:
-            points = 0
+            counts = []
             for path in expand_inputs(list(paths if values.get("out_dir") else paths[:1])):
                 with laspy.open(path) as f:
-                    points += int(f.header.point_count)
+                    counts.append(int(f.header.point_count))
         except Exception:  # the job says what is wrong with its inputs
             return
+        points = max(counts, default=0) if each_file else sum(counts)
     if starts_local_processes(points, scheduler, values.get("workers"), values.get("store"), values.get("keep_store") or None,
                               values.get("in_memory")):
         from patchcloud.stream.engine.forkserver import start_server
