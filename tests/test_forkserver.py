@@ -101,3 +101,22 @@ def test_a_catalog_compressed_file_by_file_is_judged_by_its_largest_file(started
     options.start_workers_early((str(tmp_path),), run, JOB)  # as one cloud: on worker processes
     assert started == [[JOB]]
 
+
+
+def test_workers_of_each_run_have_the_memory_budget_of_that_run():
+    """The fork server lives as long as the process and its workers have its environment: the budget, which a Python
+    caller may change between runs, goes to them through the nanny."""
+    code = textwrap.dedent("""
+        from patchcloud.stream.engine.runner import Runner
+        from patchcloud.stream.io.budget import max_memory, set_max_memory
+        if __name__ == "__main__":
+            seen = []
+            for size in ("1GiB", "3GiB", None):
+                set_max_memory(size)
+                with Runner("processes", 2, quiet=True) as r:
+                    seen.append(sorted(set(r.client.run(max_memory).values())) == [max_memory()])
+            print(seen, max_memory() != 3 << 30)
+    """)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert run.stdout.strip() == "[True, True, True] True", run.stdout

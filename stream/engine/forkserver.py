@@ -33,8 +33,8 @@ __all__ = ["forked_workers", "start_server", "nanny_environ", "PRELOAD", "METHOD
 PRELOAD = ("patchcloud.stream.engine.worker_imports",)
 #: dask's configuration key of the method its nanny starts worker processes with.
 METHOD_KEY = "distributed.worker.multiprocessing-method"
-#: Whether :func:`start_server` has set the server's preload list (with the job's modules) in this process.
-_early = False
+#: The job's modules :func:`start_server` was given, imported by the server after :data:`PRELOAD`.
+_modules: tuple[str, ...] = ()
 
 
 def _preload() -> None:
@@ -50,8 +50,7 @@ def _preload() -> None:
 
         with dask.config.set({METHOD_KEY: "forkserver"}):
             distributed.utils.get_mp_context()
-    if not _early:  # (the list start_server gave, with the job's modules, stays)
-        multiprocessing.get_context("forkserver").set_forkserver_preload(list(PRELOAD))
+    multiprocessing.get_context("forkserver").set_forkserver_preload([*PRELOAD, *_modules])  # (no effect once it runs)
 
 
 def start_server(modules: Sequence[str] = ()) -> bool:
@@ -66,20 +65,20 @@ def start_server(modules: Sequence[str] = ()) -> bool:
     (:mod:`~patchcloud.stream.engine.worker_setup`).  Returns whether it
     starts one (False where ``forkserver`` does not exist).
     """
-    global _early
+    global _modules
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return False
-    _early = True
-    threading.Thread(target=_start, args=(tuple(modules),), name="patchcloud-start-forkserver", daemon=True).start()
+    _modules = tuple(modules)
+    threading.Thread(target=_start, name="patchcloud-start-forkserver", daemon=True).start()
     return True
 
 
-def _start(modules: tuple[str, ...]) -> None:
+def _start() -> None:
     from multiprocessing import forkserver, resource_tracker
 
     try:  # (dask is told to keep this preload list by forked_workers, as the cluster starts)
         nanny_environ()
-        multiprocessing.get_context("forkserver").set_forkserver_preload([*PRELOAD, *modules])
+        multiprocessing.get_context("forkserver").set_forkserver_preload([*PRELOAD, *_modules])
         resource_tracker.ensure_running()  # first: starting it unblocks SIGINT in the thread that does
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         forkserver.ensure_running()
@@ -136,6 +135,13 @@ def forked_workers() -> Iterator[bool]:
     Yields whether they are (False where the ``forkserver`` method does not
     exist: spawned, as dask does by default).  A worker restarted after the
     block (one that died) is spawned.
+
+    A forked worker has the environment the server started with, not this
+    process's at the worker's start: what the workers read while they run
+    and this process may change between runs (the memory budget,
+    :data:`patchcloud.stream.io.budget.ENV`) goes to them through the
+    nanny (the runner's ``env``).  A fork server started by other code in
+    this process (there is one a process) is used as it is.
     """
     if "forkserver" not in multiprocessing.get_all_start_methods():
         yield False

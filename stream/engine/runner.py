@@ -28,6 +28,7 @@ from patchcloud.stream.engine.compiling import CompileClock
 from patchcloud.stream.engine.forkserver import forked_workers
 from patchcloud.stream.engine.placement import AUTO_PROCESSES_POINTS, resolve_scheduler
 from patchcloud.stream.engine.progress import Progress
+from patchcloud.stream.io.budget import ENV as BUDGET_ENV
 
 __all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "ADDRESS_SCHEMES", "resolve_scheduler", "check_scheduler", "scheduler_from_file"]
 
@@ -215,7 +216,9 @@ class Runner:
                 self.cluster = LocalCluster(  # workers log nothing but critical: a task's error reaches the user as one line
                     processes=processes, n_workers=n if processes else 1, threads_per_worker=1 if processes else n,
                     dashboard_address=":0", silence_logs=logging.CRITICAL,
-                    **({"preload": ["patchcloud.stream.engine.worker_setup"]} if processes else {}),
+                    # a forked worker has the fork server's environment: the budget as it is now ("": none given)
+                    **({"preload": ["patchcloud.stream.engine.worker_setup"], "env": {BUDGET_ENV: os.environ.get(BUDGET_ENV, "")}}
+                       if processes else {}),
                 )
             self._client = Client(self.cluster)
             self.ready_at = time.time()
