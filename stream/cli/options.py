@@ -345,15 +345,12 @@ def start_workers_early(paths: tuple[str, ...], values: dict, job: str, each_fil
         return
     points = None
     if scheduler == "auto":
-        import laspy
-
         from patchcloud.stream.io.catalog import expand_inputs
+        from patchcloud.stream.io.las import open_source
 
-        try:
-            counts = []
-            for path in expand_inputs(list(paths if values.get("out_dir") else paths[:1])):
-                with laspy.open(path) as f:
-                    counts.append(int(f.header.point_count))
+        try:  # the job's own checks (a crafted header's counts are refused, not parsed for minutes)
+            counts = [open_source(path, allow_empty=True).point_count
+                      for path in expand_inputs(list(paths if values.get("out_dir") else paths[:1]))]
         except Exception:  # the job says what is wrong with its inputs
             return
         points = max(counts, default=0) if each_file else sum(counts)
