@@ -27,7 +27,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-__all__ = ["forked_workers", "start_server", "nanny_environ", "PRELOAD", "METHOD_KEY"]
+__all__ = ["forked_workers", "start_server", "nanny_environ", "hold_ctrl_c", "PRELOAD", "METHOD_KEY"]
 
 #: The modules the server imports before it forks any worker.
 PRELOAD = ("patchcloud.stream.engine.worker_imports",)
@@ -35,6 +35,22 @@ PRELOAD = ("patchcloud.stream.engine.worker_imports",)
 METHOD_KEY = "distributed.worker.multiprocessing-method"
 #: The job's modules :func:`start_server` was given, imported by the server after :data:`PRELOAD`.
 _modules: tuple[str, ...] = ()
+
+
+def hold_ctrl_c() -> None:
+    """Block SIGINT in this thread, multiprocessing's resource tracker started first (starting it unblocks SIGINT in the
+    thread that does): the processes this thread starts, and the threads it starts, inherit the block (a signal mask
+    survives fork and exec), so a Ctrl-C meant for the run does not reach a worker still importing."""
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+
+def _set_server_preload() -> None:
+    """The modules the fork server imports when it starts: :data:`PRELOAD`, then those given to :func:`start_server`
+    (no effect on a server already running)."""
+    multiprocessing.get_context("forkserver").set_forkserver_preload([*PRELOAD, *_modules])
 
 
 def _preload() -> None:
@@ -50,7 +66,7 @@ def _preload() -> None:
 
         with dask.config.set({METHOD_KEY: "forkserver"}):
             distributed.utils.get_mp_context()
-    multiprocessing.get_context("forkserver").set_forkserver_preload([*PRELOAD, *_modules])  # (no effect once it runs)
+    _set_server_preload()
 
 
 def start_server(modules: Sequence[str] = ()) -> bool:
@@ -74,13 +90,12 @@ def start_server(modules: Sequence[str] = ()) -> bool:
 
 
 def _start() -> None:
-    from multiprocessing import forkserver, resource_tracker
+    from multiprocessing import forkserver
 
     try:  # (dask is told to keep this preload list by forked_workers, as the cluster starts)
         nanny_environ()
-        multiprocessing.get_context("forkserver").set_forkserver_preload([*PRELOAD, *_modules])
-        resource_tracker.ensure_running()  # first: starting it unblocks SIGINT in the thread that does
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        _set_server_preload()
+        hold_ctrl_c()
         forkserver.ensure_running()
     except Exception:  # a server that cannot start now is started (or its error met) by the cluster's first worker
         pass

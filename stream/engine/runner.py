@@ -14,7 +14,6 @@ import logging
 import os
 import re
 import resource
-import signal
 import socket
 import threading
 import time
@@ -25,7 +24,7 @@ from typing import Any
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, single_threaded
 
 from patchcloud.stream.engine.compiling import CompileClock
-from patchcloud.stream.engine.forkserver import forked_workers
+from patchcloud.stream.engine.forkserver import forked_workers, hold_ctrl_c
 from patchcloud.stream.engine.placement import AUTO_PROCESSES_POINTS, resolve_scheduler
 from patchcloud.stream.engine.progress import Progress
 from patchcloud.stream.io.budget import ENV as BUDGET_ENV
@@ -205,11 +204,8 @@ class Runner:
     def _start_local(self, n: int) -> None:
         try:
             processes = self.scheduler == "processes"
-            if processes:  # the worker processes start with Ctrl-C held back (see below)
-                from multiprocessing import resource_tracker
-
-                resource_tracker.ensure_running()  # first: starting it unblocks SIGINT in the thread that does
-                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            if processes:  # the worker processes start with Ctrl-C held back (see above)
+                hold_ctrl_c()
             from dask.distributed import Client, LocalCluster
 
             with forked_workers() if processes else contextlib.nullcontext():  # the worker processes forked, not spawned
@@ -335,24 +331,22 @@ class Runner:
     def cpu_usage(self) -> dict:
         """CPU seconds in user and system mode and minor page faults (``user``, ``sys``, ``faults``) of this process and
         every local worker process so far (a remote cluster's workers too, when they answer)."""
-        total = _cpu_usage()
-        if self.client is not None and self.scheduler != "threads":
-            try:
-                for usage in self.client.run(_cpu_usage).values():
-                    total = {k: total[k] + usage[k] for k in total}
-            except Exception:
-                pass
-        return total
+        usages = [_cpu_usage(), *self._on_worker_processes(_cpu_usage)]
+        return {k: sum(u[k] for u in usages) for k in usages[0]}
 
     def peak_memory(self) -> int:
         """Peak resident memory (bytes) summed over this process and every worker process."""
-        total = _peak_rss_bytes()
-        if self.client is not None and self.scheduler != "threads":
-            try:
-                total += sum(self.client.run(_peak_rss_bytes).values())
-            except Exception:
-                pass
-        return total
+        return _peak_rss_bytes() + sum(self._on_worker_processes(_peak_rss_bytes))
+
+    def _on_worker_processes(self, func: Callable) -> list:
+        """``func()`` run on every worker process of the cluster (none with threads or none at all; none where the
+        workers do not answer)."""
+        if self.client is None or self.scheduler == "threads":
+            return []
+        try:
+            return list(self.client.run(func).values())
+        except Exception:
+            return []
 
     def close(self) -> None:
         if self._starting is not None:
