@@ -56,7 +56,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 
 
-def _tree_rss(root: int) -> int:
+def _tree_memory(root: int) -> int:
     """Memory of ``root`` and all its descendants (from /proc): their proportional set sizes summed (a page shared by
     k processes counts 1/k in each: the worker processes forked from one server share its pages), or their resident
     sizes where /proc has no ``smaps_rollup``."""
@@ -94,8 +94,9 @@ def _memory(pid: int) -> int:
 
 
 def run_measured(cmd: list[str]) -> tuple[float, int, str, dict]:
-    """Run ``cmd``; return its wall time (s), the peak of its process tree's summed RSS (bytes), its output, and its
-    process tree's user and system CPU seconds and minor page faults (``user``, ``sys``, ``faults``)."""
+    """Run ``cmd``; return its wall time (s), the peak of its process tree's summed memory (bytes, :func:`_tree_memory`),
+    its output, and its waited-for descendants' user and system CPU seconds and minor page faults (``user``, ``sys``,
+    ``faults``: forked workers are not among them, see :func:`main`)."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -103,7 +104,7 @@ def run_measured(cmd: list[str]) -> tuple[float, int, str, dict]:
 
     def sample():
         while p.poll() is None:
-            peak[0] = max(peak[0], _tree_rss(p.pid))
+            peak[0] = max(peak[0], _tree_memory(p.pid))
             time.sleep(0.1)
 
     th = threading.Thread(target=sample, daemon=True)
