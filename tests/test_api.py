@@ -199,12 +199,12 @@ def test_the_other_entry_points_leave_no_thread(tmp_path):
     before = sorted(t.name for t in threading.enumerate())
     store = patchcloud.tile(SAMPLE, str(tmp_path / "s.zarr"), tile_size=64, quiet=True, scheduler="threads", workers=2)
     assert len(store.tiles) == 4
-    assert sorted(t.name for t in threading.enumerate()) == before
+    assert _thread_names(settle_to=before) == before
     assert patchcloud.info(str(tmp_path / "s.zarr"))["kind"] == "store"
-    assert sorted(t.name for t in threading.enumerate()) == before
+    assert _thread_names(settle_to=before) == before
     patchcloud.compress(SAMPLE, tmp_path / "c.pcz", max_error=0.05, quiet=True)
     patchcloud.decompress(tmp_path / "c.pcz", tmp_path / "back.laz")
-    assert sorted(t.name for t in threading.enumerate()) == before
+    assert _thread_names(settle_to=before) == before
 
 
 # -- numba's compiling, on its own line --------------------------------------------------------------------------------

@@ -361,7 +361,7 @@ def test_one_crs_written_by_two_versions_is_one_crs_whatever_the_order(cut, tmp_
     _split(las, np.arange(3000), tmp_path / "in" / names[0], crs=OLD_IGN_WKT)
     _split(las, np.arange(3000, 6000), tmp_path / "in" / names[1], crs=NEW_IGN_WKT)
     _split(las, np.arange(6000, 7000), tmp_path / "in" / "m.las", crs="EPSG:2154")
-    assert CRS.from_wkt(OLD_IGN_WKT) != CRS.from_wkt(NEW_IGN_WKT)  # pyproj alone says these two differ
+    # (pyproj 3.7 with PROJ 9.5 says these two WKTs differ; pyproj 3.8 with PROJ 9.8 finds them equal: either way one CRS here)
     assert CRS.from_wkt(open_catalog(tmp_path / "in").crs).to_epsg() == 2154
     _split(las, np.arange(7000, 9000), tmp_path / "in" / "c.las", crs="EPSG:27572")  # another Lambert, another code
     with pytest.raises(PatchcloudValueError, match="different CRSs"):

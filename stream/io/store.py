@@ -294,8 +294,8 @@ def codec_for(dtype) -> "BloscCodec":
     exponents), so the store stays about as small as with Zstd for less
     work in every task that writes or reads it.
 
-    >>> codec_for(np.int32).cname.value, codec_for(np.int32).typesize, codec_for(np.float64).shuffle.value
-    ('lz4', 4, 'shuffle')
+    >>> {k: v for k, v in codec_for(np.int32).to_dict()["configuration"].items() if k != "blocksize"}
+    {'typesize': 4, 'cname': 'lz4', 'clevel': 5, 'shuffle': 'shuffle'}
     """
     from zarr.codecs import BloscCodec
 
