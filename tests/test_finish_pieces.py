@@ -80,6 +80,7 @@ def test_the_store_reads_an_array_written_in_pieces_as_one(tmp_path):
     assert np.array_equal(store.read(t, "normal"), values * 2)
 
 
+@pytest.mark.slow  # 10-20 s: with the slow marker, so the default suite stays under 10 minutes
 @pytest.mark.parametrize("extra", [{}, {"principal_curvatures": True, "always_up": True}, {"in_memory": True}])
 def test_a_run_with_tiles_in_pieces_writes_the_same_bytes(tmp_path, monkeypatch, extra):
     src = tmp_path / "scene.laz"

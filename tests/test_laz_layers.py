@@ -99,7 +99,7 @@ def channels_laz(tmp_path_factory):
     return laz_path
 
 
-@pytest.mark.parametrize("in_memory", [False, True])
+@pytest.mark.parametrize("in_memory", [pytest.param(False, marks=pytest.mark.slow), True])  # on disk 12-16 s: slow
 def test_a_run_that_copies_the_input_chunks_writes_the_bytes_of_one_that_codes_every_record(channels_laz, tmp_path, monkeypatch,
                                                                                            in_memory):
     copied, whole = tmp_path / "copied.laz", tmp_path / "whole.laz"
@@ -197,6 +197,7 @@ def test_the_export_takes_its_points_tiles_from_the_ingest_and_decodes_nothing(c
     assert routed.read_bytes() == decoded.read_bytes()
 
 
+@pytest.mark.slow  # 10-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_the_ingest_records_routes_of_layered_laz_only(channels_laz, tmp_path):
     from patchcloud.stream.io.store import Store
 

@@ -118,7 +118,7 @@ def test_undescribed_bytes_are_kept_last_and_undescribed(fixture, request, tmp_p
     assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
 
 
-@pytest.mark.parametrize("in_memory", [True, False])
+@pytest.mark.parametrize("in_memory", [True, pytest.param(False, marks=pytest.mark.slow)])  # on disk 10-17 s: slow
 def test_a_layered_laz_with_undescribed_bytes_is_copied_to_the_bytes_of_one_coded_whole(tmp_path, monkeypatch, in_memory):
     """Its chunks are copied with the undescribed byte's layer moved after the new dimensions' (not coded again): the
     output is the one that codes every record."""

@@ -48,6 +48,7 @@ def test_output_bytes_do_not_depend_on_workers_scheduler_or_parts(scene, tmp_pat
     assert all(d == first for d in data.values()), [k for k, d in data.items() if d != first]
 
 
+@pytest.mark.slow  # 10-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_segment_ids_are_numbered_in_file_order_whatever_the_parts(scene, tmp_path):
     las = scene[0]
     a, b = tmp_path / "a.las", tmp_path / "b.las"

@@ -88,6 +88,7 @@ def test_in_memory_and_on_disk_write_the_same_principal_curvatures(surfaces, tmp
         assert np.array_equal(np.asarray(a[name]), np.asarray(b[name])), name
 
 
+@pytest.mark.slow  # 10-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_asking_for_them_on_a_kept_store_redoes_the_finish_only(surfaces, tmp_path, monkeypatch):
     from patchcloud.stream.jobs import normals_tiles
 

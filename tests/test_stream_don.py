@@ -100,6 +100,7 @@ def test_tilewise_don_equals_the_whole_cloud_whatever_the_tile_size(scene, tmp_p
         assert np.abs(tiled[ok] - whole[ok]).max() <= 1e-9, T
 
 
+@pytest.mark.slow  # 10-20 s: with the slow marker, so the default suite stays under 10 minutes
 def test_segments_equal_the_whole_cloud_and_cross_tile_faces(scene, tmp_path):
     path, xyz, label = scene
     local, origin = local_frame(path, xyz)
