@@ -102,7 +102,6 @@ def test_a_catalog_compressed_file_by_file_is_judged_by_its_largest_file(started
     assert started == [[JOB]]
 
 
-
 def test_workers_of_each_run_have_the_memory_budget_of_that_run():
     """The fork server lives as long as the process and its workers have its environment: the budget, which a Python
     caller may change between runs, goes to them through the nanny."""
