@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "face_neighbour_counts", "shift_moments"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "shifted_run_starts", "compact_points", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "face_neighbour_counts", "shift_moments"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -827,16 +827,42 @@ def neighbour_signs(nrm, nb, normals, oriented, sign):
 
 
 @njit(cache=True, nogil=True)
+def _bit_length(x):
+    """Number of bits of the uint64 ``x`` (0 for 0): six halvings, not a loop over the bits."""
+    n = 0
+    if x >> np.uint64(32) != 0:
+        x >>= np.uint64(32)
+        n += 32
+    if x >> np.uint64(16) != 0:
+        x >>= np.uint64(16)
+        n += 16
+    if x >> np.uint64(8) != 0:
+        x >>= np.uint64(8)
+        n += 8
+    if x >> np.uint64(4) != 0:
+        x >>= np.uint64(4)
+        n += 4
+    if x >> np.uint64(2) != 0:
+        x >>= np.uint64(2)
+        n += 2
+    if x >> np.uint64(1) != 0:
+        x >>= np.uint64(1)
+        n += 1
+    return n + 1 if x != 0 else n
+
+
+@njit(cache=True, nogil=True)
 def first_split_levels(keys, depth, counts):
-    """``counts[l]``: how many neighbours in the sorted Morton ``keys`` (``depth`` levels) first differ at level ``l``."""
+    """``counts[l]``: how many neighbours in the sorted Morton ``keys`` (``depth`` levels) first differ at level ``l``.
+
+    Two keys first differ at level ``depth - t``, where ``t`` is the 3-bit
+    group of their highest differing bit (level 0 for a group beyond ``depth``).
+    """
     for i in range(1, keys.shape[0]):
         x = keys[i] ^ keys[i - 1]
         if x == 0:
             continue
-        lev = depth
-        while lev > 0 and (x >> np.uint64(3 * (depth - lev + 1))) != 0:
-            lev -= 1
-        counts[lev] += 1
+        counts[max(depth - (_bit_length(x) - 1) // 3, 0)] += 1
 
 
 @parallel_kernel
@@ -900,6 +926,44 @@ def box_cell_keys(points, edge, lo, span, keys):
             keys[i] = (c0 * span[1] + c1) * span[2] + c2
         else:
             keys[i] = -1
+
+
+@njit(cache=True, nogil=True)
+def shifted_run_starts(keys, shift):
+    """Index of the first row of each run of equal ``keys >> shift`` in the sorted ``keys`` (uint64), without the shifted copy."""
+    n = keys.shape[0]
+    s = np.uint64(shift)
+    runs = 0
+    for i in range(n):
+        if i == 0 or (keys[i] >> s) != (keys[i - 1] >> s):
+            runs += 1
+    out = np.empty(runs, dtype=np.int64)
+    r = 0
+    for i in range(n):
+        if i == 0 or (keys[i] >> s) != (keys[i - 1] >> s):
+            out[r] = i
+            r += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def compact_points(where, points, keys):
+    """The rows of ``points`` (N, 3) and ``keys`` (N,) where ``where`` (M <= N, bool; rows past M are left out), and their indices, in order."""
+    m = 0
+    for i in range(where.shape[0]):
+        if where[i]:
+            m += 1
+    pts = np.empty((m, 3))
+    out_keys = np.empty(m, dtype=keys.dtype)
+    ids = np.empty(m, dtype=np.int64)
+    j = 0
+    for i in range(where.shape[0]):
+        if where[i]:
+            pts[j, 0], pts[j, 1], pts[j, 2] = points[i, 0], points[i, 1], points[i, 2]
+            out_keys[j] = keys[i]
+            ids[j] = i
+            j += 1
+    return pts, out_keys, ids
 
 
 @njit(cache=True, nogil=True)

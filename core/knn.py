@@ -178,11 +178,10 @@ def sorted_point_grid(points: np.ndarray, keys: np.ndarray, edge: float, k: int,
     if n:
         occupied = np.asarray(level_occupancy(keys), dtype=np.float64)  # occupied cells at levels 0 to 21
         level = int(np.argmin(np.abs(np.log(n / occupied) - np.log(max(k, 1)))))
-    shift = np.uint64(3 * (MAX_DEPTH - level))
-    cell_keys = keys >> shift
-    first = np.flatnonzero(np.r_[True, cell_keys[1:] != cell_keys[:-1]]) if n else np.zeros(0, np.int64)
+    shift = 3 * (MAX_DEPTH - level)
+    first = _kernels.shifted_run_starts(keys, shift)
     scale = (2.0**MAX_DEPTH / edge) * 2.0 ** (level - MAX_DEPTH)  # point_keys' scale, then a power of two: exact
-    return PointGrid(points=pts, ids=ids, cells=cell_keys[first], starts=np.r_[first, n].astype(np.int64),
+    return PointGrid(points=pts, ids=ids, cells=keys[first] >> np.uint64(shift), starts=np.r_[first, n].astype(np.int64),
                      corner=np.zeros(3), edge=float(edge) / 2.0**level, levels=level, scale=float(scale))
 
 
@@ -216,34 +215,37 @@ def near_queries(points: np.ndarray, queries: np.ndarray, reach: float) -> np.nd
     r = np.arange(-1, 2)
     steps = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
     around = number(np.clip(cells[:, None, :] + steps[None, :, :], 0, dims - 1))
-    found = np.empty(len(pts), dtype=np.int64)
-    _box_cells(np.ascontiguousarray(pts), lo, hi, float(reach), dims, found)
-    box = np.flatnonzero(found >= 0)
-    found = found[box]
     total = float(np.prod(dims.astype(np.float64)))
     if total <= 4.0 * (around.size + len(pts)) + 4096:  # a mask of every cell of the box costs less than sorting
-        wanted = np.zeros(int(total), dtype=bool)
-        wanted[around.ravel()] = True
-        keep[box] = wanted[found]
-        return keep
-    wanted = np.unique(around)
-    at = np.minimum(np.searchsorted(wanted, found), wanted.size - 1)
-    keep[box[wanted[at] == found]] = True
+        mask = np.zeros(int(total), dtype=bool)
+        mask[around.ravel()] = True
+        wanted = np.zeros(0, dtype=np.int64)
+    else:
+        mask = np.zeros(0, dtype=bool)
+        wanted = np.unique(around)
+    _keep_near(np.ascontiguousarray(pts), lo, hi, float(reach), dims, mask, wanted, keep)
     return keep
 
 
 @njit(cache=True, nogil=True)
-def _box_cells(pts, lo, hi, reach, dims, out):
-    """:func:`near_queries`' cell number of each point in the box ``[lo, hi]`` (cells of edge ``reach`` from ``lo``), -1 outside it."""
+def _keep_near(pts, lo, hi, reach, dims, mask, wanted, keep):
+    """:func:`near_queries`' last step, one pass: ``keep[i]`` where point ``i`` lies in the box ``[lo, hi]`` and its cell
+    (edge ``reach`` from ``lo``, numbered row by row) is wanted: ``mask[cell]``, or, where ``mask`` is empty, ``cell`` in
+    the sorted ``wanted``."""
+    dense = mask.size > 0
     for i in range(pts.shape[0]):
         x, y, z = pts[i, 0], pts[i, 1], pts[i, 2]
         if not (x >= lo[0] and x <= hi[0] and y >= lo[1] and y <= hi[1] and z >= lo[2] and z <= hi[2]):
-            out[i] = -1
             continue
         a = min(int(np.floor((x - lo[0]) / reach)), dims[0] - 1)
         b = min(int(np.floor((y - lo[1]) / reach)), dims[1] - 1)
         c = min(int(np.floor((z - lo[2]) / reach)), dims[2] - 1)
-        out[i] = (a * dims[1] + b) * dims[2] + c
+        cell = (a * dims[1] + b) * dims[2] + c
+        if dense:
+            keep[i] = mask[cell]
+        else:
+            at = _kernels.lower_bound(wanted, cell)
+            keep[i] = at < wanted.size and wanted[at] == cell
 
 
 def nearest_neighbours(
