@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "shifted_run_starts", "compact_points", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "face_neighbour_counts", "shift_moments"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "shifted_run_starts", "compact_points", "compact_votes", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "face_neighbour_counts", "shift_moments"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -964,6 +964,27 @@ def compact_points(where, points, keys):
             ids[j] = i
             j += 1
     return pts, out_keys, ids
+
+
+@njit(cache=True, nogil=True)
+def compact_votes(where, points, votes, voters):
+    """``points[where]``, ``votes[where]`` ((N, 3) float64 each) and ``voters[where]`` ((N,) bool) in one pass."""
+    m = 0
+    for i in range(where.shape[0]):
+        if where[i]:
+            m += 1
+    p = np.empty((m, 3))
+    v = np.empty((m, 3))
+    b = np.empty(m, dtype=np.bool_)
+    j = 0
+    for i in range(where.shape[0]):
+        if where[i]:
+            for a in range(3):
+                p[j, a] = points[i, a]
+                v[j, a] = votes[i, a]
+            b[j] = voters[i]
+            j += 1
+    return p, v, b
 
 
 @njit(cache=True, nogil=True)

@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._kernels import hashed_cell_picks
+from ._kernels import hashed_cell_picks, run_starts
+from .argsort import stable_argsort
 from .moments import cell_moments
 from .quadric import fit_nodes
 
@@ -104,9 +105,8 @@ def rmse_histograms(points: np.ndarray, d_min: float, n_min: int, origin=(0.0, 0
         if chosen.size == 0:
             continue
         cells = np.floor((pts[chosen] + o) / c).astype(np.int64)  # absolute cells
-        order = np.lexsort(cells.T[::-1])
+        order, starts = _cell_runs(cells)
         cells = cells[order]
-        starts = np.flatnonzero(np.r_[True, np.any(cells[1:] != cells[:-1], axis=1)])
         counts = np.diff(np.r_[starts, cells.shape[0]])
         keep = counts >= n_min
         if not keep.any():
@@ -117,6 +117,24 @@ def rmse_histograms(points: np.ndarray, d_min: float, n_min: int, origin=(0.0, 0
         rmse = np.maximum(np.nan_to_num(fit.rmse, nan=0.0), 10.0 ** RMSE_BINS[0])
         out[row] = np.histogram(np.log10(rmse), bins=RMSE_BINS)[0]
     return out
+
+
+def _cell_runs(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stable order of integer cells (M, 3) by x, then y, then z (``np.lexsort`` of them), and where each cell's run starts.
+
+    One int64 key per cell, row by row in the cells' box, sorted stably: the
+    same order as the lexicographic sort, on numba's threads where a call
+    has the machine (:func:`~patchcloud.core.argsort.stable_argsort`).
+    """
+    lo = cells.min(axis=0)
+    span = cells.max(axis=0) - lo + 1
+    if float(np.prod(span.astype(np.float64))) >= 2.0**62:  # the keys would overflow: the lexicographic sort itself
+        order = np.lexsort(cells.T[::-1])
+        srt = cells[order]
+        return order, np.flatnonzero(np.r_[True, np.any(srt[1:] != srt[:-1], axis=1)])
+    key = ((cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])) * span[2] + (cells[:, 2] - lo[2])
+    order = stable_argsort(key)
+    return order, run_starts(key[order])
 
 
 def _median(hist: np.ndarray) -> float:

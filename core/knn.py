@@ -29,6 +29,7 @@ import numpy as np
 from numba import njit, prange
 
 from . import _kernels
+from .argsort import stable_argsort
 from .morton import MAX_DEPTH, encode
 from .octree import level_occupancy
 from .threads import parallel_kernel
@@ -131,7 +132,7 @@ def point_grid(points: np.ndarray, k: int, ids: np.ndarray | None = None) -> Poi
     scale = 1.0 / edge
     q = np.clip(np.floor((pts - corner) * scale), 0, 2**levels - 1).astype(np.int64) if n else np.zeros((0, 3), np.int64)
     keys = encode(q)
-    order = np.argsort(keys, kind="stable")
+    order = stable_argsort(keys)
     keys = keys[order]
     first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if n else np.zeros(0, np.int64)
     return PointGrid(points=pts[order], ids=ids[order], cells=keys[first], starts=np.r_[first, n].astype(np.int64),
@@ -202,7 +203,8 @@ def near_queries(points: np.ndarray, queries: np.ndarray, reach: float) -> np.nd
     keep = np.zeros(len(pts), dtype=bool)
     if len(q) == 0 or len(pts) == 0 or not reach > 0:
         return keep
-    lo, hi = q.min(axis=0) - reach, q.max(axis=0) + reach
+    low, high = _kernels.bounds(np.ascontiguousarray(q))[:2]  # numpy's min over axis 0 of (M, 3) is several times slower
+    lo, hi = low - reach, high + reach
     dims = np.floor((hi - lo) / reach).astype(np.int64) + 1
 
     def number(ijk):

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels
+from .argsort import stable_argsort
 from .knn import near_queries
 
 __all__ = ["MomentNormals", "moment_normals", "MIN_POINTS"]
@@ -136,7 +137,7 @@ def moment_normals(
     where = points[query]
     if m and 8 * m < n:  # few queries: only the points that may lie in their cells (each such cell whole, so the same sums)
         near = near_queries(points, where, 2.0 * h)  # a query's cells lie within 1.5 h of it along each axis, at both scales
-        points, votes, voters = points[near], votes[near], voters[near]
+        points, votes, voters = _kernels.compact_votes(near, points, np.ascontiguousarray(votes), voters)
     votes = np.ascontiguousarray(votes)
     for edge in (0.5 * h, h):  # the flatter of the two scales, the finer on a tie
         nrm, s2, s3, d1, v, count = _at_points(points, votes, voters, where, float(edge))
@@ -173,7 +174,7 @@ def _at_points(points, votes, voters, where, edge):
     _kernels.box_cell_keys(points, float(edge), lo, span, keys)
     inside = np.flatnonzero(keys >= 0)
     keys = keys[inside]
-    order = np.argsort(keys, kind="stable")
+    order = stable_argsort(keys)
     keys = keys[order]  # one (N,) array at a time freed as the next is made: this runs on whole tiles
     rows = inside[order]
     del inside, order

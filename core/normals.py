@@ -194,7 +194,7 @@ def estimate_normals(
         threshold = 0.005
     elif threshold is None:  # the scanner noise, on cells anchored at the root cube's corner (the stream: its grid's origin)
         threshold = threshold_from_histograms(rmse_histograms(local, d_min, n_min), d_min, spacing)
-    centre = corner + local.mean(axis=0)
+    centre = corner + local.mean(axis=0) if orient == "outward" else None  # only the outward rule has a centre
     fit = fit_tile(
         pts, corner, edge, criterion=criterion, threshold=threshold, d_min=d_min, max_edge=max_edge, n_min=n_min,
         min_sigma2=min_sigma2, orient=orient, viewpoint=vp, centre=centre, spacing=spacing, sorted_input=sorted_input,

@@ -17,6 +17,7 @@ import numpy as np
 
 from .calibration import rmse_histograms, threshold_from_histograms
 from . import _kernels
+from .argsort import stable_argsort
 from .codes import PatchKind
 from .morton import MAX_DEPTH, containing, decode, key_range
 from .moments import EXPONENTS, shift_entries
@@ -135,7 +136,7 @@ def sort_points(points: np.ndarray, corner: np.ndarray, edge: float) -> tuple[np
     order : (N,) int64, keys : (N,) uint64 sorted, q : (N, 3) int64 sorted.
     """
     q, keys = point_keys(points, edge, corner)
-    order = np.argsort(keys, kind="stable")
+    order = stable_argsort(keys)
     keys = keys[order]
     tie = np.flatnonzero(keys[1:] == keys[:-1])
     if tie.size:

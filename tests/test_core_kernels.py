@@ -234,3 +234,50 @@ def test_copies_of_a_query_get_the_ball_each_would_get_alone(rng):
         m = radius_moments(pts, 0.5, mode=mode)
         for i in range(1490, 1580):
             assert np.array_equal(m[i], radius_moments(pts, 0.5, mode=mode, at=np.array([i]))[0]), (mode, i)
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3, 5])
+def test_stable_argsort_is_numpys_stable_argsort_ties_included(rng, threads):
+    from patchcloud.core.argsort import MIN_PARALLEL, stable_argsort
+
+    n = 2 * MIN_PARALLEL + 12345
+    cases = [
+        rng.integers(0, 50, n),  # ties everywhere: the stable order of equal keys is the input order
+        rng.integers(-2**62, 2**62, n),
+        np.sort(rng.integers(0, 2**63, n, dtype=np.uint64))[::-1].copy(),  # descending runs
+        np.repeat(rng.integers(0, 2**40, n // 8, dtype=np.uint64), 8),
+        rng.integers(0, 1000, MIN_PARALLEL - 1),  # too few keys to cut
+    ]
+    for keys in cases:
+        got = stable_argsort(keys, threads=threads)
+        assert got.dtype == np.int64 and np.array_equal(got, np.argsort(keys, kind="stable"))
+
+
+def test_compact_points_and_shifted_runs_equal_numpy(rng):
+    pts = rng.normal(size=(5000, 3))
+    keys = np.sort(rng.integers(0, 2**63, 5000, dtype=np.uint64))
+    where = rng.random(4000) < 0.3  # rows past the mask are left out
+    got_pts, got_keys, ids = _kernels.compact_points(where, pts, keys)
+    own = np.flatnonzero(where)
+    assert np.array_equal(ids, own) and np.array_equal(got_pts, pts[own]) and np.array_equal(got_keys, keys[own])
+    for shift in (0, 3, 30, 60, 63):
+        c = keys >> np.uint64(shift)
+        assert np.array_equal(_kernels.shifted_run_starts(keys, shift), np.flatnonzero(np.r_[True, c[1:] != c[:-1]]))
+    assert _kernels.shifted_run_starts(keys[:0], 3).size == 0
+
+
+@pytest.mark.parametrize("spread", [5.0, 5e4])  # a small box: one mask of its cells; a wide one: the sorted wanted cells
+def test_near_queries_keeps_the_points_in_the_27_cells_around_each_query(rng, spread):
+    from patchcloud.core.knn import near_queries
+
+    pts = rng.uniform(0, spread, (20000, 3))
+    q = np.concatenate([rng.uniform(0, spread, (100, 3)), pts[:50] + 1e-9])
+    reach = 0.7
+    keep = near_queries(pts, q, reach)
+    lo = q.min(axis=0) - reach
+    dims = np.floor((q.max(axis=0) + reach - lo) / reach).astype(np.int64) + 1
+    cell = lambda p: np.minimum(np.floor((p - lo) / reach).astype(np.int64), dims - 1)  # noqa: E731
+    inside = np.all((pts >= lo) & (pts <= q.max(axis=0) + reach), axis=1)
+    near = np.all(np.abs(cell(pts)[:, None, :] - cell(q)[None, :, :]) <= 1, axis=2).any(axis=1) & inside
+    assert np.array_equal(keep, near) and keep[:50].all()
+    assert np.linalg.norm(pts[~keep][:, None, :] - q[None, :, :], axis=2).min() > reach  # a superset of the points within reach
