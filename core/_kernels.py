@@ -271,6 +271,8 @@ def blend_points(
             continue
         h = edge[l]
         shift = _MAX_DEPTH - level[l]
+        # per face (axis, side): the neighbour leaf the last point found there; the next point's is most often the same
+        memo = np.full(6, -1, dtype=np.int64)
         for i in range(start[l], start[l] + count[l]):
             if not todo[i]:
                 continue
@@ -300,20 +302,25 @@ def blend_points(
                 else:
                     c2 = pc
                 key = _spread(np.uint64(c0)) | (_spread(np.uint64(c1)) << np.uint64(1)) | (_spread(np.uint64(c2)) << np.uint64(2))
+                face = 2 * axis + (1 if upper else 0)
+                j = memo[face]
                 if outside:
-                    blk = 2 * axis + (1 if upper else 0)
-                    a0, a1 = nb_off[blk], nb_off[blk + 1]
+                    a0, a1 = nb_off[face], nb_off[face + 1]
                     if a0 == a1:
                         continue
-                    j = _find_leaf(key, nb_lo_key[a0:a1], nb_hi_key[a0:a1])
-                    if j < 0:
-                        continue
-                    j += a0
+                    if j < 0 or not (nb_lo_key[j] <= key and key < nb_hi_key[j]):  # else the leaf a search would find
+                        j = _find_leaf(key, nb_lo_key[a0:a1], nb_hi_key[a0:a1])
+                        if j < 0:
+                            continue
+                        j += a0
+                        memo[face] = j
                     o_kind, o_edge, o_centroid, o_frames, o_coeffs, o_sigma3 = nb_kind, nb_edge, nb_centroid, nb_frames, nb_coeffs, nb_sigma3
                 else:
-                    j = _find_leaf(key, lo_key, hi_key)
-                    if j < 0:
-                        continue
+                    if j < 0 or not (lo_key[j] <= key and key < hi_key[j]):
+                        j = _find_leaf(key, lo_key, hi_key)
+                        if j < 0:
+                            continue
+                        memo[face] = j
                     o_kind, o_edge, o_centroid, o_frames, o_coeffs, o_sigma3 = kind, edge, centroid, frames, coeffs, sigma3
                 if o_kind[j] != _KIND_SURFACE:
                     continue
