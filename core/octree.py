@@ -198,9 +198,9 @@ def _bottom_up(local, keys, edge, max_level) -> list[_Level]:
         gstart = np.flatnonzero(np.r_[True, pc[1:] != pc[:-1]])
         octant = (child.cells & np.uint64(7)).astype(np.int64)
         hc = edge / 2.0 ** (lev + 1)
-        rows, cols, coef = shift_entries((2.0 * bits - 1.0) * (0.5 * hc))
+        coef = shift_entries((2.0 * bits - 1.0) * (0.5 * hc))[2]
         moments = np.empty((gstart.shape[0], child.moments.shape[1]))
-        _kernels.shift_to_parents(child.moments, gstart, octant, rows, cols, coef, moments)
+        _kernels.shift_to_parents(child.moments, gstart, octant, coef, moments)
         child.parent = np.repeat(np.arange(len(gstart)), np.diff(np.r_[gstart, len(pc)]))
         levels[lev] = _Level(pc[gstart], child.starts[gstart], moments)
     return levels

@@ -281,3 +281,23 @@ def test_near_queries_keeps_the_points_in_the_27_cells_around_each_query(rng, sp
     near = np.all(np.abs(cell(pts)[:, None, :] - cell(q)[None, :, :]) <= 1, axis=2).any(axis=1) & inside
     assert np.array_equal(keep, near) and keep[:50].all()
     assert np.linalg.norm(pts[~keep][:, None, :] - q[None, :, :], axis=2).min() > reach  # a superset of the points within reach
+
+
+def test_shift_to_parents_equals_the_loop_over_the_shift_entries_bit_for_bit(rng):
+    from patchcloud.core.moments import shift_entries
+
+    # children of 40 parents (1 to 8 each), their octants, moments of a cloud's scale
+    counts = rng.integers(1, 9, 40)
+    gstart = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64)
+    octant = rng.integers(0, 8, counts.sum()).astype(np.int64)
+    moments = rng.normal(size=(counts.sum(), len(EXPONENTS))) * 10.0 ** rng.integers(-3, 4, (1, len(EXPONENTS)))
+    bits = np.array([[(o >> a) & 1 for a in range(3)] for o in range(8)], dtype=np.float64)
+    rows, cols, coef = shift_entries((2.0 * bits - 1.0) * 0.37)
+    ref = np.zeros((40, len(EXPONENTS)))
+    for p in range(40):  # the definition: the entries' terms added one by one, in their order
+        for c in range(gstart[p], gstart[p] + counts[p]):
+            for t in range(rows.size):
+                ref[p, rows[t]] += coef[octant[c], t] * moments[c, cols[t]]
+    out = np.empty_like(ref)
+    _kernels.shift_to_parents(moments, gstart, octant, coef, out)
+    assert np.array_equal(out, ref)
