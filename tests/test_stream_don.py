@@ -176,6 +176,7 @@ def test_don_dims_and_undefined_points(tmp_path):
     assert not np.asarray(laspy.read(tmp_path / "g.las")["ClusterID"]).any()
 
 
+@pytest.mark.slow  # 7 s
 def test_resume_reuses_the_store(scene, tmp_path):
     path, _, _ = scene
     st = tmp_path / "keep.zarr"
@@ -273,7 +274,8 @@ def _kept_run(scene, tmp_path, job):
     return path, out, kw, out.read_bytes()
 
 
-@pytest.mark.parametrize("job, change", [(don, {"r_small": 0.4}), (segment, {"tolerance": 0.3}), (segment, {"threshold": 0.3})])
+@pytest.mark.parametrize("job, change", [(don, {"r_small": 0.4}), pytest.param(segment, {"tolerance": 0.3}, marks=pytest.mark.slow),
+                                         pytest.param(segment, {"threshold": 0.3}, marks=pytest.mark.slow)])  # segment: 8-10 s each
 def test_a_kept_store_never_passes_an_output_of_other_parameters_as_this_runs(scene, tmp_path, job, change):
     """The same output and store, other parameters: the output the first run wrote is not taken as done (it was, with
     the store's record of it matching): without --overwrite one error line, with it the new values, as a fresh run's."""
@@ -341,6 +343,7 @@ def test_a_kept_normals_output_of_another_threshold_is_refused_before_the_fit(tm
     assert calls.count(1) == len(Store.open(str(st)).tiles)  # the fit of the threshold 0.05 run only
 
 
+@pytest.mark.slow  # 10 s
 def test_jobs_sharing_a_store_keep_each_others_outputs(scene, tmp_path):
     """normals, then don, then segment on one kept store: each rerun keeps its own output (the records are by path;
     the don run used to replace the normals run's record, and its rerun refused its own output as existing)."""
