@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "shifted_run_starts", "compact_points", "compact_votes", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "face_neighbour_counts", "shift_moments"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "rows_where", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "face_neighbour_counts", "shift_moments"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -1249,76 +1249,35 @@ def box_cell_keys(points, edge, lo, span, keys):
 
 
 @njit(cache=True, nogil=True)
-def shifted_run_starts(keys, shift):
-    """Index of the first row of each run of equal ``keys >> shift`` in the sorted ``keys`` (uint64), without the shifted copy."""
-    n = keys.shape[0]
-    s = np.uint64(shift)
-    runs = 0
-    for i in range(n):
-        if i == 0 or (keys[i] >> s) != (keys[i - 1] >> s):
-            runs += 1
-    out = np.empty(runs, dtype=np.int64)
-    r = 0
-    for i in range(n):
-        if i == 0 or (keys[i] >> s) != (keys[i - 1] >> s):
-            out[r] = i
-            r += 1
+def rows_where(where, values):
+    """``values[:M][where]`` for (N, 3) ``values`` and an (M,) bool ``where``, M <= N, in one compiled pass (numpy's
+    boolean or fancy indexing of an (N, 3) array is several times slower)."""
+    m = 0
+    for i in range(where.shape[0]):
+        if where[i]:
+            m += 1
+    out = np.empty((m, 3), dtype=values.dtype)
+    j = 0
+    for i in range(where.shape[0]):
+        if where[i]:
+            out[j, 0], out[j, 1], out[j, 2] = values[i, 0], values[i, 1], values[i, 2]
+            j += 1
     return out
 
 
 @njit(cache=True, nogil=True)
-def compact_points(where, points, keys):
-    """The rows of ``points`` (N, 3) and ``keys`` (N,) where ``where`` (M <= N, bool; rows past M are left out), and their indices, in order."""
-    m = 0
-    for i in range(where.shape[0]):
-        if where[i]:
-            m += 1
-    pts = np.empty((m, 3))
-    out_keys = np.empty(m, dtype=keys.dtype)
-    ids = np.empty(m, dtype=np.int64)
-    j = 0
-    for i in range(where.shape[0]):
-        if where[i]:
-            pts[j, 0], pts[j, 1], pts[j, 2] = points[i, 0], points[i, 1], points[i, 2]
-            out_keys[j] = keys[i]
-            ids[j] = i
-            j += 1
-    return pts, out_keys, ids
-
-
-@njit(cache=True, nogil=True)
-def compact_votes(where, points, votes, voters):
-    """``points[where]``, ``votes[where]`` ((N, 3) float64 each) and ``voters[where]`` ((N,) bool) in one pass."""
-    m = 0
-    for i in range(where.shape[0]):
-        if where[i]:
-            m += 1
-    p = np.empty((m, 3))
-    v = np.empty((m, 3))
-    b = np.empty(m, dtype=np.bool_)
-    j = 0
-    for i in range(where.shape[0]):
-        if where[i]:
-            for a in range(3):
-                p[j, a] = points[i, a]
-                v[j, a] = votes[i, a]
-            b[j] = voters[i]
-            j += 1
-    return p, v, b
-
-
-@njit(cache=True, nogil=True)
-def run_starts(keys):
-    """Index of the first row of each run of equal values in the sorted ``keys`` (empty for no keys)."""
+def run_starts(keys, shift=0):
+    """Index of the first row of each run of equal ``keys >> shift`` in the sorted integer ``keys`` (empty for no keys):
+    with a shift, the runs of the cells that hold Morton keys, without the shifted copy."""
     n = keys.shape[0]
     runs = 0
     for i in range(n):
-        if i == 0 or keys[i] != keys[i - 1]:
+        if i == 0 or (keys[i] >> shift) != (keys[i - 1] >> shift):
             runs += 1
     out = np.empty(runs, dtype=np.int64)
     r = 0
     for i in range(n):
-        if i == 0 or keys[i] != keys[i - 1]:
+        if i == 0 or (keys[i] >> shift) != (keys[i - 1] >> shift):
             out[r] = i
             r += 1
     return out

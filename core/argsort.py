@@ -50,9 +50,11 @@ def stable_argsort(keys: np.ndarray, threads: int | None = None) -> np.ndarray:
     """
     keys = np.ascontiguousarray(keys)
     n = keys.shape[0]
-    if keys.ndim != 1 or n < MIN_PARALLEL or keys.dtype.kind not in "iu" or threads == 1 or (threads is None and in_single_threaded()):
-        return np.argsort(keys, kind="stable").astype(np.int64, copy=False)  # (numba's thread pool is not even asked about)
-    parts = min(numba.get_num_threads() if threads is None else int(threads), n // (MIN_PARALLEL // 2))
+    parts = 1
+    if keys.ndim == 1 and n >= MIN_PARALLEL and keys.dtype.kind in "iu":  # else numba's thread pool is not even asked about
+        if threads is None:
+            threads = 1 if in_single_threaded() else numba.get_num_threads()
+        parts = min(int(threads), n // (MIN_PARALLEL // 2))
     if parts < 2:
         return np.argsort(keys, kind="stable").astype(np.int64, copy=False)
     bounds = np.linspace(0, n, parts + 1).astype(np.int64)

@@ -180,7 +180,7 @@ def sorted_point_grid(points: np.ndarray, keys: np.ndarray, edge: float, k: int,
         occupied = np.asarray(level_occupancy(keys), dtype=np.float64)  # occupied cells at levels 0 to 21
         level = int(np.argmin(np.abs(np.log(n / occupied) - np.log(max(k, 1)))))
     shift = 3 * (MAX_DEPTH - level)
-    first = _kernels.shifted_run_starts(keys, shift)
+    first = _kernels.run_starts(keys, shift)
     scale = (2.0**MAX_DEPTH / edge) * 2.0 ** (level - MAX_DEPTH)  # point_keys' scale, then a power of two: exact
     return PointGrid(points=pts, ids=ids, cells=keys[first] >> np.uint64(shift), starts=np.r_[first, n].astype(np.int64),
                      corner=np.zeros(3), edge=float(edge) / 2.0**level, levels=level, scale=float(scale))

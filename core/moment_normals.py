@@ -137,7 +137,7 @@ def moment_normals(
     where = points[query]
     if m and 8 * m < n:  # few queries: only the points that may lie in their cells (each such cell whole, so the same sums)
         near = near_queries(points, where, 2.0 * h)  # a query's cells lie within 1.5 h of it along each axis, at both scales
-        points, votes, voters = _kernels.compact_votes(near, points, np.ascontiguousarray(votes), voters)
+        points, votes, voters = _kernels.rows_where(near, points), _kernels.rows_where(near, votes), voters[near]
     votes = np.ascontiguousarray(votes)
     for edge in (0.5 * h, h):  # the flatter of the two scales, the finer on a tie
         nrm, s2, s3, d1, v, count = _at_points(points, votes, voters, where, float(edge))

@@ -520,8 +520,8 @@ def tile_grids(points: np.ndarray, keys: np.ndarray, edge: float, k: int, where:
     if where is None:  # the tile's points as they are (views: no copy)
         grids = [sorted_point_grid(points[:n], keys, edge, k)]
     else:
-        own_points, own_keys, own = _kernels.compact_points(np.ascontiguousarray(where[:n]), points, keys)
-        grids = [sorted_point_grid(own_points, own_keys, edge, k, ids=own)]
+        own = np.flatnonzero(where[:n])
+        grids = [sorted_point_grid(_kernels.rows_where(np.ascontiguousarray(where[:n]), points), keys[own], edge, k, ids=own)]
     skin = np.arange(n, points.shape[0]) if where is None else n + np.flatnonzero(where[n:])
     if skin.size:
         grids.append(point_grid(points[skin], k, ids=skin))

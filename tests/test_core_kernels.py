@@ -253,17 +253,18 @@ def test_stable_argsort_is_numpys_stable_argsort_ties_included(rng, threads):
         assert got.dtype == np.int64 and np.array_equal(got, np.argsort(keys, kind="stable"))
 
 
-def test_compact_points_and_shifted_runs_equal_numpy(rng):
+def test_rows_where_and_shifted_runs_equal_numpy(rng):
     pts = rng.normal(size=(5000, 3))
     keys = np.sort(rng.integers(0, 2**63, 5000, dtype=np.uint64))
     where = rng.random(4000) < 0.3  # rows past the mask are left out
-    got_pts, got_keys, ids = _kernels.compact_points(where, pts, keys)
-    own = np.flatnonzero(where)
-    assert np.array_equal(ids, own) and np.array_equal(got_pts, pts[own]) and np.array_equal(got_keys, keys[own])
+    assert np.array_equal(_kernels.rows_where(where, pts), pts[np.flatnonzero(where)])
+    assert _kernels.rows_where(where[:0], pts).shape == (0, 3)
     for shift in (0, 3, 30, 60, 63):
         c = keys >> np.uint64(shift)
-        assert np.array_equal(_kernels.shifted_run_starts(keys, shift), np.flatnonzero(np.r_[True, c[1:] != c[:-1]]))
-    assert _kernels.shifted_run_starts(keys[:0], 3).size == 0
+        assert np.array_equal(_kernels.run_starts(keys, shift), np.flatnonzero(np.r_[True, c[1:] != c[:-1]]))
+    assert _kernels.run_starts(keys[:0], 3).size == 0
+    signed = np.sort(rng.integers(-2**40, 2**40, 3000))
+    assert np.array_equal(_kernels.run_starts(signed, 8), np.flatnonzero(np.r_[True, (signed >> 8)[1:] != (signed >> 8)[:-1]]))
 
 
 @pytest.mark.parametrize("spread", [5.0, 5e4])  # a small box: one mask of its cells; a wide one: the sorted wanted cells
