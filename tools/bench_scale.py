@@ -258,6 +258,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tile-size", type=float, default=None, help="passed to patchcloud normals (default: its own)")
     ap.add_argument("--workdir", default="/tmp/bench_scale")
     ap.add_argument("--out", default=None, help="also write the table there")
+    ap.add_argument("--floor", choices=("each", "first", "none"), default="each",
+                    help="measure the I/O floor before each run (each), before the first worker count's runs only (first), or not")
     ap.add_argument("--keep-profiles", default=None, metavar="DIR",
                     help="keep each run's task stream there, as profile-FILE-wW.json (tools/task_stream.py reads them)")
     a = ap.parse_args(argv)
@@ -279,7 +281,7 @@ def main(argv=None) -> int:
         f"scheduler {a.scheduler}; python {platform.python_version()}",
         f"# command: python tools/bench_scale.py --laz-points {a.laz_points} --las-points {a.las_points} "
         f"--workers {' '.join(map(str, a.workers))} --scheduler {a.scheduler}" + (f" --tile-size {a.tile_size:g}" if a.tile_size else "")
-        + (f" --repeats {a.repeats}" if a.repeats > 1 else ""),
+        + (f" --repeats {a.repeats}" if a.repeats > 1 else "") + (f" --floor {a.floor}" if a.floor != "each" else ""),
         "",
         f"{'file':<22} {'tiles':>5} {'workers':>7} {'wall s':>8} {'range s':>11} {'Mpts/s':>7} {'speed-up':>8} {'floor s':>8} {'x floor':>7} {'peak MiB':>9} "
         f"{'user s':>7} {'sys s':>6} {'faults M':>8} {'idle':>6} {'client':>7} {'longest s':>9} {'Amdahl 16':>9} {'Amdahl 64':>9} "
@@ -291,7 +293,7 @@ def main(argv=None) -> int:
         for w in a.workers:
             runs = []  # each: wall, peak, cpu, profile, floor (the I/O floor measured just before that run)
             for _ in range(a.repeats):
-                floor = io_floor(path, w, work)
+                floor = io_floor(path, w, work) if a.floor == "each" or (a.floor == "first" and w == a.workers[0]) else float("nan")
                 out = work / f"out{path.suffix}"
                 out.unlink(missing_ok=True)  # the last run's output: replacing it would charge its removal to this run
                 prof = work / "profile.json"
@@ -323,7 +325,7 @@ def main(argv=None) -> int:
         "",
         "# tiles: the store's tiles (fit tasks); wall: the whole `patchcloud normals` process (start-up and export included), the",
         "# median of --repeats runs (range: all of them; the other columns are the median run's); floor: W processes reading and writing",
-        "# their shares of the file with laspy + lazrs' sequential codec; peak: proportional set sizes summed over the job's",
+        "# their shares of the file with laspy + lazrs' sequential codec (nan: not measured, --floor); peak: proportional set sizes summed over the job's",
         "# processes, sampled together every 0.1 s; user, sys: CPU seconds of the command and its workers (the run's profile);",
         "# faults: their minor page faults (millions);",
         "# idle: share of the wall time with fewer tasks running than workers; client: with none;",
