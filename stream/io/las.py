@@ -34,7 +34,7 @@ from .las_records import (
 __all__ = [
     "LasSource", "CorruptPointsError", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_directory_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
-    "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
+    "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
     "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS", "content_fingerprint", "FINGERPRINT_BLOCKS", "FINGERPRINT_BLOCK", "holds",
 ]
 
@@ -580,6 +580,17 @@ def _laszip_vlr(path: str):
     return header, data, lazrs.LazVlr(data)
 
 
+def chunk_table(path: str | os.PathLike, offset_to_points: int, vlr_data: bytes) -> np.ndarray:
+    """(C, 2) int64: each chunk's byte offset in the file and byte count, from the LAZ file's chunk table
+    (its VLR's bytes ``vlr_data``, its point data at byte ``offset_to_points``)."""
+    with open(path, "rb") as f:
+        f.seek(offset_to_points)
+        entries = lazrs.read_chunk_table(f, lazrs.LazVlr(vlr_data))
+    sizes = np.asarray([int(e[1]) for e in entries], dtype=np.int64)
+    starts = offset_to_points + 8 + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    return np.column_stack([starts, sizes])
+
+
 @functools.lru_cache(maxsize=8)
 def _chunk_plan(path: str, size: int, mtime_ns: int) -> _ChunkPlan | None:
     """The chunks of a LAZ file (read once per file version), fixed or variable in size; None for a file whose points
@@ -593,8 +604,6 @@ def _chunk_plan(path: str, size: int, mtime_ns: int) -> _ChunkPlan | None:
         whose chunks hold other than the header's point count (no reader
         but the chunk table's can read such a file in parts).
     """
-    from . import laz_layers  # (numba: not for a command that only reads headers)
-
     try:
         found = _laszip_vlr(path)
         if found is None:
@@ -605,7 +614,7 @@ def _chunk_plan(path: str, size: int, mtime_ns: int) -> _ChunkPlan | None:
                              or vlr.item_size() != header.point_format.size):  # (a damaged VLR: lazrs would panic)
             return None
         if not variable:
-            table = laz_layers.chunk_table(path, header.offset_to_point_data, data)
+            table = chunk_table(path, header.offset_to_point_data, data)
             if not len(table):
                 return None
             chunk, n = int(vlr.chunk_size()), int(header.point_count)

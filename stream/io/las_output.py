@@ -42,7 +42,7 @@ from laspy.vlrs.known import LasZipVlr
 from patchcloud.core import PatchcloudIOError
 
 from . import laz_layers
-from .las import laz_point_range
+from .las import chunk_table, laz_point_range
 
 __all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
            "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "restate"]
@@ -344,7 +344,7 @@ def layered_source(path: str | os.PathLike, header: laspy.LasHeader, new_dims) -
     if laz_point_range(path, h_in.offset_to_point_data, a.itemsize, h_in.point_format.id) != (n, n):
         return None
     try:
-        table = laz_layers.chunk_table(path, h_in.offset_to_point_data, zips[0].record_data)
+        table = chunk_table(path, h_in.offset_to_point_data, zips[0].record_data)
     except Exception:  # no usable chunk table: the records are read and coded whole, as before
         return None
     if len(table) != -(-n // lp.chunk):

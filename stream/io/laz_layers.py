@@ -38,15 +38,13 @@ Two extra bytes of 4 points, the first never changing (no layer):
 from __future__ import annotations
 
 import io
-import os
 import struct
 from dataclasses import dataclass
 
-import lazrs
 import numpy as np
 from numba import njit
 
-__all__ = ["LayeredPlan", "plan", "read_vlr_items", "byte_contexts", "byte_layers", "extend_chunk", "chunk_table", "POINT14_LAYERS"]
+__all__ = ["LayeredPlan", "plan", "read_vlr_items", "byte_contexts", "byte_layers", "extend_chunk", "POINT14_LAYERS"]
 
 #: Layers of a ``POINT14`` item (LASzip 3: changed values with X and Y, Z, classification, flags, intensity, scan angle,
 #: user data, point source, GPS time).
@@ -127,16 +125,6 @@ def plan(in_vlr: bytes, out_vlr: bytes, in_size: int, out_size: int, tail: int =
         return None
     return LayeredPlan(in_size=in_size, in_layers=sum(_LAYERS[t] for t, _, _ in body_in) + m, new_bytes=mk - m, chunk=chunk_in,
                        tail=int(tail))
-
-
-def chunk_table(path: str | os.PathLike, offset_to_points: int, vlr_data: bytes) -> np.ndarray:
-    """(C, 2) int64: each chunk's byte offset in the file and byte count, from the LAZ file's chunk table."""
-    with open(path, "rb") as f:
-        f.seek(offset_to_points)
-        entries = lazrs.read_chunk_table(f, lazrs.LazVlr(vlr_data))
-    sizes = np.asarray([int(e[1]) for e in entries], dtype=np.int64)
-    starts = offset_to_points + 8 + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    return np.column_stack([starts, sizes])
 
 
 @njit(nogil=True, cache=True)
