@@ -82,6 +82,22 @@ def test_the_command_line_s_help_imports_no_heavy_package():
     assert out.strip().splitlines()[-1] == "[]", out
 
 
+def test_checking_a_laz_file_imports_no_numba():
+    """The checks every command makes of a LAZ input (its header, its records' sizes, the decoding of its last chunk:
+    :func:`open_source`) load laspy and lazrs, not numba (0.16-0.3 s): the console script makes them before it starts
+    the worker processes, and ``info`` on a header makes nothing else."""
+    code = (
+        "import sys\n"
+        "from patchcloud.stream.io.las import open_source\n"
+        f"src = open_source({str(SAMPLE)!r})\n"
+        "print(src.point_count, src.compressed, 'numba' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    with laspy.open(SAMPLE) as f:
+        n = f.header.point_count
+    assert out == [str(n), "True", "False"], out
+
+
 def test_every_name_is_core_s_or_the_stream_s_own():
     names = [n for n in patchcloud.__all__ if n != "__version__"]
     assert len(set(names)) == len(names)
