@@ -7,7 +7,7 @@ from click.testing import CliRunner
 
 from patchcloud.stream import normals
 from patchcloud.stream.cli import main
-from patchcloud.stream.jobs.normals import PRINCIPAL_DIMS
+from patchcloud.stream.io.dims import PRINCIPAL_DIMS
 
 OFFSET = np.array([650000.0, 6860000.0, 40.0])
 R = 20.0  # the dome's radius (m): k1 = k2 = +1/R with normals up (outward)

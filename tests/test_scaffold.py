@@ -18,7 +18,7 @@ from patchcloud.stream import RunOptions, Store, normals
 from patchcloud.stream.cli import main
 from patchcloud.stream.engine.export import Column
 from patchcloud.stream.engine.job import Job, JobContext, run_job, split_options
-from patchcloud.stream.jobs.normals import NORMALS_DIMS
+from patchcloud.stream.io.dims import NORMALS_DIMS
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
 

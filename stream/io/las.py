@@ -788,7 +788,7 @@ def output_header(src: LasSource, dims, provenance: laspy.VLR | None = None, crs
 
     ``dims``: (name, numpy type, description[, no-data value]) of every
     dimension to add (each job declares its own, e.g.
-    :data:`patchcloud.stream.jobs.normals.NORMALS_DIMS`).  ``provenance``:
+    :data:`patchcloud.stream.io.dims.NORMALS_DIMS`).  ``provenance``:
     a VLR saying what made the file
     (:func:`patchcloud.stream.io.las_records.provenance_vlr`), appended.
 

@@ -24,13 +24,14 @@ import numpy as np
 from patchcloud.core import MASK_SIDE, PatchcloudIOError, PatchcloudValueError, dequantise_models, sample_models
 from patchcloud.stream.io import pcz
 from patchcloud.stream.io.budget import check_memory
+from patchcloud.stream.io.dims import DECOMPRESS_DIMS
 from patchcloud.stream.io.store import tile_name
 from patchcloud.stream.io.las import assemble_header, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, wave_packets_break_laz
 from patchcloud.stream.io.las_output import copy_records, legacy_counts, point_stats, restate
 from patchcloud.stream.io.las_records import parse_records, provenance_vlr
 from patchcloud.stream.engine.background import stops_what_it_starts
 
-__all__ = ["decompress", "DecompressSummary", "DECOMPRESS_DIMS", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "MAX_LOD", "check_in_tile", "check_box_meets"]
+__all__ = ["decompress", "DecompressSummary", "SAMPLE_BATCH", "MAX_UPSAMPLING", "SAMPLED_POINT_BYTES", "TILE_SLACK", "MAX_LOD", "check_in_tile", "check_box_meets"]
 
 
 @dataclass
@@ -52,8 +53,6 @@ class DecompressSummary:
                 f"{self.reconstructed:,} sampled from patches, {self.residual:,} residual\n  time            {self.seconds:.1f} s")
 
 
-#: The dimension ``decompress`` adds: every point has it (its no-data value, 255, is never written).
-DECOMPRESS_DIMS = (("Reconstructed", np.uint8, "1 from a patch, 0 residual", 255),)
 #: Most points sampled at once: a tile's cells are sampled in batches of about this many (memory bounded whatever the
 #: density; a tile within one batch is sampled as it always was).
 SAMPLE_BATCH = 8_000_000

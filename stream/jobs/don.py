@@ -29,21 +29,10 @@ from patchcloud.stream.engine.job import (
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.las import LasSource
 from patchcloud.stream.io.store import Store
+from patchcloud.stream.io.dims import DON_DIMS, DON_NO_DATA
 from patchcloud.stream.jobs import don_tiles
 
-__all__ = ["don", "DonJob", "DonSummary", "DON_DIMS", "default_viewpoint_of", "cloud_density", "magnitude_and_vector", "DON_NO_DATA"]
-
-#: The value the DoN dimensions hold where the DoN is undefined, and their descriptors' no-data value: 0 (no NaN in
-#: the file, so PDAL's statistics run; PDAL does not apply no-data values).
-DON_NO_DATA = 0.0
-#: Dimensions ``patchcloud don`` adds: name, numpy type, description, no-data value (:data:`DON_NO_DATA`).
-DON_DIMS = (
-    ("DoN", np.float32, "DoN |n_s - n_l|/2, 0 none", DON_NO_DATA),
-    ("DoNX", np.float32, "DoN vector x, 0 none", DON_NO_DATA),
-    ("DoNY", np.float32, "DoN vector y, 0 none", DON_NO_DATA),
-    ("DoNZ", np.float32, "DoN vector z, 0 none", DON_NO_DATA),
-)
-
+__all__ = ["don", "DonJob", "DonSummary", "default_viewpoint_of", "cloud_density", "magnitude_and_vector"]
 
 #: Below this share of points with a DoN the summary says why and what to change.
 FEW_DEFINED = 0.5

@@ -13,14 +13,9 @@ from patchcloud.core import PatchcloudError, PatchcloudIOError
 
 from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
 from patchcloud.stream.io.crs import crs_description, units_of
+from patchcloud.stream.io.dims import DECOMPRESS_DIMS, NORMALS_DIMS, PRINCIPAL_DIMS, SEGMENT_DIMS
 from patchcloud.stream.io.las import LasSource, open_source, read_chunks
-from patchcloud.stream.io.pcz import open_pcz
-from patchcloud.stream.io.residual_points import kept_words
-from patchcloud.stream.io.store import Store
 from patchcloud.stream.engine.background import stops_what_it_starts
-from patchcloud.stream.jobs.decompress import DECOMPRESS_DIMS
-from patchcloud.stream.jobs.normals import NORMALS_DIMS, PRINCIPAL_DIMS
-from patchcloud.stream.jobs.segment import SEGMENT_DIMS
 
 __all__ = ["info", "format_info", "crs_line", "class_counts", "patchcloud_dims", "PATCHCLOUD_DIMS", "CLASS_NAMES"]
 
@@ -53,6 +48,8 @@ def _residual_coding(d: dict) -> str:
     """What a model-mode ``.pcz`` (:func:`describe`'s ``d``) keeps of its residual points' attributes."""
     if d["version"] < 5:
         return "every attribute not dropped exact, in input order"
+    from patchcloud.stream.io.residual_points import kept_words  # (numba: only for a .pcz)
+
     return kept_words(d.get("dropped", []), tuple(d.get("intensity_shifts", [0, 0])))
 
 
@@ -104,6 +101,8 @@ def info(path: str | os.PathLike) -> dict:
     p = str(path)
     if os.path.isfile(p) and (zipfile.is_zipfile(p) or p.lower().endswith(".pcz") or _starts_as_zip(p)):  # (a truncated
         # zip has no central directory: still a .pcz, which open_pcz says is truncated)
+        from patchcloud.stream.io.pcz import open_pcz  # what a .pcz and a store need (zarr, numba) only for them
+
         with open_pcz(p) as f:
             a = f.attrs
             return {"kind": "pcz", "path": p, "bytes": os.path.getsize(p), "version": a["version"],
@@ -120,6 +119,8 @@ def info(path: str | os.PathLike) -> dict:
         return {"kind": "las", **src.to_json(), **bounds, "dimensions": dims, "extra_dimensions": extra,
                 "crs_info": _crs_info(src.crs, src.crs_error),
                 "classes": {str(c): n for c, n in classes.items()}, "withheld": withheld, "patchcloud_dimensions": patchcloud_dims(extra)}
+    from patchcloud.stream.io.store import Store
+
     if Store.exists(p):
         st = Store.open(p, mode="r")
         a = st.attrs

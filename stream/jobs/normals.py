@@ -33,35 +33,11 @@ from patchcloud.stream.engine.job import (
 from patchcloud.stream.engine.ingest import occupancy_spacing
 from patchcloud.stream.engine.tasks import map_tiles, pieces_for
 from patchcloud.stream.io.store import Store
+from patchcloud.stream.io.dims import NO_PATCH, NORMALS_DIMS, PRINCIPAL_DIMS
 from patchcloud.stream.jobs import normals_tiles
 from patchcloud.stream.jobs.seams import orient_tiles
 
-__all__ = ["normals", "NormalsJob", "NormalsSummary", "NORMALS_DIMS", "PRINCIPAL_DIMS", "NO_PATCH", "resolve_parameters", "global_patch_ids"]
-
-#: The PatchId of a point without a normal (left out by the class selection: :mod:`patchcloud.stream.io.classes`).
-NO_PATCH = int(np.iinfo(np.uint32).max)
-#: Extra-bytes dimensions ``patchcloud normals`` adds: name, numpy type, description, no-data value.  Every point the
-#: run computes on has a normal (NormalMethod 1 to 3); a point left out (not of the classes asked for, noise, withheld)
-#: has none: NormalMethod 0, a zero normal, Curvature 0 and PatchId :data:`NO_PATCH`, the no-data values (NaN is never
-#: written; a unit normal is never (0, 0, 0), so NormalMethod 0 is what tells such a point).
-NORMALS_DIMS = (
-    ("NormalX", np.float32, "unit normal x, 0 none", 0.0),
-    ("NormalY", np.float32, "unit normal y, 0 none", 0.0),
-    ("NormalZ", np.float32, "unit normal z, 0 none", 0.0),
-    ("Curvature", np.float32, "surface variation l3/(l1+l2+l3)", 0.0),
-    ("NormalMethod", np.uint8, Method.describe(), 0),
-    ("PatchId", np.uint32, "patchcloud patch id", NO_PATCH),
-)
-#: What ``principal_curvatures`` adds (1/unit of the file, signed w.r.t. the oriented normal; 0 and (0, 0, 0) where the
-#: point has none, their no-data value).
-PRINCIPAL_DIMS = (
-    ("PrincipalCurvature1", np.float32, "k1>=k2 1/unit +convex, 0 none", 0.0),
-    ("PrincipalCurvature2", np.float32, "k2<=k1 1/unit +convex, 0 none", 0.0),
-    ("PrincipalDirectionX", np.float32, "unit direction of k1 x, 0 none", 0.0),
-    ("PrincipalDirectionY", np.float32, "unit direction of k1 y, 0 none", 0.0),
-    ("PrincipalDirectionZ", np.float32, "unit direction of k1 z, 0 none", 0.0),
-)
-
+__all__ = ["normals", "NormalsJob", "NormalsSummary", "resolve_parameters", "global_patch_ids"]
 
 @dataclass
 class NormalsSummary:

@@ -21,14 +21,12 @@ import numpy as np
 from patchcloud.core import SegmentOptions
 from patchcloud.stream.engine.export import Column
 from patchcloud.stream.engine.job import JobContext, RunOptions, params_key, run_job, split_options
+from patchcloud.stream.io.dims import SEGMENT_DIMS
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import don_tiles
-from patchcloud.stream.jobs.don import DON_DIMS, DonJob, DonSummary
+from patchcloud.stream.jobs.don import DonJob, DonSummary
 
-__all__ = ["segment", "SegmentJob", "SEGMENT_DIMS", "segment_of"]
-
-#: Dimensions ``patchcloud segment`` adds: the DoN and PDAL's cluster id (0 = no segment).
-SEGMENT_DIMS = DON_DIMS + (("ClusterID", np.uint64, "DoN segment id, 0 = none", 0),)
+__all__ = ["segment", "SegmentJob", "segment_of"]
 
 
 def segment_of(store: Store, t: int, comp: np.ndarray) -> np.ndarray:
