@@ -98,6 +98,21 @@ def test_checking_a_laz_file_imports_no_numba():
     assert out == [str(n), "True", "False"], out
 
 
+def test_info_on_a_las_file_imports_no_job_s_packages():
+    """``patchcloud info`` on a LAS/LAZ file reads its header and records: it loads no numba, zarr, dask or matplotlib
+    (what a .pcz or a store needs is imported for them only)."""
+    code = (
+        "import sys\n"
+        "from patchcloud.stream.cli import main\n"
+        "try:\n"
+        f"    main(['info', {str(SAMPLE)!r}])\n"
+        "except SystemExit as e:\n    assert not e.code, e.code\n"
+        "print(sorted(m for m in ('numba', 'dask', 'distributed', 'zarr', 'matplotlib') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "60,653" in out and out.strip().splitlines()[-1] == "[]", out
+
+
 def test_every_name_is_core_s_or_the_stream_s_own():
     names = [n for n in patchcloud.__all__ if n != "__version__"]
     assert len(set(names)) == len(names)
