@@ -35,6 +35,8 @@ PRELOAD = ("patchcloud.stream.engine.worker_imports",)
 METHOD_KEY = "distributed.worker.multiprocessing-method"
 #: The job's modules :func:`start_server` was given, imported by the server after :data:`PRELOAD`.
 _modules: tuple[str, ...] = ()
+#: Whether :func:`start_server` started the server (its thread) in this process.
+_started = False
 
 
 def hold_ctrl_c() -> None:
@@ -69,23 +71,33 @@ def _preload() -> None:
     _set_server_preload()
 
 
-def start_server(modules: Sequence[str] = ()) -> bool:
+def start_server(modules: Sequence[str] = (), wait: bool = False) -> bool:
     """Start the fork server now, in a background thread, so that it imports :data:`PRELOAD` and ``modules`` (the job's,
     e.g. ``"patchcloud.stream.jobs.normals"``) while this process goes on.
 
-    The console script calls it before it imports the job (0.6 s), when
-    the run will start local worker processes
+    The console script calls it before its own imports
+    (:mod:`patchcloud.stream.console`) or, failing that, before it imports
+    the job (0.6 s), when the run will start local worker processes
     (:func:`~patchcloud.stream.engine.placement.starts_local_processes`);
     :func:`forked_workers` then finds the server started.  The server, like
     the workers, holds Ctrl-C back until each worker's set-up ignores it
-    (:mod:`~patchcloud.stream.engine.worker_setup`).  Returns whether it
-    starts one (False where ``forkserver`` does not exist).
+    (:mod:`~patchcloud.stream.engine.worker_setup`).  Returns whether a
+    server is started (False where ``forkserver`` does not exist); a second
+    call with the same modules starts nothing more.  ``wait``: return once
+    the server process runs (not once it has imported), so that this
+    process's own imports do not slow its start (they take turns on the GIL
+    with the starting thread's).
     """
-    global _modules
+    global _modules, _started
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return False
-    _modules = tuple(modules)
-    threading.Thread(target=_start, name="patchcloud-start-forkserver", daemon=True).start()
+    if _started and _modules == tuple(modules):
+        return True
+    _modules, _started = tuple(modules), True
+    starting = threading.Thread(target=_start, name="patchcloud-start-forkserver", daemon=True)
+    starting.start()
+    if wait:
+        starting.join()
     return True
 
 
