@@ -129,3 +129,7 @@ def _point_count(path: str) -> int | None:
     if head[25] >= 4 and len(head) >= 255:
         return int(struct.unpack_from("<Q", head, 247)[0]) or int(legacy)
     return int(legacy)
+
+
+if __name__ == "__main__":  # python -m patchcloud.stream.console: the patchcloud command
+    run()

@@ -265,7 +265,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
-    exe = [sys.executable, "-m", "patchcloud.stream.cli"]
+    exe = [sys.executable, "-m", "patchcloud.stream.console"]  # the patchcloud command (console script)
     files = []
     for n, suffix in ((a.laz_points, ".laz"), (a.las_points, ".las")):
         if n:
