@@ -24,10 +24,9 @@ run does not use ends with the process.
 from __future__ import annotations
 
 import os
-import struct
 import sys
 
-__all__ = ["run", "early_job", "JOB_MODULES"]
+__all__ = ["run", "start_early", "early_job", "JOB_MODULES"]
 
 #: The commands that may start local worker processes: the module the fork server imports for each, and whether the
 #: command runs a catalog's files one by one (its largest file decides, not their sum).
@@ -44,16 +43,21 @@ _SUFFIXES = (".las", ".laz")
 
 
 def run() -> None:
-    """The ``patchcloud`` command: :func:`patchcloud.stream.cli.run`, after the fork server's start where
-    :func:`early_job` names a job."""
-    job = early_job(sys.argv[1:])
-    if job is not None:
-        from patchcloud.stream.engine.forkserver import start_server
-
-        start_server([job], wait=True)  # (0.2 s: dask's configuration, the processes spawned) before the imports below
+    """The ``patchcloud`` command: :func:`patchcloud.stream.cli.run`, after :func:`start_early`."""
+    start_early(sys.argv[1:])
     from patchcloud.stream.cli import run as command_line
 
     command_line()
+
+
+def start_early(argv: list[str]) -> str | None:
+    """Start the fork server of the job :func:`early_job` names for ``argv``, if any, and return that job's module."""
+    job = early_job(argv)
+    if job is not None:
+        from patchcloud.stream.engine.forkserver import start_server
+
+        start_server([job], wait=True)  # (0.2 s: dask's configuration, the processes spawned) before the command line's imports
+    return job
 
 
 def early_job(argv: list[str]) -> str | None:
@@ -116,8 +120,10 @@ def early_job(argv: list[str]) -> str | None:
 
 
 def _point_count(path: str) -> int | None:
-    """The point count a LAS/LAZ file's header states (LAS 1.4's 64-bit count where the version has one), None where
-    the first 375 bytes are not such a header."""
+    """The point count a LAS/LAZ file's header states (:func:`~patchcloud.stream.io.las_records.stated_point_count`),
+    None where the first 375 bytes are not such a header."""
+    from patchcloud.stream.io.las_records import stated_point_count
+
     try:
         with open(path, "rb") as f:
             head = f.read(375)
@@ -125,10 +131,7 @@ def _point_count(path: str) -> int | None:
         return None
     if len(head) < 227 or head[:4] != b"LASF":
         return None
-    legacy = struct.unpack_from("<I", head, 107)[0]
-    if head[25] >= 4 and len(head) >= 255:
-        return int(struct.unpack_from("<Q", head, 247)[0]) or int(legacy)
-    return int(legacy)
+    return stated_point_count(head)
 
 
 if __name__ == "__main__":  # python -m patchcloud.stream.console: the patchcloud command

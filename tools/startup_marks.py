@@ -77,9 +77,7 @@ def main() -> None:
     forkserver.start_server = start_server
     from patchcloud.stream import console
 
-    job = console.early_job(sys.argv[1:])
-    if job is not None:
-        forkserver.start_server([job], wait=True)
+    console.start_early(sys.argv[1:])
     from patchcloud.stream.cli import main as command_line
 
     mark("command line imported")

@@ -28,13 +28,15 @@ import json
 import os
 import struct
 from dataclasses import dataclass
-
-import laspy
+from typing import TYPE_CHECKING
 
 from patchcloud.core import PatchcloudIOError
 
+if TYPE_CHECKING:  # laspy is imported where a VLR is made: the header fields here are read without it
+    import laspy
+
 __all__ = ["RawRecord", "parse_records", "file_records", "kept", "is_extra_bytes", "as_vlr", "provenance_vlr", "PROVENANCE_USER_ID",
-           "software_version", "header_record_fields", "ascii_text", "VLR_BYTES", "EVLR_BYTES"]
+           "software_version", "header_record_fields", "stated_point_count", "ascii_text", "VLR_BYTES", "EVLR_BYTES"]
 
 #: The user id and record id of the record saying what made a file (JSON: software, version, job, parameters).
 PROVENANCE_USER_ID, PROVENANCE_RECORD_ID = "patchcloud", 1
@@ -58,6 +60,22 @@ class RawRecord:
 #: The smallest VLR and EVLR (their headers, bytes).
 VLR_BYTES, EVLR_BYTES = 54, 60
 
+
+
+def stated_point_count(head: bytes) -> int:
+    """The point count a LAS/LAZ header states (its first bytes, at least 111): LAS 1.4's 64-bit count when set, else
+    the legacy 32-bit one.
+
+    >>> head = bytearray(255); head[25] = 4; head[107:111] = (7).to_bytes(4, "little")
+    >>> stated_point_count(bytes(head)), stated_point_count(bytes(head[:247]))
+    (7, 7)
+    >>> head[247:255] = (5_000_000_000).to_bytes(8, "little"); stated_point_count(bytes(head))
+    5000000000
+    """
+    legacy = int.from_bytes(head[107:111], "little")
+    if head[25] >= 4 and len(head) >= 255:
+        return int.from_bytes(head[247:255], "little") or legacy
+    return legacy
 
 
 def header_record_fields(head: bytes) -> tuple[int, int, int, int, int]:
@@ -138,6 +156,8 @@ def as_vlr(r: RawRecord) -> laspy.VLR:
 
     A user id or description that is not ASCII (LAS texts are) has its other characters written as '?'.
     """
+    import laspy
+
     return laspy.VLR(ascii_text(r.user_id.split(b"\0", 1)[0]), r.record_id, ascii_text(r.description.split(b"\0", 1)[0]), r.data)
 
 
@@ -160,4 +180,6 @@ def provenance_vlr(job: str, parameters: dict) -> laspy.VLR:
     """
     data = json.dumps({"software": "patchcloud", "version": software_version(), "job": job, "parameters": parameters},
                       sort_keys=True, separators=(",", ":"), default=str).encode()
+    import laspy
+
     return laspy.VLR(PROVENANCE_USER_ID, PROVENANCE_RECORD_ID, f"patchcloud {job} parameters"[:31], data)

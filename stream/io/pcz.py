@@ -105,6 +105,7 @@ from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIO
 from .budget import check_memory
 from .layered import LAYERED, from_layered, layered_size
 from .las import check_header_sizes, check_header_values
+from .las_records import stated_point_count
 from .point_coding import refine
 from .residual_octree import MAGIC as OCTREE_MAGIC, decode as octree_decode, records_of as octree_records
 from .residual_points import fine_intensity
@@ -520,7 +521,7 @@ class _OpenPcz:
     def _laz_rows(self, raw: bytes, n: int, size: int, name: str, pronoun: str) -> np.ndarray:
         """The records of a LAS/LAZ block, checked against the index (formats 0-3 back from their layered twins)."""
         check_header_sizes(name, raw[:375], len(raw))
-        said, record = _las_point_count(raw), int.from_bytes(raw[105:107], "little")
+        said, record = stated_point_count(raw), int.from_bytes(raw[105:107], "little")
         pid = self.input_format_id  # records of formats 0-3 are stored as 6 or 7 (version 4; version 3: as they were)
         layered = self.attrs["version"] >= 4 and raw[104] & 0x3F == LAYERED.get(pid)
         stored = layered_size(pid, size) if layered else size
@@ -847,9 +848,3 @@ def _array(p: Path, root: OpenedArrays, name: str, dtype, tail: tuple, rows: int
     return a
 
 
-def _las_point_count(raw: bytes) -> int:
-    """The point count a LAS/LAZ header states (LAS 1.4's 64-bit count when set, else the legacy one)."""
-    legacy = int.from_bytes(raw[107:111], "little")
-    if raw[25] >= 4 and len(raw) >= 255:
-        return int.from_bytes(raw[247:255], "little") or legacy
-    return legacy

@@ -27,9 +27,9 @@ from patchcloud.stream.engine.job import (
     Job, JobContext, RunOptions, file_lines, left_out_lines, params_key, run_job, split_options, time_and_memory_lines, units_line,
 )
 from patchcloud.stream.io.catalog import Catalog
+from patchcloud.stream.io.dims import DON_DIMS, DON_NO_DATA
 from patchcloud.stream.io.las import LasSource
 from patchcloud.stream.io.store import Store
-from patchcloud.stream.io.dims import DON_DIMS, DON_NO_DATA
 from patchcloud.stream.jobs import don_tiles
 
 __all__ = ["don", "DonJob", "DonSummary", "default_viewpoint_of", "cloud_density", "magnitude_and_vector"]

@@ -32,12 +32,13 @@ from patchcloud.stream.engine.job import (
 )
 from patchcloud.stream.engine.ingest import occupancy_spacing
 from patchcloud.stream.engine.tasks import map_tiles, pieces_for
-from patchcloud.stream.io.store import Store
 from patchcloud.stream.io.dims import NO_PATCH, NORMALS_DIMS, PRINCIPAL_DIMS
+from patchcloud.stream.io.store import Store
 from patchcloud.stream.jobs import normals_tiles
 from patchcloud.stream.jobs.seams import orient_tiles
 
 __all__ = ["normals", "NormalsJob", "NormalsSummary", "resolve_parameters", "global_patch_ids"]
+
 
 @dataclass
 class NormalsSummary:
