@@ -20,18 +20,29 @@ SAMPLE = os.path.join(os.path.dirname(__file__), "..", "data", "test_data_77055_
 
 
 def _count_metadata_writes(monkeypatch, suffix: str) -> list:
-    """The keys ending in ``suffix`` that zarr's local store writes from now on."""
+    """The keys ending in ``suffix`` written from now on into a store ``s.zarr``, by zarr's local store or by the store's
+    direct writes (stream/io/local_zarr.py)."""
     from zarr.storage import LocalStore
+
+    from patchcloud.stream.io import local_zarr
 
     written = []
     put = LocalStore.set
+    write_file = local_zarr._write_file
 
     async def counted(self, key, value):
         if key.endswith(suffix):
             written.append(key)
         return await put(self, key, value)
 
+    def counted_file(path, data):
+        key = str(path).split("s.zarr/", 1)[-1]
+        if key.endswith(suffix):
+            written.append(key)
+        return write_file(path, data)
+
     monkeypatch.setattr(LocalStore, "set", counted)
+    monkeypatch.setattr(local_zarr, "_write_file", counted_file)
     return written
 
 

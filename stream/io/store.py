@@ -56,6 +56,7 @@ from patchcloud.core import GRID_ANCHOR, PatchcloudIOError, PatchcloudValueError
 
 from . import memory_group
 from .catalog import Catalog
+from .local_zarr import DATA_TYPES, LocalZarr, local_root
 
 __all__ = [
     "Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name", "PatchcloudStoreError",
@@ -218,6 +219,13 @@ def _zarr():
     return zarr
 
 
+def _local_dir(url: str) -> Path | None:
+    """The directory of a local path or ``file://`` URL, None for other URLs (fsspec's, ``memory://``)."""
+    if "://" in url and not url.startswith("file://"):
+        return None
+    return Path(url.removeprefix("file://"))
+
+
 def _occupied(url: str) -> bool:
     """Whether a local path (or ``file://`` URL) holds a file or a non-empty directory; False for other URLs."""
     if "://" in url and not url.startswith("file://"):
@@ -316,11 +324,26 @@ class Store:
     #: Points per zarr chunk of per-point arrays.
     CHUNK = 1 << 16
 
-    def __init__(self, group, url: str):
-        self.group = group
+    def __init__(self, group, url: str, root: Path | None = None, mode: str = "r+"):
+        self._group = group  # None: a local store's zarr group, opened when first needed (:attr:`group`)
+        self._mode = mode
         self.url = url
         self._attrs: dict | None = None
         self._groups: dict = {}
+        if root is None and not isinstance(group, memory_group.MemoryGroup):
+            root = local_root(group)
+        #: A store on a local disk: its tiles' arrays, attributes and blobs read and written by plain file calls
+        #: (:mod:`.local_zarr`: the same zarr format, without zarr's 2 ms a call); None: all through zarr.
+        self._local = None if root is None else LocalZarr(root)
+        #: What zarr calls the path of an array at path "p" of this group ("prefix/p" in a group below the store's root).
+        self._prefix = f"{group.path}/" if getattr(group, "path", "") else ""
+
+    @property
+    def group(self):
+        """The store's zarr group (or :class:`~.memory_group.MemoryGroup`); a local store's is opened on first use."""
+        if self._group is None:
+            self._group = _zarr().open_group(str(self._local.root), mode=self._mode)
+        return self._group
 
     # -- opening -----------------------------------------------------------
     @classmethod
@@ -341,16 +364,28 @@ class Store:
     @classmethod
     def open(cls, url: str, mode: str = "r+") -> "Store":
         """An existing store; a clear error when ``url`` is not one or is of another version."""
-        try:
-            g = memory_group.open_group(url) if memory_group.is_memory_url(url) else _zarr().open_group(url, mode=mode)
-        except Exception as exc:
-            raise PatchcloudIOError(f"{url}: not a patchcloud store ({exc})") from exc
-        a = dict(g.attrs)
+        root = _local_dir(url)
+        meta = None
+        if root is not None:  # a local store: its root metadata read directly, zarr's group opened only if needed
+            try:
+                meta = LocalZarr(root).meta("")
+            except (OSError, ValueError):  # zarr says what is wrong with it, below
+                meta = None
+        if meta is not None and meta.get("node_type") == "group" and meta.get("zarr_format") == 3:
+            a = dict(meta.get("attributes", {}))
+            g = None
+        else:
+            try:
+                g = memory_group.open_group(url) if memory_group.is_memory_url(url) else _zarr().open_group(url, mode=mode)
+            except Exception as exc:
+                raise PatchcloudIOError(f"{url}: not a patchcloud store ({exc})") from exc
+            a = dict(g.attrs)
+            root = None
         if a.get("format") != FORMAT:
             raise PatchcloudIOError(f"{url}: not a patchcloud store (no '{FORMAT}' format mark)")
         if a.get("version") != VERSION:
             raise PatchcloudStoreError(f"{url}: store version {a.get('version')} is not supported (this is version {VERSION}): {START_OVER}")
-        return cls(g, url)
+        return cls(g, url, root=root if g is None else None, mode=mode)
 
     @classmethod
     def check_new(cls, url: str) -> None:
@@ -400,19 +435,22 @@ class Store:
     @property
     def in_memory(self) -> bool:
         """Whether the store is held in this process's memory (:mod:`.memory_group`)."""
-        return isinstance(self.group, memory_group.MemoryGroup)
+        return isinstance(self._group, memory_group.MemoryGroup)
 
     # -- global state --------------------------------------------------------
     @property
     def attrs(self) -> dict:
         """The store's attributes (read once, then kept up to date by :meth:`update`)."""
         if self._attrs is None:
-            self._attrs = dict(self.group.attrs)
+            self._attrs = dict(self._local.meta("")["attributes"]) if self._local is not None else dict(self.group.attrs)
         return self._attrs
 
     def update(self, **kw) -> None:
         kw = json.loads(json.dumps(kw))
-        _set_attrs(self.group, kw)
+        if self._local is not None:
+            self._local.update_group_attrs("", kw)
+        else:
+            _set_attrs(self.group, kw)
         self._attrs = None
 
     @property
@@ -459,9 +497,16 @@ class Store:
         return g
 
     def _tile_now(self, ijk) -> tuple:
-        """Tile ``ijk``'s group opened afresh and its attributes as stored now (another process may have changed
-        them); ``(None, {})`` for no tile."""
+        """Tile ``ijk``'s group opened afresh (on a local disk: its path) and its attributes as stored now (another
+        process may have changed them); ``(None, {})`` for no tile."""
         where = f"tile {tile_name(ijk)}"
+        if self._local is not None:
+            path = f"tiles/{tile_name(ijk)}"
+            try:
+                attrs = self._local.group_attrs(path)
+            except Exception as exc:
+                raise self._damaged(where, f"unreadable attributes: {exc}") from exc
+            return (None, {}) if attrs is None else (path, attrs)
         try:
             g = self.group[f"tiles/{tile_name(ijk)}"]
             return g, dict(g.attrs)
@@ -480,7 +525,16 @@ class Store:
         goes through the group opened with the attributes it changes.
         """
         g, attrs = self._tile_now(ijk)
-        return (self.tile(ijk) if g is None else g), attrs
+        if g is None:
+            g = f"tiles/{tile_name(ijk)}" if self._local is not None else self.tile(ijk)
+        return g, attrs
+
+    def _set_tile_attrs(self, g, now: dict, attrs: dict) -> None:
+        """Add ``attrs`` to a tile's attributes ``now``, in one write: ``g`` as :meth:`_tile_for_attrs` gave it."""
+        if isinstance(g, str):
+            self._local.update_group_attrs(g, attrs, now)
+        else:
+            _set_attrs(g, attrs)
 
     def tile_attrs(self, ijk) -> dict:
         """The tile's attributes as stored now (another process may have changed them); {} for no tile."""
@@ -496,7 +550,7 @@ class Store:
         g, now = self._tile_for_attrs(ijk)
         done = now.get("done", {})
         done[step] = value
-        _set_attrs(g, dict(json.loads(json.dumps(attrs)), done=done))
+        self._set_tile_attrs(g, now, dict(json.loads(json.dumps(attrs)), done=done))
 
     def mark_failed(self, ijk, task: str, message: str | None) -> None:
         """Record that ``task`` raised on tile ``ijk`` (``message``), or clear that record (None)."""
@@ -508,18 +562,46 @@ class Store:
             failed.pop(task)
         else:
             failed[task] = str(message)[:2000]
-        _set_attrs(g, dict(failed=failed))
+        self._set_tile_attrs(g, now, dict(failed=failed))
 
     def clear_tile_steps(self, steps: list[str]) -> None:
         for ijk in self.tiles:
             g, now = self._tile_for_attrs(ijk)
             done = now.get("done", {})
             if any(s in done for s in steps):
-                _set_attrs(g, dict(done={k: v for k, v in done.items() if k not in steps}))
+                self._set_tile_attrs(g, now, dict(done={k: v for k, v in done.items() if k not in steps}))
 
     def write(self, ijk, name: str, values: np.ndarray, chunk: int | None = None) -> None:
         """Write (replace) array ``name`` of tile ``ijk``."""
-        self._create(self.tile(ijk), name, values, chunk)
+        if not self._write_local(f"tiles/{tile_name(ijk)}/{name}", values, chunk):
+            self._create(self.tile(ijk), name, values, chunk)
+
+    def _write_local(self, path: str, values: np.ndarray, chunk: int | None) -> bool:
+        """Write ``values`` as the array at ``path`` directly (:mod:`.local_zarr`) where the store is on a local disk and
+        the array of a type it writes; False where zarr is to write it."""
+        values = np.asarray(values)
+        if self._local is None or values.dtype.name not in DATA_TYPES or values.ndim < 1:
+            return False
+        values = np.ascontiguousarray(values)
+        rows = max(1, min(chunk or self.CHUNK, values.shape[0]))
+        attributes = {"crc32": chunk_checksums(values, rows), "store": self.uid, "path": self._prefix + path}
+        self._local.write_array(path, values, rows, attributes)
+        return True
+
+    def _array(self, path: str, where: str, zarr_node=None):
+        """The array at ``path`` for :meth:`_checked`: read directly on a local disk, else by zarr (``zarr_node()``,
+        default ``self.group[path]``); KeyError where there is none."""
+        if self._local is not None:
+            try:
+                a = self._local.array(path)
+            except Exception as exc:
+                raise self._damaged(where, f"unreadable metadata: {exc}") from exc
+            if a is not None:
+                a.path = self._prefix + path
+                return a
+            if not self._local.exists(path):
+                raise KeyError(path)
+        return zarr_node() if zarr_node is not None else self.group[path]
 
     def read(self, ijk, name: str, rows: slice | None = None) -> np.ndarray:
         """Array ``name`` of tile ``ijk`` (rows ``rows`` of it, a slice of step 1), its chunks checked.
@@ -533,7 +615,7 @@ class Store:
         """
         where = f"tile {tile_name(ijk)}"
         try:
-            a = self.tile(ijk)[name]
+            a = self._array(f"tiles/{tile_name(ijk)}/{name}", where, lambda: self.tile(ijk)[name])
         except KeyError:
             entry = self.tile_attrs(ijk).get("pieces", {}).get(name)
             if entry:
@@ -548,7 +630,8 @@ class Store:
         arrays = []
         for j in range(k):
             try:
-                arrays.append(self.tile(ijk)[piece_name(name, j, k)])
+                arrays.append(self._array(f"tiles/{tile_name(ijk)}/{piece_name(name, j, k)}", where,
+                                          lambda: self.tile(ijk)[piece_name(name, j, k)]))
             except KeyError:
                 raise self._damaged(where, f"array {piece_name(name, j, k)!r} is missing") from None
         sizes = [a.shape[0] for a in arrays]
@@ -571,7 +654,7 @@ class Store:
         for name, stem in stems.items():
             self.delete(ijk, name)
             pieces[name] = [str(stem), int(k)]
-        _set_attrs(g, dict(pieces=pieces))
+        self._set_tile_attrs(g, now, dict(pieces=pieces))
 
     def unmark_pieces(self, ijk, names) -> None:
         """Forget that tile ``ijk``'s arrays ``names`` were written in pieces (they are written whole again; the pieces
@@ -579,7 +662,7 @@ class Store:
         g, now = self._tile_for_attrs(ijk)
         pieces = dict(now.get("pieces", {}))
         if any(name in pieces for name in names):
-            _set_attrs(g, dict(pieces={n: v for n, v in pieces.items() if n not in names}))
+            self._set_tile_attrs(g, now, dict(pieces={n: v for n, v in pieces.items() if n not in names}))
 
     def _damaged(self, where: str, what: str) -> PatchcloudStoreError:
         return PatchcloudStoreError(f"{self.url}: {where}: the store is damaged ({what}); {START_OVER}")
@@ -630,9 +713,14 @@ class Store:
 
     def has(self, ijk, name: str) -> bool:
         key = f"tiles/{tile_name(ijk)}"
+        if self._local is not None:
+            return self._local.exists(f"{key}/{name}")
         return key in self.group and name in self.group[key]
 
     def delete(self, ijk, name: str) -> None:
+        if self._local is not None:
+            self._local.delete(f"tiles/{tile_name(ijk)}/{name}")
+            return
         g = self.tile(ijk)
         if name in g:
             del g[name]
@@ -640,22 +728,27 @@ class Store:
     # -- arrays outside tiles (the ingest's parts, the export's tables) ------
     def put(self, path: str, values: np.ndarray, chunk: int | None = None) -> None:
         """Write (replace) the array at ``path`` (e.g. ``parts/000003/xyz``)."""
-        self._create(self.group, path, values, chunk)
+        if not self._write_local(path, values, chunk):
+            self._create(self.group, path, values, chunk)
 
     def has_array(self, path: str) -> bool:
         """Whether there is an array (or group) at ``path``."""
+        if self._local is not None:
+            return self._local.exists(path)
         return path in self.group
 
     def get(self, path: str, rows: slice | None = None) -> np.ndarray:
         """The array at ``path`` (rows ``rows`` of it)."""
         try:
-            a = self.group[path]
+            a = self._array(path, f"array {path!r}")
         except KeyError:
             raise self._damaged(f"array {path!r}", "it is missing") from None
         return self._checked(a, rows, f"array {path!r}")
 
     def group_attrs(self, path: str) -> dict:
         """The attributes of the group at ``path`` as stored now; {} when there is none."""
+        if self._local is not None:
+            return self._local.group_attrs(path) or {}
         try:
             return dict(self.group[path].attrs)
         except KeyError:
@@ -663,10 +756,16 @@ class Store:
 
     def set_group_attrs(self, path: str, **attrs) -> None:
         """Set attributes of the group at ``path`` (made if needed)."""
+        if self._local is not None:
+            self._local.update_group_attrs(path, json.loads(json.dumps(attrs)))
+            return
         _set_attrs(self.group.require_group(path), json.loads(json.dumps(attrs)))
 
     def remove(self, path: str) -> None:
         """Remove the group or array at ``path`` if there."""
+        if self._local is not None:
+            self._local.delete(path)
+            return
         if path in self.group:
             del self.group[path]
 
@@ -678,6 +777,9 @@ class Store:
             self.group.blobs[key] = data
             return
         data += struct.pack("<Q", zlib.crc32(data))
+        if self._local is not None:
+            self._local.put_bytes(key, data)
+            return
         from zarr.core.buffer import default_buffer_prototype
         from zarr.core.sync import sync
 
@@ -687,6 +789,8 @@ class Store:
         """The flat float64 array written under ``key`` by :meth:`put_blob`."""
         if self.in_memory:
             data = self.group.blobs.get(key)
+        elif self._local is not None:
+            data = self._local.get_bytes(key)
         else:
             from zarr.core.buffer import default_buffer_prototype
             from zarr.core.sync import sync
@@ -705,6 +809,9 @@ class Store:
         """Remove every blob (and array) whose key starts with ``prefix/``."""
         if self.in_memory:
             self.group.delete_prefix(prefix)
+            return
+        if self._local is not None:
+            self._local.remove_dir(prefix)
             return
         from zarr.core.sync import sync
 
