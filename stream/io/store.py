@@ -385,7 +385,10 @@ class Store:
             raise PatchcloudIOError(f"{url}: not a patchcloud store (no '{FORMAT}' format mark)")
         if a.get("version") != VERSION:
             raise PatchcloudStoreError(f"{url}: store version {a.get('version')} is not supported (this is version {VERSION}): {START_OVER}")
-        return cls(g, url, root=root if g is None else None, mode=mode)
+        store = cls(g, url, root=root if g is None else None, mode=mode)
+        if g is None:  # the attributes as read at opening, as zarr's group holds them
+            store._attrs = a
+        return store
 
     @classmethod
     def check_new(cls, url: str) -> None:
@@ -442,7 +445,13 @@ class Store:
     def attrs(self) -> dict:
         """The store's attributes (read once, then kept up to date by :meth:`update`)."""
         if self._attrs is None:
-            self._attrs = dict(self._local.meta("")["attributes"]) if self._local is not None else dict(self.group.attrs)
+            if self._local is None:
+                self._attrs = dict(self.group.attrs)
+            else:
+                meta = self._local.meta("")
+                if meta is None:
+                    raise self._damaged("root", "its metadata, zarr.json, is missing")
+                self._attrs = dict(meta.get("attributes", {}))
         return self._attrs
 
     def update(self, **kw) -> None:
