@@ -34,7 +34,10 @@ import distributed.nanny  # noqa: E402,F401  what a worker process runs
 import distributed.worker  # noqa: E402,F401
 import lazrs  # noqa: E402,F401
 import numba  # noqa: E402,F401
-import zarr  # noqa: E402,F401
+
+# not zarr (0.2-0.6 s of the server's imports, before any worker can start): a store on a local disk is read and
+# written without it (patchcloud.stream.io.local_zarr); the tasks that need it (compress's .pcz, a store on another
+# URL) import it, and the job's module named by the console script (compress) brings it here too
 
 import patchcloud.stream.engine.export  # noqa: E402,F401  the engine's tasks (and the kernels they use)
 import patchcloud.stream.engine.ingest  # noqa: E402,F401

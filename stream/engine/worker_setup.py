@@ -26,6 +26,7 @@ import signal
 import sys
 
 from patchcloud.stream.engine.allocator import tune_allocator
+from patchcloud.stream.engine.import_hooks import after_importing
 from patchcloud.stream.engine.laspy_start import skip_laspy_http
 from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
 
@@ -65,7 +66,9 @@ def dask_setup(worker) -> None:
     skip_laspy_http()
     from patchcloud.stream.io.store import limit_zarr_threads  # after the skips: it imports laspy and numba
 
-    limit_zarr_threads(worker_threads(worker))
+    n = worker_threads(worker)
+    # once zarr is imported (at once if it is): a worker on a local store may never import it (stream.io.local_zarr)
+    after_importing("zarr", lambda _zarr: limit_zarr_threads(n))
     atexit.register(exit_now)
 
 

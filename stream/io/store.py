@@ -351,6 +351,21 @@ class Store:
         """A new, empty store at ``url`` (replacing what is there when ``overwrite``)."""
         if not overwrite:
             cls.check_new(url)
+        attrs = dict(format=FORMAT, version=VERSION, uid=uuid.uuid4().hex, steps={})
+        root = _local_dir(url)
+        if root is not None:  # on a local disk: its root metadata written directly (no zarr in this process)
+            try:
+                if overwrite:
+                    remove_store_dir(root)
+                elif (root / "zarr.json").exists():
+                    raise FileExistsError(f"a zarr node is already at {root}")
+                root.mkdir(parents=True, exist_ok=True)
+                LocalZarr(root).update_group_attrs("", attrs)
+            except OSError as exc:
+                raise PatchcloudIOError(f"{url}: cannot create a store there ({exc})") from exc
+            store = cls(None, url, root=root)
+            store._attrs = attrs
+            return store
         try:
             if memory_group.is_memory_url(url):
                 g = memory_group.create(url, overwrite)
@@ -358,7 +373,7 @@ class Store:
                 g = _zarr().open_group(url, mode="w" if overwrite else "w-")
         except Exception as exc:
             raise PatchcloudIOError(f"{url}: cannot create a store there ({exc})") from exc
-        _set_attrs(g, dict(format=FORMAT, version=VERSION, uid=uuid.uuid4().hex, steps={}))
+        _set_attrs(g, attrs)
         return cls(g, url)
 
     @classmethod
@@ -408,6 +423,13 @@ class Store:
     def exists(cls, url: str) -> bool:
         if memory_group.is_memory_url(url):
             return memory_group.exists(url)
+        root = _local_dir(url)
+        if root is not None:  # on a local disk: its root metadata read directly
+            try:
+                meta = LocalZarr(root).meta("")
+            except (OSError, ValueError):
+                return False
+            return isinstance(meta, dict) and meta.get("node_type") == "group" and meta.get("attributes", {}).get("format") == FORMAT
         try:
             g = _zarr().open_group(url, mode="r")
         except Exception:
