@@ -23,6 +23,11 @@ every tile is a cube of one global octree whatever the tile size, and a
 tile's face is an octree face.  Coordinates stay exact: the LAS integers
 are stored; the float64 local frame is ``X * scale + offset - origin``.
 
+On a local disk (a path or ``file://``) the store reads and writes these
+files itself, in the same format (:mod:`.local_zarr`: zarr's 2 ms a call
+was most of a small tile's task), and no process of the run imports zarr;
+on other fsspec URLs, and for arrays of other codecs, zarr does.
+
 Compression: every array on disk is stored through Blosc's LZ4 with a
 byte shuffle (:func:`codec_for`), which on the 10-million-point city wrote
 a smaller store than zarr's default Zstd (239 against 246 MB) and spent
