@@ -38,10 +38,13 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LocalZarr", "LocalArray", "local_root", "DATA_TYPES"]
+__all__ = ["LocalZarr", "LocalArray", "local_root", "DATA_TYPES", "BLOSC"]
 
 #: The data types read and written directly (zarr's names are numpy's).
 DATA_TYPES = ("bool", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "float32", "float64")
+#: How a store codes its chunks (zarr's ``BloscCodec`` arguments, the item size aside): LZ4, level 5, byte shuffle.
+#: :func:`patchcloud.stream.io.store.codec_for` makes zarr's codec from it; :func:`array_metadata` writes it.
+BLOSC = {"cname": "lz4", "clevel": 5, "shuffle": "shuffle"}
 #: Blosc's shuffle modes by zarr's names.
 _SHUFFLE = {"noshuffle": 0, "shuffle": 1, "bitshuffle": 2}
 
@@ -71,9 +74,21 @@ def _write_file(path: str, data: bytes) -> None:
         with f:
             f.write(data)
         os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
+    except BaseException:  # nothing half-written left behind
+        try:
             os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def _chunk_key(k: int, ndim: int) -> str:
+    """The key of chunk ``k`` (along the first axis) of an array of ``ndim`` dimensions: ``c/K``, then ``/0`` a dimension.
+
+    >>> _chunk_key(3, 1), _chunk_key(3, 2)
+    ('c/3', 'c/3/0')
+    """
+    return "/".join(["c", str(k)] + ["0"] * (ndim - 1))
 
 
 def _read_bytes(path: str) -> bytes | None:
@@ -153,7 +168,7 @@ def array_metadata(shape: tuple, dtype: np.dtype, chunks: tuple, attributes: dic
         "fill_value": fill,
         "codecs": [
             raw,
-            {"name": "blosc", "configuration": {"typesize": dtype.itemsize, "cname": "lz4", "clevel": 5, "shuffle": "shuffle", "blocksize": 0}},
+            {"name": "blosc", "configuration": {"typesize": dtype.itemsize, **BLOSC, "blocksize": 0}},
         ],
         "attributes": attributes,
         "zarr_format": 3,
@@ -182,7 +197,7 @@ class LocalArray:
         """Chunk ``k`` (its rows within the array, unpadded): the fill value where its file is missing."""
         size = self.chunks[0]
         rows = min(size, self.shape[0] - k * size)
-        raw = _read_bytes("/".join([self.directory, "c", str(k)] + ["0"] * (len(self.shape) - 1)))
+        raw = _read_bytes(f"{self.directory}/{_chunk_key(k, len(self.shape))}")
         if raw is None:
             return np.zeros((rows,) + self.shape[1:], dtype=self.dtype)
         out = np.frombuffer(self._codec.decode(raw), dtype=self.dtype.newbyteorder("<")).reshape(self.chunks)
@@ -290,18 +305,11 @@ class LocalZarr:
         chunks = (rows,) + values.shape[1:]
         meta = array_metadata(values.shape, values.dtype, chunks, attributes)
         codec = _blosc(meta["codecs"][1]["configuration"])
-        tail = "/".join(["0"] * (values.ndim - 1))
-        n_chunks = -(-values.shape[0] // rows)
-        for k in range(n_chunks):
-            os.makedirs(f"{directory}/c/{k}" if tail else f"{directory}/c", exist_ok=True)
-        if not n_chunks:
-            os.makedirs(directory, exist_ok=True)
-        for k in range(n_chunks):
+        for k in range(-(-values.shape[0] // rows)):  # (_write_file makes each chunk's directory)
             block = values[k * rows : (k + 1) * rows]
             if block.shape[0] < rows:  # the last chunk padded with the fill value, as zarr writes it
                 block = np.concatenate([block, np.zeros((rows - block.shape[0],) + block.shape[1:], dtype=block.dtype)])
-            name = f"c/{k}/{tail}" if tail else f"c/{k}"
-            _write_file(f"{directory}/{name}", codec.encode(np.ascontiguousarray(block)))
+            _write_file(f"{directory}/{_chunk_key(k, values.ndim)}", codec.encode(np.ascontiguousarray(block)))
         _write_file(f"{directory}/zarr.json", json.dumps(meta).encode())
 
     # -- raw bytes (the store's blobs) -------------------------------------------

@@ -61,7 +61,7 @@ from patchcloud.core import GRID_ANCHOR, PatchcloudIOError, PatchcloudValueError
 
 from . import memory_group
 from .catalog import Catalog
-from .local_zarr import DATA_TYPES, LocalZarr, local_root
+from .local_zarr import BLOSC, DATA_TYPES, LocalZarr, local_root
 
 __all__ = [
     "Store", "Grid", "ANCHOR", "FORMAT", "VERSION", "table_to_array", "array_to_table", "tile_name", "PatchcloudStoreError",
@@ -233,10 +233,8 @@ def _local_dir(url: str) -> Path | None:
 
 def _occupied(url: str) -> bool:
     """Whether a local path (or ``file://`` URL) holds a file or a non-empty directory; False for other URLs."""
-    if "://" in url and not url.startswith("file://"):
-        return False
-    p = Path(url.removeprefix("file://"))
-    return p.exists() and (p.is_file() or any(p.iterdir()))
+    p = _local_dir(url)
+    return p is not None and p.exists() and (p.is_file() or any(p.iterdir()))
 
 
 #: What a store being removed is renamed to first (its path plus this).
@@ -312,7 +310,7 @@ def codec_for(dtype) -> "BloscCodec":
     """
     from zarr.codecs import BloscCodec
 
-    return BloscCodec(cname="lz4", clevel=5, shuffle="shuffle", typesize=np.dtype(dtype).itemsize)
+    return BloscCodec(**BLOSC, typesize=np.dtype(dtype).itemsize)
 
 
 class Store:
