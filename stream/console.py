@@ -44,6 +44,9 @@ _SUFFIXES = (".las", ".laz")
 
 def run() -> None:
     """The ``patchcloud`` command: :func:`patchcloud.stream.cli.run`, after :func:`start_early`."""
+    from patchcloud.stream.engine.dask_start import skip_dask_templates
+
+    skip_dask_templates()  # before start_early imports dask (the command line's set-up would come too late)
     start_early(sys.argv[1:])
     from patchcloud.stream.cli import run as command_line
 

@@ -9,7 +9,8 @@ import sys
 
 import click
 
-from patchcloud.stream.engine.laspy_start import skip_laspy_http
+from patchcloud.stream.engine.dask_start import skip_dask_templates
+from patchcloud.stream.engine.laspy_start import skip_laspy_http, skip_laspy_pyproj
 from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
 
 from .compress import compress_command, decompress_command
@@ -104,12 +105,15 @@ def run() -> None:
     (or CliRunner) :func:`main` leaves the collector alone.  So too numba's
     BLAS probe, which the console script skips
     (:func:`~patchcloud.stream.engine.numba_start.skip_numba_blas_probe`), numba's compiler set-up when it loads
-    cached kernels and laspy's HTTP support (:mod:`~patchcloud.stream.engine.laspy_start`).
+    cached kernels, laspy's HTTP support and pyproj (:mod:`~patchcloud.stream.engine.laspy_start`) and dask's HTML
+    templates (:mod:`~patchcloud.stream.engine.dask_start`).
     """
     gc.set_threshold(100_000, 50, 50)
     skip_numba_blas_probe()  # 0.14 s of scipy that numba would import for nothing (stream.engine.numba_start)
     load_cached_kernels_lightly()  # 0.07 s of numba's compiler set-up that a cached kernel does not need (same module)
     skip_laspy_http()  # 0.02 s of requests, for COPC over HTTP (stream.engine.laspy_start)
+    skip_laspy_pyproj()  # pyproj imported where a CRS is read or written, not by laspy's import (same module)
+    skip_dask_templates()  # 0.04 s of jinja2 for dask's HTML (stream.engine.dask_start)
     signal.signal(signal.SIGTERM, _terminated)  # what SLURM, PBS, Kubernetes and systemd send: as Ctrl-C
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a run started ignoring it (`cmd &` in a script) still does
         signal.signal(signal.SIGINT, _interrupted)  # then Ctrl-C again is let be during the clean-up, SIGTERM ends it

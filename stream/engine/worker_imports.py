@@ -12,8 +12,8 @@ milliseconds.
 
 The server does here what the console script and
 :mod:`~patchcloud.stream.engine.worker_setup` do before their imports
-(numba's BLAS probe and laspy's HTTP support skipped, numba's cache loaded
-lightly), so the forked workers are the processes they would have been.
+(numba's BLAS probe, laspy's HTTP support and pyproj, dask's HTML
+templates skipped, numba's cache loaded lightly), so the forked workers are the processes they would have been.
 Nothing here starts a thread: a process is forked from the server.  The
 job's own modules (``patchcloud.stream.jobs.normals``, ...) are named by
 the console script, which knows the job
@@ -23,12 +23,15 @@ worker imports them at its first task (0.1 s).
 
 from __future__ import annotations
 
-from patchcloud.stream.engine.laspy_start import skip_laspy_http
+from patchcloud.stream.engine.dask_start import skip_dask_templates
+from patchcloud.stream.engine.laspy_start import skip_laspy_http, skip_laspy_pyproj
 from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
 
 skip_numba_blas_probe()
 load_cached_kernels_lightly()
 skip_laspy_http()
+skip_laspy_pyproj()
+skip_dask_templates()
 
 import distributed.nanny  # noqa: E402,F401  what a worker process runs
 import distributed.worker  # noqa: E402,F401

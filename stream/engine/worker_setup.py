@@ -27,7 +27,7 @@ import sys
 
 from patchcloud.stream.engine.allocator import tune_allocator
 from patchcloud.stream.engine.import_hooks import after_importing
-from patchcloud.stream.engine.laspy_start import skip_laspy_http
+from patchcloud.stream.engine.laspy_start import skip_laspy_http, skip_laspy_pyproj
 from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
 
 __all__ = ["dask_setup", "exit_now", "worker_threads", "tune_running_worker"]
@@ -53,7 +53,7 @@ def exit_now() -> None:
 def dask_setup(worker) -> None:
     """Called by dask in each worker process as it starts, in its main thread: ignore SIGINT, tune the allocator, skip
     numba's BLAS probe and its compiler set-up for cached kernels, size lazrs' thread pool (:mod:`~patchcloud.stream.engine.numba_start`) and
-    laspy's HTTP support (:mod:`~patchcloud.stream.engine.laspy_start`), have zarr code chunks on as many threads as the
+    laspy's HTTP support and pyproj (:mod:`~patchcloud.stream.engine.laspy_start`), have zarr code chunks on as many threads as the
     worker runs tasks (:func:`~patchcloud.stream.io.store.limit_zarr_threads`), leave at once at exit (see the module's
     notes)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -64,6 +64,7 @@ def dask_setup(worker) -> None:
     skip_numba_blas_probe()
     load_cached_kernels_lightly()
     skip_laspy_http()
+    skip_laspy_pyproj()
     from patchcloud.stream.io.store import limit_zarr_threads  # after the skips: it imports laspy and numba
 
     n = worker_threads(worker)
