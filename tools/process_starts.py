@@ -43,12 +43,22 @@ def started_processes(argv: list[str], poll: float = 0.005) -> tuple[int, list[t
     descending from it that lived at least one poll, in the order they started."""
     proc = subprocess.Popen(argv)
     seen: dict[str, tuple[tuple[int, int], str]] = {}
+    began = None  # the command's start (ticks): what started before it is not read again
     while True:
         for name in os.listdir("/proc"):
-            if name.isdigit() and name not in seen:
-                st = _stat(name)
-                if st is not None:
-                    seen[name] = (st, _cmdline(name))
+            if not name.isdigit() or (began is not None and name in seen and seen[name][0][1] < began):
+                continue
+            st = _stat(name)
+            if st is None:
+                continue
+            if name not in seen:
+                seen[name] = (st, _cmdline(name))
+                if name == str(proc.pid):
+                    began = st[1]
+            elif seen[name][0][1] == st[1]:  # the same process: its command line read again, as it may have changed
+                cmd = _cmdline(name)  # since (a child read between its fork and its exec shows its parent's, or none)
+                if cmd and cmd != "?":
+                    seen[name] = (seen[name][0], cmd)
         if proc.poll() is not None:
             break
         time.sleep(poll)
