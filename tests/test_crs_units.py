@@ -109,11 +109,12 @@ def test_evlrs_are_kept_byte_for_byte_and_copc_records_dropped(tmp_path):
     assert laspy.read(str(out)).header.parse_crs().to_epsg() == 2154
 
 
-def test_a_wkt_is_described_once_and_each_caller_gets_its_own_copy(monkeypatch):
+def test_a_wkt_is_described_once_and_each_caller_gets_its_own_copy(monkeypatch, tmp_path):
     """A file's WKT is described once per process (pyproj's EPSG search costs about 60 ms for a WKT without an
     authority, and a run describes its CRS several times); the answer is the same, and a caller's changes stay its own."""
     from patchcloud.stream.io.crs import crs_description
 
+    monkeypatch.setenv("PATCHCLOUD_CRS_CACHE", str(tmp_path / "crs"))  # an empty cache on disk (stream.io.crs_cache)
     searches = []
     search = CRS.to_epsg
     monkeypatch.setattr(CRS, "to_epsg", lambda self, *a, **k: searches.append(1) or search(self, *a, **k))

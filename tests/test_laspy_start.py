@@ -121,7 +121,8 @@ def test_dask_imports_without_its_html_templates():
 
 def test_forked_workers_and_a_client_without_a_crs_import_neither_pyproj_nor_jinja2(tmp_path):
     """The fork server's imports (the path to every worker's start) and the console script on a file without a CRS
-    leave both out; the console script on a file with one imports pyproj to read it."""
+    leave both out; the console script on a file with one imports pyproj to read it (the first time: see
+    test_crs_cache.py for the next)."""
     from test_stream import write_scene
 
     src = tmp_path / "scene.las"
@@ -150,6 +151,7 @@ def test_forked_workers_and_a_client_without_a_crs_import_neither_pyproj_nor_jin
                     assert not e.code, e.code
                 print("pyproj" in sys.modules, "jinja2" in sys.modules)
         """)
-        out = subprocess.run([sys.executable, "-c", console], capture_output=True, text=True, timeout=300)
+        env = dict(__import__("os").environ, PATCHCLOUD_CRS_CACHE=str(tmp_path / f"crs-{crs}"))  # pyproj's answers not kept yet
+        out = subprocess.run([sys.executable, "-c", console], capture_output=True, text=True, timeout=300, env=env)
         assert out.returncode == 0, out.stderr[-3000:]
         assert out.stdout.split()[-2:] == [crs, "False"], path

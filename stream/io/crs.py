@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 from patchcloud.core import PatchcloudValueError
 
+from .crs_cache import remembered
+
 __all__ = ["Units", "UNITS", "units_of", "crs_name", "crs_description", "CRS_RECORD_IDS", "is_crs_record", "with_crs"]
 
 
@@ -93,14 +95,14 @@ def crs_description(crs) -> dict:
     >>> d["epsg"], d["horizontal_unit"], d["vertical_unit"]
     (2154, ['metre', 1.0], ['metre', 1.0])
     """
-    if isinstance(crs, str):  # a file's WKT: pyproj's EPSG search takes about 60 ms for a WKT without an authority
-        return copy.deepcopy(_described(crs))
+    if isinstance(crs, str):  # a file's WKT: pyproj's EPSG search takes about 60 ms for a WKT without an authority, and
+        return copy.deepcopy(_described(crs))  # its import 0.06-0.09 s: the answer is kept (crs_cache)
     return _describe(_crs(crs))
 
 
 @functools.lru_cache(maxsize=64)
 def _described(text: str) -> dict:
-    return _describe(_crs(text))
+    return remembered("description", text.encode(), lambda: _describe(_crs(text)))  # kept on disk too: crs_cache
 
 
 def _describe(c) -> dict:

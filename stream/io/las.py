@@ -27,6 +27,7 @@ from laspy.vlrs.known import ExtraBytesStruct
 from patchcloud.core import PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
 from .crs import is_crs_record, with_crs
+from .crs_cache import header_crs
 from .las_records import (
     EVLR_BYTES, VLR_BYTES, RawRecord, as_vlr, ascii_text, file_records, header_record_fields, is_extra_bytes, kept, software_version,
 )
@@ -258,12 +259,7 @@ def open_source(path: str | os.PathLike, allow_empty: bool = False) -> LasSource
             h = reader.header
             check_header_values(p, h)
             compressed = bool(h.are_points_compressed)
-            crs, crs_error = None, None
-            try:
-                c = h.parse_crs()
-                crs = None if c is None else c.to_wkt()
-            except Exception as exc:  # an unparsable CRS record: not fatal, but said wherever the CRS is (info, units, catalogs)
-                crs, crs_error = None, f"{type(exc).__name__}: {str(exc)[:160]}"
+            crs, crs_error = header_crs(h)  # (pyproj's answer, kept on disk: crs_cache)
             src = LasSource(
                 path=str(p.resolve()), size=int(st.st_size), mtime_ns=int(st.st_mtime_ns), point_count=int(h.point_count),
                 point_format=int(h.point_format.id), version=str(h.version), scale=tuple(map(float, h.scales)),
