@@ -145,3 +145,31 @@ def test_a_json_written_beside_the_work_replaces_only_json_and_never_a_store(laz
     r = CliRunner().invoke(main, ["render", str(laz), str(tmp_path / "p.png"), "--color", "elevation", "--width", "200",
                                   "--summary-json", str(tmp_path / "old.json"), "-q"])
     assert r.exit_code == 0 and '"color": "elevation"' in (tmp_path / "old.json").read_text()  # a JSON file: replaced
+
+
+def test_a_json_or_report_never_takes_the_place_of_an_output_not_yet_written_nor_of_the_store(laz, tmp_path):
+    """--summary-json naming a command's output that does not exist yet (decompress, render, render --out-dir,
+    render-tiles), or --summary-json, --report and --profile naming the --store directory: one error line before
+    anything runs (decompress and render wrote the JSON over the output they had just written, exit 0; a store
+    named so failed only after the whole job)."""
+    pcz = tmp_path / "x.pcz"
+    store = tmp_path / "st.zarr"
+    assert CliRunner().invoke(main, ["compress", str(laz), str(pcz), "-q"]).exit_code == 0
+    assert CliRunner().invoke(main, ["tile", str(laz), str(store), "-q"]).exit_code == 0
+    (tmp_path / "pics").mkdir()
+    files = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    for args in [
+        ["decompress", str(pcz), str(tmp_path / "d.laz"), "--summary-json", str(tmp_path / "d.laz")],
+        ["render", str(laz), str(tmp_path / "p.png"), "--color", "elevation", "--summary-json", str(tmp_path / "p.png")],
+        ["render", str(laz), "--out-dir", str(tmp_path / "pics"), "--color", "elevation",
+         "--summary-json", str(tmp_path / "pics" / "in.png")],
+        ["render-tiles", str(store), str(tmp_path / "t.png"), "--summary-json", str(tmp_path / "t.png")],
+        ["normals", str(laz), str(tmp_path / "n.laz"), "--store", str(tmp_path / "new.zarr"), "--summary-json",
+         str(tmp_path / "new.zarr")],
+        ["normals", str(laz), str(tmp_path / "n.laz"), "--store", str(tmp_path / "new.zarr"), "--profile", str(tmp_path / "new.zarr")],
+        ["normals", str(laz), str(tmp_path / "n.laz"), "--store", str(tmp_path / "new.zarr"), "--report", str(tmp_path / "new.zarr")],
+    ]:
+        r = CliRunner().invoke(main, args + ["-q"])
+        assert r.exit_code == 2 and r.output.count("\n") == 1, (args, r.output)
+        assert "job's file" in r.output or "would replace" in r.output, (args, r.output)
+        assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == files, args  # nothing written

@@ -58,7 +58,7 @@ def compress_command(paths, max_error, keep_points, drop, record_source, report,
     from patchcloud.stream import compress
 
     run = options.run_options(run)
-    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile, suffix=".pcz")
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile, suffix=".pcz", store=run.store)
     drop = tuple(d.strip() for d in drop.split(",") if d.strip())
     summary = compress(input, output, CompressOptions(max_error=max_error, keep_points=keep_points, drop=drop), run,
                        record_source=record_source)
@@ -96,6 +96,7 @@ def decompress_command(input, output, density, lod, bbox, seed, overwrite, quiet
     """
     from patchcloud.stream import decompress
 
+    options.check_side_files([input], output, None, None, overwrite)  # a --summary-json replaces neither
     summary = decompress(input, output, density=density, lod=lod, bbox=bbox or None, seed=seed, overwrite=overwrite)
     options.write_summary_json(summary)
     if not quiet:

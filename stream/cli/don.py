@@ -39,7 +39,7 @@ def don_command(paths, r_small, r_large, mode, viewpoint, report, **run):
     from patchcloud.stream import don
 
     run = options.run_options(run)
-    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile)
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile, store=run.store)
     asked = DonOptions(r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None)
     summary = don(input, output, asked, run)
     options.finish_job(summary, run.quiet, report, "report_don")

@@ -68,7 +68,7 @@ def normals_command(paths, criterion, threshold, orient, always_up, k_fallback, 
             raise click.UsageError(f"--viewpoint orients the normals towards it: it goes with --orient viewpoint, not --orient {orient}")
         orient = "viewpoint"
     run = options.run_options(run)
-    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile)
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile, store=run.store)
     asked = NormalsOptions(criterion=criterion, threshold=threshold, orient=orient, viewpoint=viewpoint or None, blend=not no_blend,
                            k_fallback=k_fallback)
     summary = normals(input, output, asked, run, principal_curvatures=principal_curvatures, always_up=always_up)

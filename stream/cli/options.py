@@ -244,30 +244,31 @@ def catalog_options(func):
 
 
 def input_and_output(paths: tuple[str, ...], out_dir: str | None, report: str | None, overwrite: bool, profile: str | None = None,
-                     suffix: str | None = None):
+                     suffix: str | None = None, store: str | None = None):
     """The job function's ``input`` and ``output`` from the command's arguments (``IN OUT``, or inputs and ``--out-dir``),
     after checking the files written beside the output (``--report``, ``--summary-json``, ``--profile``) can be
-    written and replace none of the job's files (:func:`check_side_files`).  ``suffix``: a catalog's outputs' (``.pcz``),
-    if not the inputs' own."""
+    written and replace none of the job's files (:func:`check_side_files`; ``store``: the ``--store`` given, one of
+    them).  ``suffix``: a catalog's outputs' (``.pcz``), if not the inputs' own."""
     from patchcloud.core import PatchcloudValueError
 
     if out_dir is not None:
-        check_side_files(paths, None, report, profile, overwrite, out_dir=out_dir, suffix=suffix)
+        check_side_files(paths, None, report, profile, overwrite, out_dir=out_dir, suffix=suffix, store=store)
         return list(paths), None
     if len(paths) == 1:
         raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT file after it, or --out-dir DIR")
     if len(paths) > 2:
         raise PatchcloudValueError(f"{len(paths)} paths given: for a catalog of files give --out-dir DIR (every argument is then an input)")
-    check_side_files(paths[:1], paths[1], report, profile, overwrite)
+    check_side_files(paths[:1], paths[1], report, profile, overwrite, store=store)
     return paths[0], paths[1]
 
 
 def check_side_files(inputs, output: str | None, report: str | None, profile: str | None, overwrite: bool,
-                     out_dir: str | None = None, suffix: str | None = None) -> None:
+                     out_dir: str | None = None, suffix: str | None = None, store: str | None = None) -> None:
     """Before a job runs: ``--report`` can be written (:func:`check_report`), and neither it, the ``--summary-json``
     of the running command nor ``--profile`` is one of the job's files: an input (every file a directory or glob of
-    ``inputs`` names), the output, or a catalog's output in ``out_dir`` (named as the input, or with ``suffix``).  A
-    PatchcloudIOError (one error line) if not; ``--overwrite`` changes nothing."""
+    ``inputs`` names), the output, a catalog's output in ``out_dir`` (named as the input, or with ``suffix``), or the
+    ``store`` (a ``--store`` directory, made or not yet; an fsspec URL is left to the job).  A PatchcloudIOError (one
+    error line) if not; ``--overwrite`` changes nothing."""
     from patchcloud.core import PatchcloudError, PatchcloudIOError
     from patchcloud.stream.io.catalog import expand_inputs, output_paths
     from patchcloud.stream.io.las import same_file
@@ -283,7 +284,7 @@ def check_side_files(inputs, output: str | None, report: str | None, profile: st
             outputs = [str(o) for o in output_paths(found, out_dir, suffix=suffix)]
         except PatchcloudError:  # two inputs of one output name: the job says so
             pass
-    job_files = files + outputs
+    job_files = files + outputs + ([str(store)] if store is not None and "://" not in str(store) else [])
     check_report(report, overwrite, *job_files)
     summary = summary_json_path()
     check_distinct([("--report", report), ("--summary-json", summary), ("--profile", profile)])

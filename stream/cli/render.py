@@ -79,7 +79,9 @@ def render_command(paths, color, view, bbox, width, shade, value_range, fill, he
         if len(paths) < 2:
             raise PatchcloudValueError(f"{paths[0]}: give an OUTPUT picture after it, or --out-dir DIR")
         jobs = [(list(paths[:-1]) if len(paths) > 2 else paths[0], paths[-1])]
-    else:  # one picture per file: every file checked before the first is drawn (render checks one job itself)
+        options.check_side_files(paths[:-1], paths[-1], None, None, True)  # a --summary-json replaces neither
+    else:
+        options.check_side_files(paths, None, None, None, True, out_dir=out_dir, suffix=".png")  # one picture per file: every file checked before the first is drawn (render checks one job itself)
         inputs = expand_inputs(list(paths))
         directory = check_out_dir(out_dir)
         jobs = list(zip(inputs, output_paths(inputs, directory, list(paths), suffix=".png")))
@@ -128,6 +130,7 @@ def render_tiles_command(store, output, by, step, quiet):
     """
     from patchcloud.stream.views.render_tiles import render_tiles
 
+    options.check_side_files([store], output, None, None, True)  # a --summary-json replaces neither
     s = render_tiles(store, output, by=by, step=step)
     options.write_summary_json(s)
     if not quiet:

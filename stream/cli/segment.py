@@ -49,7 +49,7 @@ def segment_command(
     from patchcloud.stream import segment
 
     run = options.run_options(run)
-    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile)
+    input, output = options.input_and_output(paths, run.out_dir, report, run.overwrite, run.profile, store=run.store)
 
     asked = SegmentOptions(
         r_small=r_small, r_large=r_large, mode=mode, viewpoint=viewpoint or None, threshold=threshold, tolerance=tolerance,
