@@ -298,3 +298,25 @@ def test_sampled_points_outside_their_tile_or_not_finite_are_a_damaged_file():
     for bad in ([np.nan, 4.0, 20.0], [12.0, -TILE_SLACK * t * 1.01, 20.0], [12.0, 4.0, np.inf]):
         with pytest.raises(PatchcloudIOError, match=r"x.pcz: damaged .pcz file \(tile t\+1\+0\+2's patches put 2 points outside it\)"):
             check_in_tile("x.pcz", np.vstack([inside, [bad, bad]]), ijk, t)
+
+
+def test_a_budget_up_to_the_tile_size_round_trips_and_a_larger_one_is_refused_before_any_work(tmp_path):
+    """--max-error as large as the tiles writes a .pcz that decompresses, every point within the budget of the
+    surfaces (decompress took a budget of half the tile size for damage); larger, the reader would refuse the file:
+    one error line naming both options, nothing written (it wrote the .pcz and said it was fine)."""
+    import os
+
+    sample = os.path.join(os.path.dirname(__file__), "..", "data", "test_data_77055_627760_LA93_IGN69.laz")
+    for tile, budget in ((8, 4.0), (8, 8.0)):
+        p = tmp_path / f"t{tile}-{budget:g}.pcz"
+        r = CliRunner().invoke(main, ["compress", sample, str(p), "--tile-size", str(tile), "--max-error", str(budget), "-q"])
+        assert r.exit_code == 0, r.output
+        r = CliRunner().invoke(main, ["decompress", str(p), str(tmp_path / f"d{tile}-{budget:g}.laz"), "-q"])
+        assert r.exit_code == 0, r.output
+        assert laspy.read(tmp_path / f"d{tile}-{budget:g}.laz").header.point_count > 0
+    before = sorted(tmp_path.iterdir())
+    for args, says in [(["--tile-size", "8", "--max-error", "8.5"], "--tile-size of at least 16"),
+                       (["--max-error", "1000"], "--max-error 1000 is larger than the tiles")]:
+        r = CliRunner().invoke(main, ["compress", sample, str(tmp_path / "x.pcz"), *args, "-q"])
+        assert r.exit_code == 2 and r.output.count("\n") == 1 and says in r.output, r.output
+        assert sorted(tmp_path.iterdir()) == before

@@ -31,7 +31,7 @@ from patchcloud.core import (
     CompressOptions, PatchcloudValueError, PatchModels, QuantisedModels, dequantise_models, fit_models, patch_distances, quantise_models,
 )
 from patchcloud.stream.engine.export import file_record
-from patchcloud.stream.engine.ingest import bucket_records, occupancy_spacing
+from patchcloud.stream.engine.ingest import bucket_records, make_grid, occupancy_spacing
 from patchcloud.stream.engine.job import (
     Job, JobContext, RunOptions, catalog_units, left_out_lines, params_key, run_job, run_request, split_options, time_and_memory_lines,
 )
@@ -45,7 +45,7 @@ from patchcloud.stream.io.residual_points import (
 )
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "extra_dim", "point_format", "RESIDUAL_KEPT"]
+__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "check_budget_fits_tiles", "extra_dim", "point_format", "RESIDUAL_KEPT"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -221,9 +221,10 @@ class CompressJob(Job):
     catalogs = False  # a catalog is compressed file by file: compress_catalog
     tiles_selection = False  # every point is tiled: compress_tile models the selection's, the others are residual points
 
-    def __init__(self, options: CompressOptions, record_source: bool = False) -> None:
+    def __init__(self, options: CompressOptions, record_source: bool = False, tile_size: float | None = None) -> None:
         self.options = options
         self.record_source = record_source
+        self.tile_size = tile_size  # the run's (None: the default), for the check of the budget against the tiles
         self.params: dict = {}
         self.infos: dict = {}
         self.counts: dict = {}
@@ -234,6 +235,7 @@ class CompressJob(Job):
 
     def check(self, catalog) -> None:
         check_drop(catalog, self.options.drop)
+        check_budget_fits_tiles(self.options.max_error, make_grid(catalog, self.tile_size).tile_size, catalog.path)
 
     def records(self, ctx: JobContext) -> None:
         st = ctx.store
@@ -243,6 +245,7 @@ class CompressJob(Job):
 
     def fit(self, ctx: JobContext) -> None:
         st, src = ctx.store, ctx.source
+        check_budget_fits_tiles(self.options.max_error, st.grid.tile_size, src.path)  # a store resumed: its own tiles
         occ = {int(k): int(v) for k, v in st.attrs["occupancy"].items()}
         spacing = occupancy_spacing(occ, int(st.tile_counts.sum()))
         with laspy.open(src.path) as r:
@@ -281,6 +284,22 @@ class CompressJob(Job):
             if v else {}, selection=ctx.run.selection.to_json(), steps=list(self.params["steps"]),
             dropped=list(self.params["dropped"]), scales=list(ctx.store.grid.scale),
         )
+
+
+def check_budget_fits_tiles(max_error: float, tile_size: float, where: str = "") -> None:
+    """Refuse an error budget larger than the tiles (what a ``.pcz`` can hold: its reader refuses the file), before any
+    work: a PatchcloudValueError naming both options.
+
+    >>> check_budget_fits_tiles(0.05, 64.0)
+    >>> check_budget_fits_tiles(100.0, 64.0, "a.laz")
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: a.laz: --max-error 100 is larger than the tiles (64): give a smaller --max-error, or --tile-size of at least 128
+    """
+    if max_error > tile_size:
+        at_least = float(2.0 ** np.ceil(np.log2(max_error)))
+        raise PatchcloudValueError(f"{where}: --max-error {max_error:g} is larger than the tiles ({tile_size:g}): give a smaller "
+                                   f"--max-error, or --tile-size of at least {at_least:g}")
 
 
 def pcz_source(src: LasSource, point_format: int, record_source: bool = False, units: str | None = None,
@@ -346,16 +365,17 @@ def compress(
         if output is not None:
             raise PatchcloudValueError(f"{output}: with out_dir (--out-dir) every argument is an input; the outputs go to {run.out_dir}")
         return compress_catalog(input, options, run, record_source)
-    return run_job(_job(options, record_source), input, output, run)
+    return run_job(_job(options, record_source, run.tile_size), input, output, run)
 
 
-def _job(options: CompressOptions, record_source: bool) -> Job:
-    """The job ``options`` ask for: model mode (:class:`CompressJob`) or points mode (:class:`~.compress_points.PointsJob`)."""
+def _job(options: CompressOptions, record_source: bool, tile_size: float | None = None) -> Job:
+    """The job ``options`` ask for: model mode (:class:`CompressJob`, on tiles of ``tile_size``: the run's) or points
+    mode (:class:`~.compress_points.PointsJob`)."""
     if options.keep_points:
         from patchcloud.stream.jobs.compress_points import PointsJob  # it builds on this module
 
         return PointsJob(options, record_source)
-    return CompressJob(options, record_source)
+    return CompressJob(options, record_source, tile_size)
 
 
 #: A catalog's compression records each ``.pcz`` it finishes here, in the output directory, until the last is written.
@@ -403,7 +423,7 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
             # recorded as started first: a .pcz in place but not yet recorded (stopped between the two) is this run's
             record[o.name] = dict(key=key, input=file_record(Path(p)), started=True)
             _write_record(record_path, record)
-            s = run_job(_job(options, record_source), p, o, dataclasses.replace(one, overwrite=one.overwrite or w))
+            s = run_job(_job(options, record_source, one.tile_size), p, o, dataclasses.replace(one, overwrite=one.overwrite or w))
             record[o.name] = dict(key=key, input=file_record(Path(p)), output=file_record(Path(o)), summary=dataclasses.asdict(s))
             _write_record(record_path, record)
             summaries.append(s)

@@ -80,11 +80,14 @@ def _batches(counts: np.ndarray, size: int) -> list[slice]:
     return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
-def check_in_tile(path, points: np.ndarray, ijk: np.ndarray, tile_size: float) -> None:
+def check_in_tile(path, points: np.ndarray, ijk: np.ndarray, tile_size: float, max_error: float = 0.0) -> None:
     """Refuse sampled ``points`` ((M, 3), the grid's frame) that are not finite or lie further than :data:`TILE_SLACK`
-    of the tile's edge outside tile ``ijk``: a damaged or crafted ``.pcz`` (PatchcloudIOError naming the tile)."""
-    lo = np.asarray(ijk, dtype=np.float64) * tile_size - TILE_SLACK * tile_size
-    hi = lo + (1 + 2 * TILE_SLACK) * tile_size
+    of the tile's edge, and twice the file's ``max_error`` (a surface may stray that far from the points it models, a
+    residual point's coded position that far from the point), outside tile ``ijk``: a damaged or crafted ``.pcz``
+    (PatchcloudIOError naming the tile)."""
+    slack = TILE_SLACK * tile_size + 2.0 * max_error
+    lo = np.asarray(ijk, dtype=np.float64) * tile_size - slack
+    hi = lo + tile_size + 2.0 * slack
     if not points.size or (np.all(points.min(axis=0) >= lo) and np.all(points.max(axis=0) <= hi)):  # NaN fails both
         return
     ok = np.isfinite(points).all(axis=1) & np.all((points >= lo) & (points <= hi), axis=1)
@@ -324,7 +327,7 @@ def decompress(
                         some[cells] = counts[cells]
                         check_memory(per_point * int(some.sum()), f"{input}: tile {int(t)}'s batch of {int(some.sum()):,} points")
                         pts, k = sample_models(models, some, seed=seed + int(t) if b == 0 else [seed + int(t), b])
-                        check_in_tile(input, pts, f.tiles[int(t)], f.tile_size)
+                        check_in_tile(input, pts, f.tiles[int(t)], f.tile_size, reach)
                         xyz = np.rint((pts + origin - offset) / scale)
                         if xyz.size and (xyz.min() < -(2**31) or xyz.max() >= 2**31):
                             raise PatchcloudIOError(f"{input}: damaged .pcz file (tile {tile_name(f.tiles[int(t)])} lies beyond "
@@ -341,7 +344,7 @@ def decompress(
                         sampled["Reconstructed"] = one
                         write(writer, sampled, False)
                     rxyz, rrec = f.residual(int(t))
-                    check_in_tile(input, rxyz * scale + offset - origin, f.tiles[int(t)], f.tile_size)
+                    check_in_tile(input, rxyz * scale + offset - origin, f.tiles[int(t)], f.tile_size, reach)
                     write(writer, _stored_points(header, kept, rxyz, rrec), True)
                 if evlrs:
                     writer.write_evlrs(evlrs)
