@@ -78,3 +78,32 @@ def test_laz_parts_stitched_as_they_come_give_the_bytes_of_parts_stitched_at_the
     assert early.read_bytes() == at_end.read_bytes()
     back = laspy.read(str(early))
     assert np.array_equal(back.points.array, pts.array)
+
+
+def test_the_legacy_counts_of_a_format_0_to_5_output_hold_points_of_returns_6_and_7(tmp_path):
+    """A LAS 1.2 input of point format 1 whose pulses have up to 7 returns (LAStools' house.laz has them), written as
+    LAS 1.4 by a job: the legacy point count is the point count and the five legacy counts by return those of returns
+    1 to 5, as PDAL writes them (they were all 0, and a reader of those fields saw an empty file)."""
+    import struct
+
+    from patchcloud.stream import normals
+
+    rng = np.random.default_rng(3)
+    n = 3000
+    h = laspy.LasHeader(point_format=1, version="1.2")
+    h.scales, h.offsets = [0.01] * 3, [0.0] * 3
+    las = laspy.LasData(h)
+    xy = rng.uniform(0, 20, (n, 2))
+    las.x, las.y, las.z = xy[:, 0], xy[:, 1], 0.02 * xy[:, 0]
+    returns = rng.integers(1, 8, n)  # 1 to 7
+    las.return_number = returns
+    las.number_of_returns = np.full(n, 7)
+    src = tmp_path / "in.las"
+    las.write(src)
+    out = tmp_path / "out.las"
+    normals(str(src), str(out), quiet=True)
+    by = np.bincount(returns, minlength=8)[1:]
+    assert by[5:].sum() > 0
+    legacy = struct.unpack_from("<6I", out.read_bytes(), 107)
+    assert legacy == (n, *by[:5].tolist())
+    assert laspy.read(out).header.point_count == n

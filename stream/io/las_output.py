@@ -429,11 +429,13 @@ def _is_waveform_record(v) -> bool:
 def legacy_counts(f, h: laspy.LasHeader) -> None:
     """Write LAS 1.4's legacy point count and counts by return into the header at the start of the open file ``f``
     (laspy writes them 0): set for point formats 0 to 5 with at most 2**32 - 1 points, as LAS 1.4 asks, so that readers
-    of LAS 1.2 fields find the counts too; 0 otherwise."""
+    of LAS 1.2 fields find the counts too; 0 otherwise.  As PDAL writes them: points of returns 6 and 7 (which
+    formats 0 to 5 can hold) are in the count, and returns 1 to 5 in the five counts by return (these left the
+    counts 0, so a reader of the LAS 1.2 fields saw an empty file)."""
     if h.version.minor < 4:
         return
     n, by = int(h.point_count), [int(v) for v in h.number_of_points_by_return]
-    ok = h.point_format.id < 6 and n <= 0xFFFFFFFF and not any(by[5:])
+    ok = h.point_format.id < 6 and n <= 0xFFFFFFFF
     at = f.tell()
     f.seek(LEGACY_COUNT_AT)
     f.write(struct.pack("<6I", *([n] + by[:5] if ok else [0] * 6)))
