@@ -76,6 +76,9 @@ def test_a_tile_size_leaving_almost_no_points_per_tile_is_refused(scene, tmp_pat
     with pytest.raises(PatchcloudValueError, match=r"a tile size of 0.0078125 leaves about [\d.e-]+ points per tile .*at least 10 needed"):
         normals(scene, tmp_path / "out.las", tile_size=0.01, quiet=True)
     assert not (tmp_path / "out.las").exists()
+    with pytest.raises(PatchcloudValueError, match=r"leaves about 0 points per tile"):  # its square underflows (it divided by 0)
+        normals(scene, tmp_path / "out.las", tile_size=1e-200, quiet=True)
+    assert not (tmp_path / "out.las").exists()
 
 
 def test_a_tile_size_leaving_few_points_per_occupied_tile_is_refused_once_tiled_and_no_store_is_kept(tmp_path):

@@ -126,7 +126,7 @@ def check_points_per_tile(src: LasSource | Catalog, t: float) -> None:
     nothing.  A catalog's footprint is its files' boxes (:func:`footprint_area`)."""
     ext = np.maximum(np.asarray(src.maxs) - np.asarray(src.mins), t)
     area = footprint_area(src, t)
-    tiles = area / (t * t)
+    tiles = area / (t * t) if t * t > 0 else float("inf")  # (a size whose square underflows: any number of points is too few)
     if src.point_count < MIN_POINTS_PER_TILE * tiles:
         where = f"{ext[0]:g} x {ext[1]:g}" if area == float(ext[0] * ext[1]) else f"files' boxes of {area:.4g} square units"
         raise PatchcloudValueError(
