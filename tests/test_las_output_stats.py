@@ -107,3 +107,30 @@ def test_the_legacy_counts_of_a_format_0_to_5_output_hold_points_of_returns_6_an
     legacy = struct.unpack_from("<6I", out.read_bytes(), 107)
     assert legacy == (n, *by[:5].tolist())
     assert laspy.read(out).header.point_count == n
+
+
+def test_the_inputs_creation_date_is_kept_as_written_even_day_0(tmp_path):
+    """The embedded IGN tile says day 0 of 2023 (every IGN LiDAR HD tile has a day 0): laspy reads it as 31 December
+    2022 and wrote day 365 of 2022.  normals (in memory and on worker processes), and decompress of both .pcz modes,
+    keep the two numbers as the input has them."""
+    import os
+    import struct
+
+    from patchcloud.stream import compress, decompress, normals
+
+    sample = os.path.join(os.path.dirname(__file__), "..", "data", "test_data_77055_627760_LA93_IGN69.laz")
+
+    def date(path):
+        with open(path, "rb") as f:
+            return struct.unpack_from("<HH", f.read(94), 90)
+
+    assert date(sample) == (0, 2023)
+    outs = [tmp_path / "n.laz", tmp_path / "p.las"]
+    normals(sample, outs[0], quiet=True)
+    normals(sample, outs[1], quiet=True, scheduler="processes", workers=1)
+    for keep in (False, True):
+        pcz = tmp_path / f"c{keep}.pcz"
+        compress(sample, pcz, keep_points=keep, quiet=True)
+        outs.append(tmp_path / f"d{keep}.laz")
+        decompress(pcz, outs[-1])
+    assert [date(o) for o in outs] == [(0, 2023)] * 4

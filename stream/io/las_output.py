@@ -45,7 +45,7 @@ from . import laz_layers
 from .las import chunk_table, laz_point_range
 
 __all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
-           "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "restate"]
+           "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "keep_creation_date", "CREATION_AT", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
 LAZ_CHUNK = 50_000
@@ -444,6 +444,20 @@ def legacy_counts(f, h: laspy.LasHeader) -> None:
 
 #: Byte of a LAS header where the legacy point count is, followed by the 5 legacy counts by return.
 LEGACY_COUNT_AT = 107
+#: Byte of a LAS header where the file's creation day of year is, followed by its year (two uint16).
+CREATION_AT = 90
+
+
+def keep_creation_date(f, raw: bytes) -> None:
+    """Write the creation day of year and year of the raw header ``raw`` (an input's first bytes) into the header at
+    the start of the open file ``f``, as they are.  laspy reads a day 0 (every IGN LiDAR HD tile has it) as the 31
+    December of the year before, and writes that: the output said day 365 of 2023 for day 0 of 2024."""
+    if len(raw) < CREATION_AT + 4 or raw[:4] != b"LASF":
+        return
+    at = f.tell()
+    f.seek(CREATION_AT)
+    f.write(raw[CREATION_AT:CREATION_AT + 4])
+    f.seek(at)
 
 
 def stitch(tmp: str | os.PathLike, parts: Iterable[int]) -> None:
@@ -470,7 +484,8 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
 
     ``tables``: each LAZ part's chunk-table entries, in part order (the
     parts :func:`stitch` appended first, then those whose fragments remain).
-    ``source``: the input file, whose internal waveform data packet record
+    ``source``: the input file, whose creation date the output keeps as it
+    is written there (:func:`keep_creation_date`), and whose internal waveform data packet record
     follows the points of the output too, the header pointing at it: a
     LAS 1.4 input's is one of its EVLRs, kept with the others; a LAS 1.3
     input's (from the header's offset to the end of the file, a record of
@@ -514,6 +529,9 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
         f.seek(0)
         h.write_to(f, ensure_same_size=True)
         legacy_counts(f, h)
+        if source is not None:
+            with open(source, "rb") as src:
+                keep_creation_date(f, src.read(CREATION_AT + 4))
     if h.are_points_compressed:
         shutil.rmtree(fragments_dir(tmp), ignore_errors=True)
 
