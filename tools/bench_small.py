@@ -12,7 +12,9 @@ input's format (LAS or LAZ), ``--repeats`` times each, alternately:
   memory up to 2 million points (10 million on a machine of at most 2 cores), else a local cluster of worker processes),
   after one untimed run so the numba cache and Python's byte-code cache
   are warm (as after ``pip install``: the runs unset
-  ``PYTHONDONTWRITEBYTECODE``);
+  ``PYTHONDONTWRITEBYTECODE``), and so is the cache of pyproj's answers
+  about the file's CRS (``~/.cache/patchcloud/crs``: as for every file
+  after the first of a catalog or a directory in one CRS);
 - PDAL: ``pdal translate IN OUT normal --filters.normal.knn=8
   --writers.las.extra_dims=all`` (knn 8 as the issue measures it;
   PDAL's ``filters.normal`` is single-threaded).
