@@ -157,3 +157,33 @@ def test_a_memory_group_built_from_many_threads_at_once_loses_nothing():
             assert all(dict(g[f"tiles/{j:03d}/y"].attrs) == {f"t{k}": j for k in range(8)} for j in range(300))
     finally:
         sys.setswitchinterval(interval)
+
+
+def test_a_failing_in_memory_run_removes_only_the_outputs_it_wrote(scene, tmp_path, monkeypatch):
+    """A run in memory that fails after renaming its output into place removes it (nothing would resume it); a file
+    another program put at the output's path during the run is that program's, and stays (it was removed, with the
+    message that the run had written it)."""
+    from patchcloud.stream.jobs.normals import NormalsJob
+
+    out = tmp_path / "out.laz"
+
+    def fails_after_writing(self, ctx):
+        from patchcloud.core import PatchcloudIOError
+
+        raise PatchcloudIOError("summary broken")
+
+    monkeypatch.setattr(NormalsJob, "summarise", fails_after_writing)
+    with pytest.raises(Exception, match="summary broken.*1 output\\(s\\) it had written are removed"):
+        normals(scene, out, quiet=True)
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.undo()
+
+    def someone_else_writes_the_output(*args, **kwargs):
+        out.write_bytes(b"another program's file")  # written at the output's path while the run is on
+        raise RuntimeError("broken tile")
+
+    monkeypatch.setattr(normals_tiles, "finish_one_tile", someone_else_writes_the_output)
+    with pytest.raises(RuntimeError, match="broken tile") as e:
+        normals(scene, out, quiet=True)
+    assert "removed" not in str(e.value)
+    assert out.read_bytes() == b"another program's file" and list(tmp_path.iterdir()) == [out]

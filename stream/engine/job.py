@@ -71,6 +71,7 @@ from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.lock import RunLock
+from patchcloud.stream.io.renamed import file_state, renamed_here
 from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store_dir, removing_path
 
 __all__ = [
@@ -647,7 +648,7 @@ def _left_complete(catalog: Catalog, outs: list[Path], url: str, in_memory: bool
 def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, in_memory: bool, run: RunOptions) -> Any:
     """run_job once its outputs and store are checked and locked."""
     if in_memory:
-        before = [_file_state(o) for o in outs]
+        before = [file_state(o) for o in outs]
         try:
             return _run(job, catalog, outs, out, url, False, dataclasses.replace(run, scheduler="synchronous"))
         except KeyboardInterrupt:
@@ -684,23 +685,15 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     return summary
 
 
-def _file_state(path: Path) -> tuple | None:
-    """(inode, size, modification time) of a file, or None where there is none: what says a run replaced it."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return (st.st_ino, st.st_size, st.st_mtime_ns)
-
-
 def _remove_written(outs: list[Path], before: list) -> str:
     """Remove the outputs a run in memory wrote before it stopped (the files that are not as they were, ``before`` their
-    :func:`_file_state`; each is renamed into place complete): with no store, nothing would resume them, and the same
-    command then starts over without --overwrite.  What to say of it."""
+    :func:`~patchcloud.stream.io.renamed.file_state`, and that this process renamed into place, unchanged since:
+    :func:`~patchcloud.stream.io.renamed.renamed_here`; a file another program wrote there meanwhile is left): with no
+    store, nothing would resume them, and the same command then starts over without --overwrite.  What to say of it."""
     gone = []
     for o, was in zip(outs, before):
-        now = _file_state(o)
-        if now is None or now == was:
+        now = file_state(o)
+        if now is None or now == was or not renamed_here(o):
             continue
         try:
             o.unlink()
