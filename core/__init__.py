@@ -38,7 +38,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.patchmodel': ('MASK_SIDE', 'ModelFit', 'PatchModels', 'QuantisedModels', 'dequantise_models', 'fit_models', 'patch_distances', 'quantise_models', 'sample_models'),
     '.quadric': ('fit_nodes', 'surface_normals'),
     '.checks': ('MODES', 'check_rounding'),
-    '.radius': ('check_points', 'coordinate_step', 'default_viewpoint', 'grid_origin', 'halo_width', 'radius_normals'),
+    '.radius': ('check_points', 'coordinate_step', 'default_viewpoint', 'grid_origin', 'grid_step_of', 'halo_width', 'radius_normals'),
     '.threads': ('single_threaded',),
     '.version': ('__version__',),
     '.tiles': ('SKIN_HALO', 'Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
@@ -129,6 +129,7 @@ __all__ = [
     "check_points",
     "check_rounding",
     "coordinate_step",
+    "grid_step_of",
     "halo_width",
     # .cluster
     "components",

@@ -14,8 +14,8 @@ import numpy as np
 
 from . import _radius_kernels as _rk
 from .grid import CellGrid
-from .checks import check_cluster_sizes, check_radius
-from .radius import check_points
+from .checks import check_cluster_sizes, check_radius, check_rounding
+from .radius import check_points, grid_step_of, tie_margin
 
 __all__ = ["euclidean_clusters", "components", "number_by_first"]
 
@@ -30,8 +30,13 @@ def _half_offsets(reach: int, edge: float, tol: float) -> np.ndarray:
     return o[after & near].astype(np.int64)
 
 
-def components(points: np.ndarray, tolerance: float) -> np.ndarray:
+def components(points: np.ndarray, tolerance: float, grid_step: float = 0.0) -> np.ndarray:
     """Connected components of ``points`` under ``tolerance``, numbered 0.. by their first point.
+
+    ``grid_step``: the step of the grid the coordinates lie on (a LAS
+    file's smallest scale; 0: none): two points exactly ``tolerance``
+    apart are then linked whatever the rounding of the coordinates' frame
+    (:func:`~patchcloud.core.radius.tie_margin`).
 
     Returns
     -------
@@ -45,9 +50,10 @@ def components(points: np.ndarray, tolerance: float) -> np.ndarray:
     if n == 0:
         return np.zeros(0, dtype=np.int64)
     edge = tol / np.sqrt(3.0) * (1.0 - 1e-12)
-    g = CellGrid.build(pts, edge, pad=2)
+    g = CellGrid.build(pts, edge, pad=2, grid_step=grid_step)
     parent = np.arange(g.keys.size, dtype=np.int64)
-    _rk.union_cells(pts[g.order], g.keys, g.start, g.cells, g.dims, _half_offsets(2, edge, tol), tol * tol, parent)
+    limit = tol * tol + tie_margin(grid_step)
+    _rk.union_cells(pts[g.order], g.keys, g.start, g.cells, g.dims, _half_offsets(2, edge, np.sqrt(limit)), limit, parent)
     # roots of every cell (the kernel compresses paths only on the way)
     root = parent.copy()
     while True:
@@ -73,7 +79,7 @@ def number_by_first(labels: np.ndarray) -> np.ndarray:
 
 
 def euclidean_clusters(
-    points: np.ndarray, tolerance: float, *, min_points: int = 1, max_points: int | None = None,
+    points: np.ndarray, tolerance: float, *, min_points: int = 1, max_points: int | None = None, grid_step: float | None = None,
 ) -> np.ndarray:
     """Cluster id of every point: 1, 2, ... in order of each cluster's first point; 0 for none.
 
@@ -86,6 +92,9 @@ def euclidean_clusters(
     min_points, max_points : int
         Clusters with fewer than ``min_points`` or more than ``max_points``
         points are dropped (their points get 0).
+    grid_step : float, optional
+        The step of the grid the coordinates lie on (default: a
+        ``laspy.LasData``'s smallest scale, else 0), as :func:`components`.
 
     Returns
     -------
@@ -100,7 +109,7 @@ def euclidean_clusters(
     [1, 1, 0]
     """
     min_points, max_points = check_cluster_sizes(min_points, max_points)
-    comp = components(points, tolerance)
+    comp = components(points, tolerance, grid_step_of(points) if grid_step is None else check_rounding(grid_step))
     if comp.size == 0:
         return comp
     size = np.bincount(comp)

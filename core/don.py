@@ -16,7 +16,7 @@ from .checks import check_cluster_sizes, check_radius, check_rounding
 from .cluster import euclidean_clusters
 from .errors import PatchcloudValueError
 from .options import AXES, DonOptions, check_threshold
-from .radius import check_points, coordinate_step, default_viewpoint, grid_origin, radius_normals
+from .radius import check_points, coordinate_step, default_viewpoint, grid_origin, grid_step_of, radius_normals
 
 __all__ = ["difference_of_normals", "don_magnitude", "don_mask", "segment_don"]
 
@@ -32,6 +32,7 @@ def difference_of_normals(
     at: np.ndarray | None = None,
     origin=None,
     rounding: float | None = None,
+    grid_step: float | None = None,
 ) -> np.ndarray:
     """The DoN vector of every point.
 
@@ -46,7 +47,7 @@ def difference_of_normals(
         (:func:`patchcloud.core.radius.default_viewpoint`).
     mode, resolution, min_points :
         As :class:`patchcloud.core.DonOptions` (which checks all of these).
-    at, origin, rounding :
+    at, origin, rounding, grid_step :
         As :func:`patchcloud.core.radius_normals` (``origin``: where fast
         mode's voxels are laid from; by default as ``patchcloud don`` lays
         them, so the whole file's DoN is the command's; ``rounding``: the
@@ -67,11 +68,12 @@ def difference_of_normals(
     0.0
     """
     step = coordinate_step(points) if rounding is None else check_rounding(rounding)
+    tie = grid_step_of(points) if grid_step is None else check_rounding(grid_step)
     pts = check_points(points)
     o = DonOptions(r_small, r_large, mode=mode, viewpoint=viewpoint, resolution=resolution, min_points=min_points)
     vp = default_viewpoint(pts) if o.viewpoint is None else np.asarray(o.viewpoint)
     kw = dict(viewpoint=vp, mode=o.mode, resolution=o.resolution, min_points=o.min_points, at=at,
-              origin=grid_origin(pts) if origin is None else origin, rounding=step)
+              origin=grid_origin(pts) if origin is None else origin, rounding=step, grid_step=tie)
     return (radius_normals(pts, o.r_small, **kw) - radius_normals(pts, o.r_large, **kw)) / 2.0
 
 
@@ -120,6 +122,7 @@ def segment_don(
     max_points: int | None = None,
     axis: str | None = None,
     axis_threshold: float | None = None,
+    grid_step: float | None = None,
 ) -> np.ndarray:
     """Segment id per point: Euclidean clusters of the points :func:`don_mask` keeps; 0 = no segment.
 
@@ -140,5 +143,6 @@ def segment_don(
     check_cluster_sizes(min_points, max_points)
     keep = don_mask(d, threshold, axis=axis, axis_threshold=axis_threshold)
     out = np.zeros(pts.shape[0], dtype=np.int64)
-    out[keep] = euclidean_clusters(pts[keep], tolerance, min_points=min_points, max_points=max_points)
+    tie = grid_step_of(points) if grid_step is None else check_rounding(grid_step)
+    out[keep] = euclidean_clusters(pts[keep], tolerance, min_points=min_points, max_points=max_points, grid_step=tie)
     return out

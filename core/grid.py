@@ -48,9 +48,18 @@ class CellGrid:
     cells: np.ndarray
 
     @classmethod
-    def build(cls, points: np.ndarray, edge: float, pad: int = 1) -> "CellGrid":
-        """Bucket ``points`` ((N, 3) float64) into cells of ``edge``."""
-        absolute = np.floor(points / edge).astype(np.int64)
+    def build(cls, points: np.ndarray, edge: float, pad: int = 1, grid_step: float = 0.0) -> "CellGrid":
+        """Bucket ``points`` ((N, 3) float64) into cells of ``edge``.
+
+        ``grid_step``: the points lie on a grid of this step (a LAS file's
+        smallest scale; 0: anywhere).  A point on a cell's face then goes to
+        the cell above it whatever the rounding of its coordinates (which
+        differs with the file's offset): it is moved a quarter step up
+        before its cell is found, less than half the way to the next point
+        of the grid.
+        """
+        nudge = 0.25 * grid_step / edge
+        absolute = np.floor(points / edge + nudge if nudge else points / edge).astype(np.int64)
         if points.shape[0]:
             lo, hi = absolute.min(axis=0), absolute.max(axis=0)
         else:

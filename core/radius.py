@@ -54,7 +54,7 @@ from .points import GRID_ANCHOR
 
 __all__ = [
     "radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "voxel_points", "VOXEL_MIN_POINTS", "check_points",
-    "grid_origin", "coordinate_step",
+    "grid_origin", "coordinate_step", "grid_step_of", "tie_margin",
 ]
 
 def check_points(points, name: str = "points") -> np.ndarray:
@@ -79,6 +79,28 @@ def coordinate_step(points) -> float:
     (0.01, 0.0)
     """
     return float(np.max(np.asarray(points.header.scales, dtype=np.float64))) if is_lasdata(points) else 0.0
+
+
+def grid_step_of(points) -> float:
+    """The step of the grid ``points``' coordinates lie on: a ``laspy.LasData``'s smallest scale, else 0 (none).
+
+    >>> import laspy
+    >>> grid_step_of(laspy.read(sample)), grid_step_of(np.zeros((4, 3)))
+    (0.01, 0.0)
+    """
+    return float(np.min(np.asarray(points.header.scales, dtype=np.float64))) if is_lasdata(points) else 0.0
+
+
+def tie_margin(grid_step: float) -> float:
+    """What a squared distance may exceed the squared radius by and still count as within it: half the smallest
+    difference between two squared distances of points on a grid of ``grid_step`` (scales that are a power of ten
+    apart: every squared distance a multiple of the smallest step's square), far above the rounding of any frame.
+    So a point exactly at the radius counts, whatever rounding its coordinates had, and the next one out does not.
+
+    >>> tie_margin(0.01), tie_margin(0.0)
+    (5e-05, 0.0)
+    """
+    return 0.5 * grid_step * grid_step
 
 
 def default_viewpoint(points: np.ndarray) -> np.ndarray:
@@ -190,7 +212,7 @@ def grid_origin(points: np.ndarray) -> np.ndarray:
 
 def radius_moments(
     points: np.ndarray, radius: float, *, mode: str = "fast", resolution: int = 4, at: np.ndarray | None = None,
-    density: float | None = None, origin=None,
+    density: float | None = None, origin=None, grid_step: float = 0.0,
 ) -> np.ndarray:
     """Count and moments of the points within ``radius`` of each query point (the PCA's input).
 
@@ -199,6 +221,9 @@ def radius_moments(
     ``origin``: the cells (fast mode's voxels) lie at multiples of their
     edge from it (default :func:`grid_origin` of ``points``, as in a tiled
     run's store frame; the stream, in that frame, passes 0).
+    ``grid_step``: the step of the grid the coordinates lie on (a LAS
+    file's smallest scale; 0: none), which decides ties the same way
+    whatever the rounding of the frame (:func:`grid_step_of`).
 
     Returns
     -------
@@ -224,7 +249,7 @@ def radius_moments(
     voxels = mode == "fast" and uses_voxels(r, resolution, density)
     # exact: cells of r/2 and blocks of one cell; voxels: cells of r/resolution and blocks about r wide
     edge, block, reach = (r / resolution, max(1, resolution // 2), resolution + 1) if voxels else (r / 2.0, 1, 2)
-    g = CellGrid.build(pts, edge, pad=reach + block + 1)
+    g = CellGrid.build(pts, edge, pad=reach + block + 1, grid_step=grid_step)
     sorted_pts = pts[g.order]
     row_key = g.keys // g.dims[2]
     first = np.flatnonzero(np.r_[True, row_key[1:] != row_key[:-1]])
@@ -248,7 +273,7 @@ def radius_moments(
     _rk.ball_moments(
         voxels, sorted_pts, g.start, np.ascontiguousarray(g.cells[:, 2]), row_start, table_keys, table_vals, bits,
         g.dims, _block_rows(reach, block), q, qorder, np.r_[gfirst, sk.size].astype(np.int64), qb[qorder[gfirst]],
-        r * r, moments, stats, centres, np.sqrt(3.0) / 2.0 * edge, out,
+        r * r + tie_margin(grid_step), moments, stats, centres, np.sqrt(3.0) / 2.0 * edge, out,
     )
     return out
 
@@ -266,6 +291,7 @@ def radius_normals(
     return_variation: bool = False,
     origin=None,
     rounding: float | None = None,
+    grid_step: float | None = None,
 ):
     """Unit normals from the PCA of all points within ``radius`` of each point.
 
@@ -308,6 +334,14 @@ def radius_normals(
         :func:`coordinate_step` of ``points``: a ``laspy.LasData``'s largest
         scale, else 0): a ball whose points lie within it of a line (second
         eigenvalue below ``rounding**2``) has no normal.
+    grid_step : float, optional
+        The step of the grid the coordinates lie on (default
+        :func:`grid_step_of` of ``points``: a ``laspy.LasData``'s smallest
+        scale, else 0).  A point exactly ``radius`` from a query point is
+        within the ball, and a point on a voxel's face in the voxel above
+        it, however the coordinates' frame rounds them: the same file with
+        another offset, or cut into other tiles, gives the same balls (the
+        frame rounded these ties either way).
 
     Returns
     -------
@@ -337,7 +371,8 @@ def radius_normals(
     vp = default_viewpoint(pts) if viewpoint is None else check_viewpoint(viewpoint)
     at = None if at is None else check_indices(at, pts.shape[0])
     q = pts if at is None else pts[at]
-    mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at, density=density, origin=origin)
+    tie = grid_step_of(points) if grid_step is None else check_rounding(grid_step)
+    mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at, density=density, origin=origin, grid_step=tie)
     normals = np.empty((q.shape[0], 3))
     variation = np.empty(q.shape[0])
     if q.shape[0]:

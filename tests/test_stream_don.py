@@ -84,7 +84,7 @@ def test_tilewise_don_equals_the_whole_cloud_whatever_the_tile_size(scene, tmp_p
     path, xyz, _ = scene
     local, origin = local_frame(path, xyz)
     vp = default_viewpoint_of(open_source(path))
-    whole = difference_of_normals(local, 0.3, 1.5, viewpoint=vp - origin, mode=mode)
+    whole = difference_of_normals(local, 0.3, 1.5, viewpoint=vp - origin, mode=mode, grid_step=0.001)  # the file's grid
     assert np.isfinite(whole).all(axis=1).mean() > 0.99
     for T in (2.0, 4.0, 16.0):
         st = tmp_path / f"s{T:g}.zarr"
@@ -105,7 +105,8 @@ def test_segments_equal_the_whole_cloud_and_cross_tile_faces(scene, tmp_path):
     path, xyz, label = scene
     local, origin = local_frame(path, xyz)
     vp = default_viewpoint_of(open_source(path)) - origin
-    whole = segment_don(local, difference_of_normals(local, 0.3, 1.5, viewpoint=vp), 0.2, 0.15, min_points=30)
+    whole = segment_don(local, difference_of_normals(local, 0.3, 1.5, viewpoint=vp, grid_step=0.001), 0.2, 0.15, min_points=30,
+                        grid_step=0.001)  # the file's grid
     ids = {}
     for T in (2.0, 4.0, 16.0):
         out = tmp_path / f"seg{T:g}.laz"
@@ -396,11 +397,11 @@ def test_the_api_on_the_files_own_coordinates_gives_the_commands_dons(scene, tmp
     pts = np.column_stack([las.x, las.y, las.z])
     got = laspy.read(str(out))
     vp = default_viewpoint_of(open_source(path))
-    d = difference_of_normals(pts, kw["r_small"], kw["r_large"], mode="fast", viewpoint=vp)
+    d = difference_of_normals(pts, kw["r_small"], kw["r_large"], mode="fast", viewpoint=vp, grid_step=0.001)  # the file's grid
     ref = np.nan_to_num(np.column_stack([np.sqrt((d * d).sum(1)), d])).astype(np.float32)
     mine = np.column_stack([got.DoN, got.DoNX, got.DoNY, got.DoNZ])
     assert np.abs(mine - ref).max() <= 1e-7  # the file's coordinates round apart from the store's frame's: a float32 ulp
-    other = difference_of_normals(pts, kw["r_small"], kw["r_large"], mode="fast", viewpoint=vp, origin=np.zeros(3))
+    other = difference_of_normals(pts, kw["r_small"], kw["r_large"], mode="fast", viewpoint=vp, origin=np.zeros(3), grid_step=0.001)
     assert np.nanmax(np.abs(other - d)) > 1e-3  # voxels laid from elsewhere: another (close) answer
 
 

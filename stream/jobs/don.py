@@ -188,7 +188,8 @@ class DonJob(Job):
         vp = default_viewpoint_of(ctx.catalog) if o.viewpoint is None else np.asarray(o.viewpoint, dtype=np.float64)
         self.params = dict(
             r_small=o.r_small, r_large=o.r_large, mode=o.mode, resolution=o.resolution, min_points=o.min_points,
-            viewpoint_local=(vp - origin).tolist(), rounding=catalog_step(ctx.catalog), **self.selection(),
+            viewpoint_local=(vp - origin).tolist(), rounding=catalog_step(ctx.catalog),
+            grid_step=float(min(st.grid.scale)), **self.selection(),  # the store's grid: ties decided on it
         )
         if o.mode == "fast":  # whether voxels pay off, from the whole file (as a whole-cloud run decides it)
             self.params["density_small"] = cloud_density(st, o.r_small / o.resolution)

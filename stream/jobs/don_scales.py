@@ -49,7 +49,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import MODES, PatchcloudValueError, check_points, check_rounding, coordinate_step, default_viewpoint, radius_normals
+from patchcloud.core import MODES, PatchcloudValueError, check_points, check_rounding, coordinate_step, default_viewpoint, grid_step_of, radius_normals
 
 from patchcloud.stream.io.las import open_source, read_chunks
 
@@ -488,6 +488,7 @@ def select_scales(
     progress: Callable[[str], None] | None = None,
     _source: str | None = None,
     rounding: float | None = None,
+    grid_step: float | None = None,
 ) -> ScalesResult:
     """Per-class DoN magnitude statistics over radius pairs, for points in memory (see the module text).
 
@@ -520,8 +521,8 @@ def select_scales(
     progress : callable, optional
         Called with a one-line message after each radius (all arguments and
         classes are checked before the first call).
-    rounding : float, optional
-        The coordinates' step, as :func:`patchcloud.core.radius_normals`
+    rounding, grid_step : float, optional
+        The coordinates' step and the step of their grid, as :func:`patchcloud.core.radius_normals`
         (default: a ``laspy.LasData``'s scale, else 0).
 
     Returns
@@ -550,6 +551,7 @@ def select_scales(
     ((0.3, 2.0), [2, 64], [0.7, 1.7, 0.8])
     """
     step = coordinate_step(points) if rounding is None else check_rounding(rounding)
+    tie = grid_step_of(points) if grid_step is None else check_rounding(grid_step)
     pts = check_points(points)
     lab = np.asarray(labels).reshape(-1)
     if lab.shape[0] != pts.shape[0]:
@@ -573,7 +575,7 @@ def select_scales(
     for r in np.unique(pairs):
         t0 = time.perf_counter()
         normals[float(r)] = radius_normals(pts, float(r), viewpoint=vp, mode=mode, resolution=resolution, min_points=min_points, at=at,
-                                            rounding=step)
+                                            rounding=step, grid_step=tie)
         if progress is not None:
             progress(f"radius normals r = {r:g} m at {at.size:,} points in {time.perf_counter() - t0:.1f} s")
     mag = np.empty((pairs.shape[0], at.size))
@@ -749,4 +751,5 @@ def don_scales(
         resolution=resolution, min_points=min_points, min_class_points=min_class_points, min_defined=min_defined,
         seed=seed, classes_from=classes_from, progress=None if progress is None else step, _source=src.path,
         rounding=src.step,  # the file's step: a ball collinear up to it has no normal
+        grid_step=float(min(src.scale)),  # and its grid, on which ties are decided
     )

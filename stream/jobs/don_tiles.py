@@ -100,7 +100,7 @@ def don_tile(url: str, ijk: tuple, params: dict, neighbours: list) -> dict:
     kw = dict(
         viewpoint=np.asarray(params["viewpoint_local"]), mode=params["mode"], resolution=params["resolution"],
         min_points=params["min_points"], at=at, origin=np.zeros(3),  # the store's frame: its origin is the grid's
-        rounding=params["rounding"],
+        rounding=params["rounding"], grid_step=params.get("grid_step", 0.0),
     )
     n_small = radius_normals(pts, params["r_small"], density=params.get("density_small"), **kw)
     n_large = radius_normals(pts, params["r_large"], density=params.get("density_large"), **kw)
@@ -139,7 +139,7 @@ def cluster_tile(url: str, ijk: tuple, params: dict, neighbours: list) -> dict:
     keep = store.read(ijk, "keep")
     kept = np.flatnonzero(keep)
     halo, h_tile, h_row = _halo_points(store, ijk, neighbours, params["tolerance"] * (1 + 1e-9), need_keep=True)
-    comp_all = components(np.concatenate([own[kept], halo]), params["tolerance"]) if kept.size + halo.shape[0] else np.zeros(0, np.int64)
+    comp_all = components(np.concatenate([own[kept], halo]), params["tolerance"], params.get("grid_step", 0.0)) if kept.size + halo.shape[0] else np.zeros(0, np.int64)
     k = kept.size
     own_comp = number_by_first(comp_all[:k])  # 0.. over the tile's own components
     n_comp = int(own_comp.max()) + 1 if k else 0
