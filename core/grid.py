@@ -37,6 +37,10 @@ class CellGrid:
         The sorted points of cell ``c`` are ``start[c]:start[c + 1]``.
     cells : (C, 3) int64
         Grid index of every occupied cell.
+    nudge : float
+        How far (in cells) a point is moved up before its cell is found
+        (:meth:`build`'s ``grid_step``): cell ``i`` holds the points of
+        ``[(i - nudge) * edge, (i + 1 - nudge) * edge)``.
     """
 
     edge: float
@@ -46,6 +50,7 @@ class CellGrid:
     keys: np.ndarray
     start: np.ndarray
     cells: np.ndarray
+    nudge: float = 0.0
 
     @classmethod
     def build(cls, points: np.ndarray, edge: float, pad: int = 1, grid_step: float = 0.0) -> "CellGrid":
@@ -80,16 +85,16 @@ class CellGrid:
         sort_within_cells(order, start, np.ascontiguousarray(points, dtype=np.float64))  # = lexsort((z, y, x, key))
         return cls(
             edge=float(edge), base=base, dims=dims.astype(np.int64), order=order,
-            keys=sk[first].astype(np.int64), start=start, cells=idx[order[first]],
+            keys=sk[first].astype(np.int64), start=start, cells=idx[order[first]], nudge=float(nudge),
         )
 
     def cell_of(self, points: np.ndarray) -> np.ndarray:
         """(M, 3) int64 grid index of the cells of ``points`` (may lie outside the grid)."""
-        return np.floor(points / self.edge).astype(np.int64) - self.base
+        return np.floor(points / self.edge + self.nudge).astype(np.int64) - self.base
 
     def centres(self) -> np.ndarray:
-        """(C, 3) float64 centres of the occupied cells."""
-        return (self.cells + self.base + 0.5) * self.edge
+        """(C, 3) float64 centres of the occupied cells (their boxes moved down by the nudge, as their points)."""
+        return (self.cells + self.base + 0.5 - self.nudge) * self.edge
 
 
 @njit(cache=True, nogil=True)

@@ -264,7 +264,8 @@ def radius_moments(
         _rk.voxel_stats(moments, stats)
     else:
         centres = moments = stats = np.zeros((1, 10))
-    qb = np.floor(q / (block * edge)).astype(np.int64) * block - g.base  # first cell of each query's block
+    # first cell of each query's block (blocks moved as the cells are, so the rows of cells each block scans reach)
+    qb = np.floor(q / (block * edge) + g.nudge / block).astype(np.int64) * block - g.base
     qkey = (qb[:, 0] * g.dims[1] + qb[:, 1]) * g.dims[2] + qb[:, 2]
     qorder = np.argsort(qkey, kind="stable")
     sk = qkey[qorder]

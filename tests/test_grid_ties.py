@@ -83,3 +83,19 @@ def test_the_same_points_with_another_offset_give_the_same_don_and_segments(tmp_
     assert np.array_equal(da == 0, db == 0)
     assert np.abs(da - db).max() <= 1e-6  # float32 in the file; they differed by up to 0.63
     assert np.array_equal(np.asarray(outs[0].ClusterID), np.asarray(outs[1].ClusterID))
+
+
+@pytest.mark.parametrize("r", [0.04, 0.05, 0.08])
+def test_every_ball_on_a_grid_holds_exactly_its_grid_points_wherever_the_grid_lies_in_the_frame(r):
+    """Balls around every 37th point of a 1 cm grid hold exactly the grid points within r (ties in), also where the
+    grid does not start at a cell face of the frame (points a fraction of a step below the faces, which the ties'
+    nudge moves into the cell above: the cells each query scans move with them)."""
+    step = 0.01
+    ints, _ = _lattice(step, (0, 0, 0))
+    k0 = round((r / step) ** 2)
+    queries = np.arange(0, ints.shape[0], 37)
+    want = np.array([int((((ints[:, :2] - ints[q, :2]) ** 2).sum(axis=1) <= k0).sum()) for q in queries])
+    for origin in [(0.0, 0.0, 0.0), (0.0078, 0.0079, 0.0), (0.0076, 0.0024, 0.0), (123456.7878, 6543210.9179, 0.0)]:
+        _, pts = _lattice(step, origin)
+        got = radius_moments(pts, r, mode="exact", at=queries, origin=np.zeros(3), grid_step=step)[:, 0]
+        assert np.array_equal(got, want), origin
