@@ -381,6 +381,7 @@ def test_a_failed_catalog_run_leaves_no_output_directory_and_assume_crs_holds_fo
     _split(las, np.arange(3000), tmp_path / "utm.las", crs="EPSG:32631")
     r = CliRunner().invoke(main, ["normals", str(tmp_path / "none.las"), str(tmp_path / "o.las"), "--assume-crs", "EPSG:2263"])
     assert r.exit_code == 0 and "units           us-ft (US survey foot" in r.output, r.output
+    assert "from the CRS --assume-crs gives" in r.output, r.output  # not "from the CRS": the file has none
     out = laspy.read(str(tmp_path / "o.las"))  # the output says the CRS the run took (as PDAL's a_srs), in WKT for format 6+
     assert out.header.parse_crs().to_epsg() == 2263 and out.header.global_encoding.wkt
     assert np.array_equal(out.points.array["X"], las.points.array["X"][:3000])

@@ -96,7 +96,8 @@ def test_a_tile_size_leaving_few_points_per_occupied_tile_is_refused_once_tiled_
     out = tmp_path / "out.las"
     r = CliRunner().invoke(main, ["normals", str(las), str(out), "--tile-size", "1", "--on-disk", "--scheduler", "synchronous", "-q"])
     assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
-    assert "a tile size of 1 leaves" in r.output and "points per occupied tile" in r.output and "--tile-size" in r.output
+    assert "a tile size of 1 (in the file's unit, a power of two) leaves" in r.output and "points per occupied tile" in r.output \
+        and "--tile-size" in r.output
     assert "store" not in r.output  # nothing kept to resume from: the same command would fail again
     assert not out.exists() and not (tmp_path / "out.las.store").exists() and list(tmp_path.iterdir()) == [las]
     r = CliRunner().invoke(main, ["normals", str(las), str(out), "--tile-size", "8", "--scheduler", "synchronous", "-q"])

@@ -175,11 +175,12 @@ def check_occupied_tiles(counts: np.ndarray, t: float, where: str) -> None:
     >>> check_occupied_tiles(np.full(100, 30), 2.0, "house.laz")
     Traceback (most recent call last):
     ...
-    patchcloud.stream.engine.ingest.TileSizeError: house.laz: a tile size of 2 leaves 30 points per occupied tile on average (100 tiles; at least 50 needed); give a larger --tile-size, or leave it out
+    patchcloud.stream.engine.ingest.TileSizeError: house.laz: a tile size of 2 (in the file's unit, a power of two) leaves 30 points per occupied tile on average (100 tiles; at least 50 needed); give a larger --tile-size, or leave it out
     """
     if counts.size > FEW_TILES and counts.sum() < MIN_POINTS_PER_OCCUPIED_TILE * counts.size:
         raise TileSizeError(
-            f"{where}: a tile size of {t:g} leaves {counts.sum() / counts.size:.3g} points per occupied tile on average "
+            f"{where}: a tile size of {t:g} (in the file's unit, a power of two) leaves {counts.sum() / counts.size:.3g} "
+            f"points per occupied tile on average "
             f"({counts.size:,} tiles; at least {MIN_POINTS_PER_OCCUPIED_TILE} needed); give a larger --tile-size, or leave it out"
         )
 

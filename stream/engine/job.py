@@ -318,6 +318,7 @@ def units_line(units: dict) -> str:
     '  units           ft (foot, 0.3048 m; from the CRS): every length here and every distance option'
     """
     source = {"CRS": "from the CRS", "--units": "from --units", "assumed": "assumed: no CRS",
+              "--assume-crs": "from the CRS --assume-crs gives",
               "unreadable": "assumed: its CRS record cannot be read, see patchcloud info"}.get(units.get("source"), "")
     return (f"  units           {units['symbol']} ({units.get('name', '')}, {units.get('metres', 1.0):g} m; {source}): "
             "every length here and every distance option")
@@ -569,10 +570,13 @@ def _inputs_and_outputs(job: Job, input, output, run: RunOptions) -> tuple[Catal
 def catalog_units(catalog: Catalog, run: RunOptions) -> Units:
     """The unit of the catalog's coordinates (:func:`patchcloud.stream.io.crs.units_of`; ``run.units`` overrides its CRS).
 
-    Metres assumed for files whose CRS record cannot be read say so (source ``unreadable``), not "no CRS"."""
+    Metres assumed for files whose CRS record cannot be read say so (source ``unreadable``), not "no CRS"; a unit of
+    the CRS that ``--assume-crs`` gives files without one says so (source ``--assume-crs``), not "from the CRS"."""
     units = units_of(catalog.crs, catalog.mins, catalog.maxs, run.units, where=catalog.path)
     if units.source == "assumed" and any(s.crs_error for s in catalog.sources):
         return dataclasses.replace(units, source="unreadable")
+    if units.source == "CRS" and all(s.crs is None for s in catalog.sources):  # no file has one: --assume-crs gave it
+        return dataclasses.replace(units, source="--assume-crs")
     return units
 
 
