@@ -173,3 +173,17 @@ def test_a_json_or_report_never_takes_the_place_of_an_output_not_yet_written_nor
         assert r.exit_code == 2 and r.output.count("\n") == 1, (args, r.output)
         assert "job's file" in r.output or "would replace" in r.output, (args, r.output)
         assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == files, args  # nothing written
+
+
+def test_a_json_or_report_may_go_into_the_output_directory_the_catalog_run_makes(laz, tmp_path):
+    """--summary-json and --report inside an --out-dir that does not exist yet (the run makes it) are taken, whichever
+    comes first on the command line (they were refused: "the directory ... does not exist"); a JSON in another missing
+    directory is still refused, before anything is made."""
+    for k, order in enumerate((["--out-dir", "{o}", "--summary-json", "{o}/s.json"], ["--summary-json", "{o}/s.json", "--out-dir", "{o}"])):
+        o = tmp_path / f"made{k}"
+        args = [a.format(o=o) for a in order]
+        r = CliRunner().invoke(main, ["normals", str(laz), *args, "--report", str(o / "r.html"), "-q"])
+        assert r.exit_code == 0, r.output
+        assert sorted(p.name for p in o.iterdir()) == ["in.laz", "r.html", "s.json"]
+    r = CliRunner().invoke(main, ["normals", str(laz), "--out-dir", str(tmp_path / "o3"), "--summary-json", str(tmp_path / "nope" / "s.json"), "-q"])
+    assert r.exit_code == 2 and "directory does not exist" in r.output and not (tmp_path / "o3").exists()

@@ -67,20 +67,24 @@ in_memory = click.option(
 )
 
 
-def check_json_path(path: str, option: str) -> None:
+def check_json_path(path: str, option: str, out_dir: str | None = None) -> None:
     """Before anything runs: a JSON file a command writes beside its work (``--summary-json``, ``--profile``) goes
     where it replaces nothing but a JSON file, and not into a zarr store (a store's metadata is JSON): a
-    click.BadParameter (one error line) otherwise.  An input, an output or a store would have been lost."""
+    click.BadParameter (one error line) otherwise.  An input, an output or a store would have been lost.  Its
+    directory exists, or is ``out_dir`` (a catalog's ``--out-dir``, which the run makes) in one that does."""
     p = Path(path)
-    if p.is_dir() or not p.resolve().parent.is_dir():
+    parent = p.resolve().parent
+    if out_dir is not None and parent == Path(out_dir).resolve() and not parent.exists():
+        parent = parent.parent  # the run makes the output directory: its own directory is where it must be writable
+    if p.is_dir() or not parent.is_dir():
         raise click.BadParameter(f"{path}: is a directory, or its directory does not exist", param_hint=option)
-    if p.name == "zarr.json" or (p.resolve().parent / "zarr.json").exists():
+    if p.name == "zarr.json" or (parent / "zarr.json").exists():
         raise click.BadParameter(f"{path}: inside a zarr store (a patchcloud store): it would damage it", param_hint=option)
     from patchcloud.core import PatchcloudIOError
     from patchcloud.stream.io.las import check_directory_writable
 
     try:  # a directory it cannot be written in: said now, not after the job
-        check_directory_writable(p.resolve().parent, path)
+        check_directory_writable(parent, path)
     except PatchcloudIOError as exc:
         raise click.BadParameter(str(exc), param_hint=option) from None
     if p.exists():
@@ -98,7 +102,7 @@ def check_json_path(path: str, option: str) -> None:
 def _profile_path(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
     """--profile's callback: :func:`check_json_path` before anything runs."""
     if value is not None:
-        check_json_path(value, "--profile")
+        check_json_path(value, "--profile", ctx.params.get("out_dir"))
     return value
 
 
@@ -151,7 +155,7 @@ def _summary_json_path(ctx: click.Context, param: click.Parameter, value: str | 
     """--summary-json's callback: check its directory exists before anything runs, and keep the path for the end."""
     if value is None:
         return
-    check_json_path(value, "--summary-json")
+    check_json_path(value, "--summary-json", ctx.params.get("out_dir"))
     ctx.meta[SUMMARY_JSON_KEY] = value
 
 
@@ -223,7 +227,8 @@ paths_argument = click.argument("paths", nargs=-1, required=True, metavar="INPUT
 
 
 out_dir = click.option(
-    "--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
+    "--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR", is_eager=True,  # before --summary-json's check
+    # (which takes a JSON file in the output directory the run will make)
     help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), taken as one cloud; "
     "each file's output goes to DIR under its name (.copc.laz becomes .laz; render writes DIR/NAME.png).",
 )
@@ -285,7 +290,7 @@ def check_side_files(inputs, output: str | None, report: str | None, profile: st
         except PatchcloudError:  # two inputs of one output name: the job says so
             pass
     job_files = files + outputs + ([str(store)] if store is not None and "://" not in str(store) else [])
-    check_report(report, overwrite, *job_files)
+    check_report(report, overwrite, *job_files, out_dir=out_dir)
     summary = summary_json_path()
     check_distinct([("--report", report), ("--summary-json", summary), ("--profile", profile)])
     for option, path in (("--summary-json", summary), ("--profile", profile)):
@@ -309,12 +314,13 @@ def check_distinct(written) -> None:
                 raise PatchcloudIOError(f"{path}: {option} and {other} name the same file")
 
 
-def check_report(report: str | None, overwrite: bool, *job_files: str) -> None:
-    """Before a job runs: the ``--report`` path can be written (a PatchcloudIOError, hence one error line, if not)."""
+def check_report(report: str | None, overwrite: bool, *job_files: str, out_dir: str | None = None) -> None:
+    """Before a job runs: the ``--report`` path can be written (a PatchcloudIOError, hence one error line, if not); in
+    ``out_dir`` too (a catalog's, which the job makes)."""
     if report is not None:
         from patchcloud.stream.views.report import check_report_path
 
-        check_report_path(report, overwrite=overwrite, others=job_files)
+        check_report_path(report, overwrite=overwrite, others=job_files, made=out_dir)
 
 
 def finish_job(summary, quiet: bool, report: str | None, write_report: str) -> None:

@@ -131,7 +131,8 @@ def figure_png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def check_report_path(path: str | os.PathLike, *, overwrite: bool = False, others: Sequence[str | os.PathLike] = ()) -> Path:
+def check_report_path(path: str | os.PathLike, *, overwrite: bool = False, others: Sequence[str | os.PathLike] = (),
+                      made: str | os.PathLike | None = None) -> Path:
     """``path`` as a Path after checking a report can be written there, before a job runs.
 
     Parameters
@@ -142,6 +143,9 @@ def check_report_path(path: str | os.PathLike, *, overwrite: bool = False, other
         Replace an existing file (as the job's ``--overwrite``).
     others : paths
         The job's input and output: the report must be neither.
+    made : path, optional
+        A directory the job makes (a catalog's ``--out-dir``): the report
+        may go in it, if it can be made.
 
     Raises
     ------
@@ -152,10 +156,13 @@ def check_report_path(path: str | os.PathLike, *, overwrite: bool = False, other
     p = Path(path)
     if p.is_dir():
         raise PatchcloudIOError(f"{p}: is a directory, not a report file")
-    if not p.parent.exists():
-        raise PatchcloudIOError(f"{p}: the directory {p.parent} does not exist")
-    if not os.access(p.parent, os.W_OK):
-        raise PatchcloudIOError(f"{p}: the directory {p.parent} is not writable")
+    where = p.parent
+    if made is not None and not where.exists() and where.resolve() == Path(made).resolve():
+        where = where.parent  # the job makes it there: where it is made must exist and be writable
+    if not where.exists():
+        raise PatchcloudIOError(f"{p}: the directory {where} does not exist")
+    if not os.access(where, os.W_OK):
+        raise PatchcloudIOError(f"{p}: the directory {where} is not writable")
     for o in others:
         if same_file(o, p):
             raise PatchcloudIOError(f"{p}: the report would replace the job's file {o}")
