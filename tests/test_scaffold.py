@@ -40,7 +40,8 @@ SAMPLE = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_
         (lambda: SegmentOptions(min_cluster=0), "min_points must be a whole number"),
         (lambda: CompressOptions(max_error=0), "max_error must be a positive length in the coordinates' unit"),
         (lambda: RunOptions(tile_size=0), "tile_size must be a positive length in the coordinates' unit"),
-        (lambda: RunOptions(workers=0), "workers must be at least 1"),
+        (lambda: RunOptions(workers=0), "workers must be a whole number of at least 1"),
+        (lambda: RunOptions(workers="2"), "workers must be a whole number of at least 1, got '2'"),  # (said "at least 1")
     ],
 )
 def test_invalid_options_are_refused_when_made(make, match):

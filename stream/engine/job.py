@@ -42,6 +42,7 @@ patchcloud.core.errors.PatchcloudValueError: tile_size must be a positive length
 from __future__ import annotations
 
 import dataclasses
+import numbers
 import hashlib
 import json
 import os
@@ -184,8 +185,9 @@ class RunOptions:
             object.__setattr__(self, "store", os.fspath(self.store))
         if self.units is not None and self.units not in UNITS:
             raise PatchcloudValueError(f"units must be one of {', '.join(UNITS)}; got {self.units!r}")
-        if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) != self.workers or self.workers < 1):
-            raise PatchcloudValueError(f"workers must be at least 1, got {self.workers!r}")
+        if self.workers is not None and (isinstance(self.workers, bool) or not isinstance(self.workers, numbers.Real)
+                                         or self.workers != int(self.workers) or self.workers < 1):
+            raise PatchcloudValueError(f"workers must be a whole number of at least 1, got {self.workers!r}")
         if self.chunk is not None and (
             isinstance(self.chunk, bool) or int(self.chunk) != self.chunk or self.chunk < 1 or self.chunk % LAZ_CHUNK
         ):
