@@ -14,8 +14,8 @@ import numpy as np
 
 from . import _radius_kernels as _rk
 from .grid import CellGrid
-from .checks import check_cluster_sizes, check_radius, check_rounding
-from .radius import check_points, grid_step_of, tie_margin
+from .checks import check_cluster_sizes, check_radius
+from .radius import check_grid_step, check_points, tie_margin
 
 __all__ = ["euclidean_clusters", "components", "number_by_first"]
 
@@ -109,7 +109,7 @@ def euclidean_clusters(
     [1, 1, 0]
     """
     min_points, max_points = check_cluster_sizes(min_points, max_points)
-    comp = components(points, tolerance, grid_step_of(points) if grid_step is None else check_rounding(grid_step))
+    comp = components(points, tolerance, check_grid_step(points, grid_step))
     if comp.size == 0:
         return comp
     size = np.bincount(comp)

@@ -16,7 +16,7 @@ from .checks import check_cluster_sizes, check_radius, check_rounding
 from .cluster import euclidean_clusters
 from .errors import PatchcloudValueError
 from .options import AXES, DonOptions, check_threshold
-from .radius import check_points, coordinate_step, default_viewpoint, grid_origin, grid_step_of, radius_normals
+from .radius import check_grid_step, check_points, coordinate_step, default_viewpoint, grid_origin, radius_normals
 
 __all__ = ["difference_of_normals", "don_magnitude", "don_mask", "segment_don"]
 
@@ -68,7 +68,7 @@ def difference_of_normals(
     0.0
     """
     step = coordinate_step(points) if rounding is None else check_rounding(rounding)
-    tie = grid_step_of(points) if grid_step is None else check_rounding(grid_step)
+    tie = check_grid_step(points, grid_step)
     pts = check_points(points)
     o = DonOptions(r_small, r_large, mode=mode, viewpoint=viewpoint, resolution=resolution, min_points=min_points)
     vp = default_viewpoint(pts) if o.viewpoint is None else np.asarray(o.viewpoint)
@@ -143,6 +143,6 @@ def segment_don(
     check_cluster_sizes(min_points, max_points)
     keep = don_mask(d, threshold, axis=axis, axis_threshold=axis_threshold)
     out = np.zeros(pts.shape[0], dtype=np.int64)
-    tie = grid_step_of(points) if grid_step is None else check_rounding(grid_step)
+    tie = check_grid_step(points, grid_step)
     out[keep] = euclidean_clusters(pts[keep], tolerance, min_points=min_points, max_points=max_points, grid_step=tie)
     return out

@@ -54,7 +54,7 @@ from .points import GRID_ANCHOR
 
 __all__ = [
     "radius_normals", "radius_moments", "default_viewpoint", "halo_width", "cell_density", "uses_voxels", "voxel_points", "VOXEL_MIN_POINTS", "check_points",
-    "grid_origin", "coordinate_step", "grid_step_of", "tie_margin",
+    "grid_origin", "coordinate_step", "grid_step_of", "check_grid_step", "tie_margin",
 ]
 
 def check_points(points, name: str = "points") -> np.ndarray:
@@ -89,6 +89,16 @@ def grid_step_of(points) -> float:
     (0.01, 0.0)
     """
     return float(np.min(np.asarray(points.header.scales, dtype=np.float64))) if is_lasdata(points) else 0.0
+
+
+def check_grid_step(points, grid_step: float | None) -> float:
+    """``grid_step`` checked (a length of at least 0), or, when None, :func:`grid_step_of` ``points``: what the functions
+    taking ``grid_step=`` use.
+
+    >>> check_grid_step(np.zeros((2, 3)), None), check_grid_step(np.zeros((2, 3)), 0.01)
+    (0.0, 0.01)
+    """
+    return grid_step_of(points) if grid_step is None else check_rounding(grid_step)
 
 
 def tie_margin(grid_step: float) -> float:
@@ -372,7 +382,7 @@ def radius_normals(
     vp = default_viewpoint(pts) if viewpoint is None else check_viewpoint(viewpoint)
     at = None if at is None else check_indices(at, pts.shape[0])
     q = pts if at is None else pts[at]
-    tie = grid_step_of(points) if grid_step is None else check_rounding(grid_step)
+    tie = check_grid_step(points, grid_step)
     mom = radius_moments(pts, r, mode=mode, resolution=resolution, at=at, density=density, origin=origin, grid_step=tie)
     normals = np.empty((q.shape[0], 3))
     variation = np.empty(q.shape[0])

@@ -49,7 +49,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import MODES, PatchcloudValueError, check_points, check_rounding, coordinate_step, default_viewpoint, grid_step_of, radius_normals
+from patchcloud.core import MODES, PatchcloudValueError, check_grid_step, check_points, check_rounding, coordinate_step, default_viewpoint, radius_normals
 
 from patchcloud.stream.io.las import open_source, read_chunks
 
@@ -551,7 +551,7 @@ def select_scales(
     ((0.3, 2.0), [2, 64], [0.7, 1.7, 0.8])
     """
     step = coordinate_step(points) if rounding is None else check_rounding(rounding)
-    tie = grid_step_of(points) if grid_step is None else check_rounding(grid_step)
+    tie = check_grid_step(points, grid_step)
     pts = check_points(points)
     lab = np.asarray(labels).reshape(-1)
     if lab.shape[0] != pts.shape[0]:
