@@ -49,7 +49,7 @@ from patchcloud.stream.io import las_output, memory_group
 from patchcloud.stream.io.las import POSITION_AND_CLASS, check_writable, is_laz_name, output_header
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store
-from patchcloud.stream.io.renamed import note_renamed
+from patchcloud.stream.io.renamed import rename_into_place
 
 __all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs", "file_record",
            "output_record_name", "same_request"]
@@ -394,8 +394,7 @@ def export_columns(
             store.set_group_attrs("outputs", **{output_record_name(outs[f]): dict(
                 file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key, request=request)})
             if not in_memory:
-                Path(tmps[f]).replace(outs[f])
-                note_renamed(outs[f])
+                rename_into_place(tmps[f], outs[f])
             else:
                 complete.append(f)
 
@@ -418,8 +417,7 @@ def export_columns(
                 complete_file(f)
         runner.map(export_part, calls, "export", on_result=finish)
         for f in complete:
-            Path(tmps[f]).replace(outs[f])
-            note_renamed(outs[f])
+            rename_into_place(tmps[f], outs[f])
     finally:
         for tmp in tmps:
             las_output.remove_partial(tmp)

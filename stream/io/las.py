@@ -28,7 +28,7 @@ from patchcloud.core import PatchcloudExistsError, PatchcloudIOError, Patchcloud
 
 from .crs import is_crs_record, with_crs
 from .crs_cache import header_crs
-from .renamed import note_renamed
+from .renamed import rename_into_place
 from .las_records import (
     EVLR_BYTES, VLR_BYTES, RawRecord, as_vlr, ascii_text, file_records, header_record_fields, is_extra_bytes, kept, software_version,
 )
@@ -987,8 +987,7 @@ def atomic_output(path: str | os.PathLike, overwrite: bool):
     try:
         with open(tmp, "wb") as f:
             yield f
-        os.replace(tmp, p)
-        note_renamed(p)
+        rename_into_place(tmp, p)
     finally:
         if tmp.exists():
             tmp.unlink()

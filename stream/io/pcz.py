@@ -104,7 +104,7 @@ from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIO
 
 from .budget import check_memory
 from .layered import LAYERED, from_layered, layered_size
-from .renamed import note_renamed
+from .renamed import rename_into_place
 from .las import check_header_sizes, check_header_values
 from .las_records import stated_point_count
 from .point_coding import refine
@@ -258,8 +258,7 @@ def _building(path: str | os.PathLike, overwrite: bool):
                         entry.compress_type = zipfile.ZIP_DEFLATED
                     with open(f, "rb") as src, z.open(entry, "w", force_zip64=True) as dst:
                         shutil.copyfileobj(src, dst, 1 << 22)
-        os.replace(tmp, out)
-        note_renamed(out)
+        rename_into_place(tmp, out)
     finally:
         shutil.rmtree(work, ignore_errors=True)
         if tmp.exists():

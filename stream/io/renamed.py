@@ -6,8 +6,9 @@ under a temporary name and renamed into place when complete), so that the
 same command starts over.  It must remove only files it wrote: not a file
 another program (a user, PDAL, another patchcloud run) put at an output's
 path during the run.  Each rename into place records the file's state here
-(:func:`note_renamed`: inode, size, modification time), and a file counts
-as this run's (:func:`renamed_here`) only while it is still in that state.
+(:func:`rename_into_place`, which renames and records: inode, size,
+modification time), and a file counts as this run's (:func:`renamed_here`)
+only while it is still in that state.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import os
 import threading
 from pathlib import Path
 
-__all__ = ["note_renamed", "renamed_here", "file_state"]
+__all__ = ["rename_into_place", "renamed_here", "file_state"]
 
 _renamed: dict[str, tuple] = {}
 _lock = threading.Lock()
@@ -35,8 +36,9 @@ def _key(path: str | os.PathLike) -> str:
     return str(Path(path).resolve())
 
 
-def note_renamed(path: str | os.PathLike) -> None:
-    """Record that this process has just renamed a complete file into place at ``path`` (call it right after the rename)."""
+def rename_into_place(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
+    """Rename the complete file ``tmp`` to ``path`` (replacing what is there), and record it as this process's."""
+    os.replace(tmp, path)
     state = file_state(path)
     if state is not None:
         with _lock:
@@ -48,7 +50,7 @@ def renamed_here(path: str | os.PathLike) -> bool:
 
     >>> import tempfile, os
     >>> d = tempfile.mkdtemp(); p = os.path.join(d, "out.las")
-    >>> open(p + ".partial", "wb").write(b"mine"); os.replace(p + ".partial", p); note_renamed(p)
+    >>> open(p + ".partial", "wb").write(b"mine"); rename_into_place(p + ".partial", p)
     4
     >>> renamed_here(p)
     True
