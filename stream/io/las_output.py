@@ -45,7 +45,7 @@ from . import laz_layers
 from .las import chunk_table, laz_point_range
 
 __all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
-           "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "keep_creation_date", "CREATION_AT", "restate"]
+           "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "keep_creation_date", "CREATION_AT", "rewrite_header", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
 LAZ_CHUNK = 50_000
@@ -448,6 +448,18 @@ LEGACY_COUNT_AT = 107
 CREATION_AT = 90
 
 
+def rewrite_header(f, h: laspy.LasHeader, raw: bytes = b"") -> None:
+    """Write ``h`` over the header at the start of the open file ``f`` (its size unchanged), with LAS 1.4's legacy
+    counts (:func:`legacy_counts`) and the creation date of the input's raw header ``raw`` as it is written there
+    (:func:`keep_creation_date`; none: laspy's)."""
+    at = f.tell()
+    f.seek(0)
+    h.write_to(f, ensure_same_size=True)
+    legacy_counts(f, h)
+    keep_creation_date(f, raw)
+    f.seek(at)
+
+
 def keep_creation_date(f, raw: bytes) -> None:
     """Write the creation day of year and year of the raw header ``raw`` (an input's first bytes) into the header at
     the start of the open file ``f``, as they are.  laspy reads a day 0 (every IGN LiDAR HD tile has it) as the 31
@@ -526,12 +538,11 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
         if h.version.minor >= 4:
             h.start_of_first_evlr, h.number_of_evlrs = (first, count) if count else (0, 0)
         h.global_encoding.waveform_data_packets_internal = bool(h.start_of_waveform_data_packet_record)
-        f.seek(0)
-        h.write_to(f, ensure_same_size=True)
-        legacy_counts(f, h)
+        raw = b""
         if source is not None:
             with open(source, "rb") as src:
-                keep_creation_date(f, src.read(CREATION_AT + 4))
+                raw = src.read(CREATION_AT + 4)
+        rewrite_header(f, h, raw)
     if h.are_points_compressed:
         shutil.rmtree(fragments_dir(tmp), ignore_errors=True)
 

@@ -27,7 +27,7 @@ from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.dims import DECOMPRESS_DIMS
 from patchcloud.stream.io.store import tile_name
 from patchcloud.stream.io.las import assemble_header, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, wave_packets_break_laz
-from patchcloud.stream.io.las_output import copy_records, keep_creation_date, legacy_counts, point_stats, restate
+from patchcloud.stream.io.las_output import copy_records, point_stats, restate, rewrite_header
 from patchcloud.stream.io.las_records import parse_records, provenance_vlr
 from patchcloud.stream.engine.background import stops_what_it_starts
 
@@ -139,11 +139,7 @@ def _output_header(f, input, dims, parameters: dict) -> tuple[laspy.LasHeader, n
 def _finish(out, writer, stats: list, raw: bytes = b"") -> None:
     """Rewrite the written file's header with the statistics of what was written (bounds, counts by return), and the
     creation date of the input's header ``raw`` as it was written there."""
-    h = restate(writer.header, stats)
-    out.seek(0)
-    h.write_to(out, ensure_same_size=True)
-    legacy_counts(out, h)
-    keep_creation_date(out, raw)
+    rewrite_header(out, restate(writer.header, stats), raw)
 
 
 def _stored_points(header: laspy.LasHeader, kept: np.dtype, xyz: np.ndarray, rest: np.ndarray) -> laspy.PackedPointRecord:
