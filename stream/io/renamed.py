@@ -38,7 +38,7 @@ def _key(path: str | os.PathLike) -> str:
 
 def rename_into_place(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
     """Rename the complete file ``tmp`` to ``path`` (replacing what is there), and record it as this process's."""
-    os.replace(tmp, path)
+    Path(tmp).replace(path)
     state = file_state(path)
     if state is not None:
         with _lock:
