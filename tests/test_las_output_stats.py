@@ -134,3 +134,51 @@ def test_the_inputs_creation_date_is_kept_as_written_even_day_0(tmp_path):
         outs.append(tmp_path / f"d{keep}.laz")
         decompress(pcz, outs[-1])
     assert [date(o) for o in outs] == [(0, 2023)] * 4
+
+
+def _laspy_stats(header, points):
+    """The reference: laspy's own ``grow`` over the records (without the extra bytes, whose ranges it gets wrong)."""
+    from copy import deepcopy
+
+    h = deepcopy(header)
+    try:
+        h.vlrs.pop(h.vlrs.index("ExtraBytesVlr"))
+    except ValueError:
+        pass
+    h.partial_reset()
+    h.grow(points)
+    return h
+
+
+def test_bounds_gps_and_counts_by_return_are_laspys_bit_for_bit():
+    """point_stats computes what laspy's LasHeader.grow computes (bounds from the integer extremes, the GPS range, the
+    counts by return), for point formats with 3-bit and 4-bit return numbers, returns 0 and above the header's slots,
+    negative integers and a negative offset."""
+    rng = np.random.default_rng(11)
+    for fmt, version in ((1, "1.2"), (3, "1.2"), (6, "1.4"), (8, "1.4")):
+        h = laspy.LasHeader(point_format=fmt, version=version)
+        h.scales, h.offsets = np.array([0.01, 0.001, 0.0025]), np.array([-512345.67, 6.2e6, -12.5])
+        n = 5000
+        pts = laspy.PackedPointRecord.zeros(n, h.point_format)
+        for name in ("X", "Y", "Z"):
+            pts[name] = rng.integers(-(2**31), 2**31 - 1, n, dtype=np.int64).astype(np.int32)
+        pts["gps_time"] = rng.normal(3e8, 1e6, n)
+        top = 7 if fmt < 6 else 15
+        returns = rng.integers(0, top + 1, n)
+        pts["return_number"] = returns
+        ref = _laspy_stats(h, pts)
+        st = las_output.point_stats(h, pts)
+        assert np.array_equal(st.mins, np.asarray(ref.mins)) and np.array_equal(st.maxs, np.asarray(ref.maxs))
+        assert st.gps == (float(ref.min_gps_time), float(ref.max_gps_time))
+        assert np.array_equal(st.by_return, np.asarray(ref.number_of_points_by_return, dtype=np.uint64))
+        assert st.count == n and st.by_return.sum() == np.count_nonzero((returns >= 1) & (returns <= 15))
+
+
+def test_an_all_nan_or_all_no_data_column_keeps_the_empty_range():
+    h, pts, cols = _points(50)
+    curv = np.full(50, np.nan, dtype=np.float32)
+    curv[::2] = -1.0  # no-data or NaN everywhere
+    pts["Curvature"] = curv
+    st = las_output.point_stats(h, pts)
+    assert np.frombuffer(st.eb_min[0], dtype="<f8")[0] == np.finfo(np.float64).max
+    assert np.frombuffer(st.eb_max[0], dtype="<f8")[0] == np.finfo(np.float64).min

@@ -131,15 +131,50 @@ def _eb_range(st, points: laspy.PackedPointRecord | None, columns: dict, n: int 
     name = st.format_name()
     v = np.asarray(columns[name] if name in columns else points.array[name]).reshape(n, k)
     for i in range(k):
-        col = v[:, i]
-        valid = np.ones(col.shape, dtype=bool)
-        if st.no_data is not None:
-            valid &= col != st.no_data[i]
-        if col.dtype.kind == "f":
-            valid &= ~np.isnan(col)
-        if valid.any():
-            lo[i], hi[i] = col[valid].min(), col[valid].max()
+        col = np.ascontiguousarray(v[:, i])  # a record's field is strided: one pass to copy it, then the passes below
+        lo[i], hi[i] = _valid_range(col, None if st.no_data is None else st.no_data[i], lo[i], hi[i])
     return lo, hi
+
+
+def _valid_range(col: np.ndarray, no_data, lo, hi):
+    """(min, max) of ``col`` without ``no_data`` and NaN values; (``lo``, ``hi``) where none is left.
+
+    Where every value counts (no no-data value among them, no NaN) the two
+    reductions run on the column itself, with no mask and no copy: the same
+    values as the masked ones.
+    """
+    skip = np.zeros(0, dtype=bool) if no_data is None else col == no_data
+    if col.dtype.kind == "f":
+        nan = np.isnan(col)
+        skip = nan if skip.size == 0 else skip | nan
+    if skip.size == 0 or not skip.any():
+        return col.min(), col.max()
+    valid = col[~skip]
+    return (valid.min(), valid.max()) if valid.size else (lo, hi)
+
+
+def _grow(h: laspy.LasHeader, points: laspy.PackedPointRecord) -> None:
+    """``h.grow(points)`` without the extra bytes (``h`` has no ExtraBytes VLR): the same statistics, bit for bit.
+
+    laspy counts the returns with ``np.unique`` (a sort of every point's
+    return number); a histogram gives the same counts.  Each record field is
+    copied out once (the records are strided) before its two reductions.
+    """
+    a = points.array
+    for axis, name in enumerate("XYZ"):
+        col = np.ascontiguousarray(a[name])
+        scale, offset = h.scales[axis], h.offsets[axis]
+        h.maxs[axis] = max(h.maxs[axis], (col.max() * scale) + offset)
+        h.mins[axis] = min(h.mins[axis], (col.min() * scale) + offset)
+    if "gps_time" in a.dtype.names:
+        gps = np.ascontiguousarray(a["gps_time"])
+        h.max_gps_time = max(h.max_gps_time, gps.max())
+        h.min_gps_time = min(h.min_gps_time, gps.min())
+    by_return = np.bincount(np.asarray(points.return_number, dtype=np.intp).reshape(-1), minlength=16)
+    slots = len(h.number_of_points_by_return)
+    for r in np.flatnonzero(by_return[1 : slots + 1]) + 1:
+        h.number_of_points_by_return[r - 1] += by_return[r]
+    h.point_count += len(points)
 
 
 def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord, columns: dict | None = None) -> PointStats:
@@ -157,7 +192,8 @@ def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord, column
     except ValueError:
         pass
     h.partial_reset()
-    h.grow(points)
+    if len(points):
+        _grow(h, points)
     ranges = [_eb_range(st, points, columns) for st in structs]
     return PointStats(
         mins=np.asarray(h.mins, dtype=np.float64), maxs=np.asarray(h.maxs, dtype=np.float64),
