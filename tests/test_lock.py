@@ -140,3 +140,25 @@ def test_a_lock_records_the_command_line_whole_up_to_its_first_words(monkeypatch
     monkeypatch.setattr(sys, "argv", ["patchcloud", "normals", *[f"t{i}.laz" for i in range(40)], "--out-dir", "o"])
     words = json.loads(RunLock([])._info())["command"].split()
     assert len(words) == COMMAND_WORDS + 1 and words[-1] == "..."
+
+
+def test_a_catalog_and_a_run_on_one_of_its_outputs_exclude_each_other(scene, tmp_path):
+    """A catalog run writing OUT/a.las takes OUT/a.las.lock, the lock a run writing OUT/a.las alone takes: either way
+    round, the second run stops with one line naming that output, and writes nothing."""
+    import shutil
+
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    for name in ("a.las", "b.las"):
+        shutil.copy(scene, inputs / name)
+    out = tmp_path / "out"
+    out.mkdir()
+    lock = _hold(out / "a.las", os.getpid(), socket.gethostname())  # a run writing out/a.las alone
+    with pytest.raises(PatchcloudLockedError, match=r"out/a.las: another patchcloud run"):
+        normals(str(inputs), out_dir=str(out), scheduler="synchronous", quiet=True)
+    assert sorted(p.name for p in out.iterdir()) == ["a.las.lock"]
+    lock.unlink()
+    with RunLock([out / "patchcloud", out / "a.las", out / "b.las"]):  # what a catalog run into out holds
+        with pytest.raises(PatchcloudLockedError, match=r"out/b.las: another patchcloud run"):
+            normals(inputs / "b.las", out / "b.las", scheduler="synchronous", quiet=True)
+    assert sorted(p.name for p in out.iterdir()) == []

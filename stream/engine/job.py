@@ -612,7 +612,8 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     made = run.out_dir is not None and not out.exists()  # a catalog's output directory, made for this run
     if made:
         out.mkdir()
-    locked = [out if run.out_dir is None else out / "patchcloud"]  # a catalog: OUT_DIR/patchcloud.lock
+    # a catalog: OUT_DIR/patchcloud.lock, and each output's own lock, the one a run on that file alone takes
+    locked = [out] if run.out_dir is None else [out / "patchcloud", *outs]
     if run.store is not None and "://" not in run.store:
         locked.append(run.store)
     try:
