@@ -25,7 +25,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.errors': ('PatchcloudError', 'PatchcloudExistsError', 'PatchcloudIOError', 'PatchcloudMemoryError', 'PatchcloudNotImplementedError', 'PatchcloudValueError', 'os_error_line'),
     '.moments': ('cell_moments',),
     '.morton': ('MAX_DEPTH', 'decode', 'encode', 'face_neighbours'),
-    '.frame': ('cell_indices', 'local_coordinates'),
+    '.frame': ('cell_indices', 'frame_shift', 'local_coordinates'),
     '.points': ('GRID_ANCHOR',),
     '.codes': ('Method', 'PatchKind'),
     '.normals': ('NormalsParameters', 'NormalsResult', 'estimate_normals'),
@@ -86,6 +86,7 @@ __all__ = [
     # .frame
     "local_coordinates",
     "cell_indices",
+    "frame_shift",
     "GRID_ANCHOR",
     # .octree
     "level_occupancy",

@@ -64,6 +64,10 @@ def validate_points(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return arr, lo, hi
 
 
+#: The bounding cube's margins are multiples of 1 / _MARGIN_STEPS (metres, or the cloud's unit).
+_MARGIN_STEPS = 2.0**20
+
+
 def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
     """The root cube of the octree: the given one, checked, or the bounding cube of the points.
 
@@ -132,5 +136,9 @@ def root_cube(lo: np.ndarray, hi: np.ndarray, root) -> tuple[np.ndarray, float]:
     extent = float((hi - lo).max())
     scale = max(extent, float(np.abs(lo).max()) * 1e-12, 1e-9)
     edge = extent + 1e-6 * scale if extent > 0 else scale
-    corner = (lo + hi) / 2.0 - edge / 2.0
+    # centred on the box, the margins rounded down to multiples of 2^-20: the corner, lo minus a number of few bits, and
+    # every point's offset from it are then exact, so a cloud shifted exactly (by whole metres from UTM coordinates, say)
+    # gets the same offsets, bit for bit, and the same results (the centre (lo + hi) / 2 rounded apart in the two frames)
+    margin = np.floor((edge - (hi - lo)) / 2.0 * _MARGIN_STEPS) / _MARGIN_STEPS
+    corner = lo - margin
     return corner, edge

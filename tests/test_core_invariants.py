@@ -201,3 +201,26 @@ def test_a_sigma3_threshold_of_a_third_or_more_is_refused():
         with pytest.raises(PatchcloudValueError, match="below 1/3 with criterion sigma3"):
             estimate_normals(pts, criterion="sigma3", threshold=t)
     assert estimate_normals(pts, criterion="sigma3", threshold=0.3).normals.shape == (500, 3)
+
+
+def test_a_las_tile_shifted_by_whole_metres_gives_the_same_results():
+    """The embedded IGN tile (points on a 1 cm grid, many exactly on cell faces) and the same points with its UTM
+    offset taken off (an exact shift in float64): the bounding cube's corner is the points' minimum minus a margin of
+    few bits, so every point's offset from it is the same and so is every result (131 normals were more than 1 degree
+    apart, the spacing 0.3136 against 0.3135, when the cube was centred on the box)."""
+    import os
+
+    import laspy
+
+    las = laspy.read(os.path.join(os.path.dirname(__file__), "..", "data", "test_data_77055_627760_LA93_IGN69.laz"))
+    p = np.column_stack([las.x, las.y, las.z])
+    a = estimate_normals(p)
+    for shift in ([-770000.0, -6270000.0, 0.0], [-770048.0, -6266880.0, -16.0]):
+        b = estimate_normals(p + np.array(shift))
+        exact = p.astype(np.longdouble) + np.array(shift, dtype=np.longdouble)  # 64-bit mantissas on x86: the exact sums
+        assert np.array_equal((p + np.array(shift)).astype(np.longdouble), exact)  # the shift is exact
+        assert (a.parameters.spacing, a.parameters.threshold) == (b.parameters.spacing, b.parameters.threshold)
+        for name in ("method", "patch"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        for name in ("normals", "curvature", "k1", "k2", "dir1"):  # the patches' centroids go through each frame
+            assert np.abs(getattr(a, name) - getattr(b, name)).max() <= 1e-6, name

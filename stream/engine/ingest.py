@@ -464,8 +464,9 @@ def _index_parts(store: Store) -> None:
     store.put("index/part_start", _starts(index[:, 0], index[:, 2]))
     store.put("index/tile_start", tile_start)
     g = store.grid
-    mean = np.asarray([s / kept for s in sums])  # exact integer sums: whatever the parts
-    centroid = mean * np.asarray(g.scale) + g.shift
+    base, shift = g.frame
+    mean = np.asarray([(s + int(b) * kept) / kept for s, b in zip(sums, base)])  # exact integer sums: whatever the parts
+    centroid = mean * np.asarray(g.scale) + shift
     store.update(tiles=unpack_tile_keys(keys_sorted).tolist(), tile_counts=counts.tolist(), centroid_local=centroid.tolist(),
                  left_out=dict(zip(REASONS, left_out.tolist())), classes=classes)
 

@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from patchcloud.core import GRID_ANCHOR, PatchcloudIOError, PatchcloudValueError, PatchTable, cell_indices, local_coordinates
+from patchcloud.core import GRID_ANCHOR, PatchcloudIOError, PatchcloudValueError, PatchTable, cell_indices, frame_shift, local_coordinates
 
 from . import memory_group
 from .catalog import Catalog
@@ -98,7 +98,9 @@ def chunk_checksums(values: np.ndarray, rows: int) -> list[int]:
 
 @dataclass(frozen=True)
 class Grid:
-    """The tile grid and the local frame: ``local = X * scale + (offset - origin)``."""
+    """The tile grid and the local frame: ``local = (X + base) * scale + shift``, ``offset - origin`` split into whole
+    steps ``base`` and a rest ``shift`` (:func:`~patchcloud.core.frame_shift`: 0 for an offset on the grid, so a point's
+    local coordinates, and its tile, do not depend on the file's offset)."""
 
     origin: tuple[float, float, float]
     tile_size: float
@@ -107,16 +109,19 @@ class Grid:
 
     def local(self, xyz_int: np.ndarray) -> np.ndarray:
         """(n, 3) float64 local coordinates (metres) of LAS integer coordinates."""
-        return local_coordinates(xyz_int, self.scale, self.shift)
+        base, shift = self.frame
+        return local_coordinates(xyz_int, self.scale, shift, base)
 
     @property
-    def shift(self) -> np.ndarray:
-        """(3,) float64: the local frame's offset, ``offset - origin`` (metres)."""
-        return np.asarray(self.offset, dtype=np.float64) - np.asarray(self.origin, dtype=np.float64)
+    def frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(base, shift)``, (3,) int64 and (3,) float64: ``offset - origin`` as ``base * scale + shift``
+        (:func:`~patchcloud.core.frame_shift`)."""
+        return frame_shift(self.offset, self.origin, self.scale)
 
     def tiles_of(self, xyz_int: np.ndarray) -> np.ndarray:
         """(n, 3) int64 tile indices of LAS integer coordinates: ``floor(local(xyz_int) / tile_size)``, in one pass."""
-        return cell_indices(xyz_int, self.scale, self.shift, self.tile_size)
+        base, shift = self.frame
+        return cell_indices(xyz_int, self.scale, shift, self.tile_size, base)
 
     def corner(self, ijk) -> np.ndarray:
         """Local minimum corner of tile ``ijk``."""
