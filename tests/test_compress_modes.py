@@ -205,3 +205,25 @@ def test_a_block_whose_laz_disagrees_with_the_index_is_refused(tmp_path):
         f.attrs["record_bytes"] += 1
         with pytest.raises(PatchcloudIOError, match="block 0: its LAZ header says 5,000 points of"):
             f.block(0)
+
+
+def test_drop_stores_a_zero_of_a_scaled_extra_dimension_that_cannot_hold_a_scaled_zero(tmp_path):
+    """A uint8 extra dimension of offset 100 and scale 0.5 cannot hold the value 0 (stored -200): --drop stores 0 (the
+    value 100), in points mode as in model mode, where it was an internal error."""
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = [0.01] * 3, [0.0] * 3
+    h.add_extra_dims([laspy.ExtraBytesParams("s8", "u1", scales=np.array([0.5]), offsets=np.array([100.0]))])
+    rng = np.random.default_rng(0)
+    n = 2000
+    las = laspy.LasData(h)
+    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=h)
+    las.x, las.y, las.z = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.normal(0, 0.01, n)
+    las.return_number, las.number_of_returns = np.ones(n, int), np.ones(n, int)
+    las.points.array["s8"] = rng.integers(1, 255, n)
+    src = tmp_path / "s8.las"
+    las.write(src)
+    for keep in (True, False):
+        compress(src, tmp_path / f"{keep}.pcz", max_error=0.05, keep_points=keep, drop=("s8",), quiet=True)
+        decompress(tmp_path / f"{keep}.pcz", tmp_path / f"{keep}.las")
+        back = laspy.read(tmp_path / f"{keep}.las")
+        assert not np.asarray(back.points.array["s8"]).any() and np.all(np.asarray(back["s8"]) == 100.0), keep

@@ -93,9 +93,17 @@ def dropped_fields(point_format: laspy.PointFormat, names, where: str = "") -> t
 
 
 def zero_fields(points: laspy.PackedPointRecord, fields) -> None:
-    """Set the dimensions ``fields`` (laspy names) of ``points`` to zero, in place."""
+    """Set the stored values of the dimensions ``fields`` (laspy names) of ``points`` to zero, in place.
+
+    A scaled extra-bytes dimension gets a stored 0 (its value is then its
+    offset), as model mode's records have it: a scaled 0 may not fit its type
+    (a uint8 of offset 100 and scale 0.5 cannot hold it).
+    """
     for f in fields:
-        points[f] = np.zeros_like(np.asarray(points[f]))
+        if f in points.array.dtype.names:  # a whole field of the record: its bytes
+            points.array[f] = 0
+        else:  # a bit field (return_number, the flags, ...): its bits
+            points[f] = np.zeros_like(np.asarray(points[f]))
 
 
 def check_drop(catalog, names) -> None:
