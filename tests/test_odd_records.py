@@ -258,3 +258,40 @@ def test_the_real_ign_file_with_two_extra_bytes_vlrs_reads_back_with_its_normals
     n = np.column_stack([b.NormalX, b.NormalY, b.NormalZ])[done]
     assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
     assert np.median(n[:, 2]) > 0.9  # 98 % ground, normals up
+
+
+def test_an_entry_of_undocumented_extra_bytes_keeps_its_data_type_0(tmp_path):
+    """An ExtraBytes entry of data type 0 ("undocumented extra bytes", its options field their count) is written back
+    as its 192 bytes by normals and by decompress of points mode (laspy reads it as the deprecated type 21, 3 uint8,
+    and the output said so, with min and max bits it never had), and its records' bytes are unchanged."""
+    from patchcloud.stream import compress, decompress, normals
+
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = [0.01] * 3, [0.0] * 3
+    h.add_extra_dims([laspy.ExtraBytesParams("opaque", "3u1")])
+    rng = np.random.default_rng(0)
+    n = 2000
+    las = laspy.LasData(h)
+    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=h)
+    las.x, las.y, las.z = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.normal(0, 0.01, n)
+    las.return_number, las.number_of_returns = np.ones(n, int), np.ones(n, int)
+    las["opaque"] = rng.integers(0, 255, (n, 3))
+    src = tmp_path / "m.las"
+    las.write(src)
+
+    def entry(path):
+        b = Path(path).read_bytes()
+        at = b.find(b"Extra Bytes Record") - 22 + 54  # the VLR's 54-byte header, then the first entry
+        return bytearray(b[at : at + 192]), at
+
+    raw, at = entry(src)
+    raw[2], raw[3] = 0, 3  # data type 0, options: 3 bytes
+    b = bytearray(src.read_bytes())
+    b[at : at + 192] = raw
+    src.write_bytes(bytes(b))
+    normals(src, tmp_path / "n.las", quiet=True)
+    compress(src, tmp_path / "m.pcz", keep_points=True, quiet=True)
+    decompress(tmp_path / "m.pcz", tmp_path / "d.las")
+    for out in ("n.las", "d.las"):
+        assert entry(tmp_path / out)[0] == raw, out
+        assert np.array_equal(laspy.read(tmp_path / out).points.array["opaque"], laspy.read(src).points.array["opaque"])

@@ -867,7 +867,9 @@ def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[
         structs, data = eb[0].extra_bytes_structs, vlrs[inputs].data
         for i in range(min(len(data) // 192, len(structs))):
             raw = ExtraBytesStruct.from_buffer_copy(data[192 * i : 192 * (i + 1)])
-            if raw.format_name() == structs[i].format_name() and raw.data_type == structs[i].data_type:
+            # the same bytes (laspy reads an entry of undocumented bytes, type 0, as the deprecated array type of as
+            # many uint8: the type differs, the dtype does not)
+            if raw.format_name() == structs[i].format_name() and raw.dtype() == structs[i].dtype():
                 structs[i] = raw
         header.vlrs.remove(eb[0])
         header.vlrs.insert(sum(kept(r) for r in vlrs[:inputs]), eb[0])

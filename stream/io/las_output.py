@@ -25,6 +25,7 @@ depend on the number of parts or on which worker wrote which.
 
 from __future__ import annotations
 
+import ctypes
 import io
 import os
 import shutil
@@ -44,7 +45,7 @@ from patchcloud.core import PatchcloudIOError
 from . import laz_layers
 from .las import chunk_table, laz_point_range
 
-__all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
+__all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "reset_statistics", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
            "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "keep_creation_date", "CREATION_AT", "rewrite_header", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
@@ -76,6 +77,28 @@ class PointStats:
                    eb_min=tuple(bytes.fromhex(v) for v in d["eb_min"]), eb_max=tuple(bytes.fromhex(v) for v in d["eb_max"]))
 
 
+def reset_statistics(h: laspy.LasHeader) -> None:
+    """laspy's ``h.partial_reset()`` (bounds, counts, extra-bytes ranges), leaving entries of undocumented extra bytes
+    (data type 0) as they are: their options field is their byte count, not flags, and laspy would write a range
+    into their min and max (as its writer does: :func:`restate` puts them back)."""
+    kept = undocumented_entries(h)
+    h.partial_reset()
+    put_undocumented_entries(h, kept)
+
+
+def undocumented_entries(h: laspy.LasHeader) -> list[tuple[int, bytes, bytes]]:
+    """(position, min bytes, max bytes) of each entry of undocumented extra bytes (data type 0) of ``h``'s ExtraBytes VLR."""
+    return [(i, bytes(st._min), bytes(st._max)) for i, st in enumerate(extra_bytes_structs(h)) if st.data_type == 0]
+
+
+def put_undocumented_entries(h: laspy.LasHeader, kept: list[tuple[int, bytes, bytes]]) -> None:
+    """Put back the min and max bytes :func:`undocumented_entries` took, in place."""
+    structs = extra_bytes_structs(h)
+    for i, lo, hi in kept:
+        ctypes.memmove(ctypes.addressof(structs[i]._min), lo, len(lo))
+        ctypes.memmove(ctypes.addressof(structs[i]._max), hi, len(hi))
+
+
 def prepare_header(header: laspy.LasHeader, compressed: bool) -> laspy.LasHeader:
     """The header as laspy's writer makes it before the first point (statistics reset, LAZ VLR added when ``compressed``)."""
     h = deepcopy(header)
@@ -83,7 +106,7 @@ def prepare_header(header: laspy.LasHeader, compressed: bool) -> laspy.LasHeader
         h.vlrs.pop(h.vlrs.index("LasZipVlr"))
     except ValueError:
         pass
-    h.partial_reset()
+    reset_statistics(h)
     h.are_points_compressed = compressed
     if compressed:
         pf = h.point_format
@@ -191,7 +214,7 @@ def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord, column
         h.vlrs.pop(h.vlrs.index("ExtraBytesVlr"))
     except ValueError:
         pass
-    h.partial_reset()
+    reset_statistics(h)
     if len(points):
         _grow(h, points)
     ranges = [_eb_range(st, points, columns) for st in structs]
@@ -216,7 +239,7 @@ def with_new_dims(stats: PointStats, header: laspy.LasHeader, columns: dict, n: 
 def _merge(header: laspy.LasHeader, parts: list[PointStats]) -> laspy.LasHeader:
     """``header`` with the statistics of all ``parts`` (what growing it by every point in turn gives)."""
     h = deepcopy(header)
-    h.partial_reset()
+    reset_statistics(h)
     mins, maxs = np.asarray(h.mins, dtype=np.float64), np.asarray(h.maxs, dtype=np.float64)
     lo, hi = h.min_gps_time, h.max_gps_time
     by_return = np.zeros(15, dtype=np.uint64)
@@ -247,10 +270,13 @@ def _merge(header: laspy.LasHeader, parts: list[PointStats]) -> laspy.LasHeader:
     return h
 
 
-def restate(written: laspy.LasHeader, stats: list[PointStats]) -> laspy.LasHeader:
+def restate(written: laspy.LasHeader, stats: list[PointStats], header: laspy.LasHeader | None = None) -> laspy.LasHeader:
     """The header laspy's writer wrote (``written``, after its close) with the statistics merged from ``stats`` of
-    every point written (:func:`point_stats`): what is written over it, the file's layout kept."""
+    every point written (:func:`point_stats`): what is written over it, the file's layout kept.  ``header``: the
+    header given to the writer (before it reset the ranges), whose entries of undocumented extra bytes are put back."""
     h = _merge(written, stats)
+    if header is not None:
+        put_undocumented_entries(h, undocumented_entries(header))
     for name in ("offset_to_point_data", "start_of_first_evlr", "number_of_evlrs", "start_of_waveform_data_packet_record"):
         setattr(h, name, getattr(written, name))
     return h

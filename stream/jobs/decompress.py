@@ -136,10 +136,10 @@ def _output_header(f, input, dims, parameters: dict) -> tuple[laspy.LasHeader, n
     return header, kept
 
 
-def _finish(out, writer, stats: list, raw: bytes = b"") -> None:
+def _finish(out, writer, stats: list, raw: bytes, header: laspy.LasHeader) -> None:
     """Rewrite the written file's header with the statistics of what was written (bounds, counts by return), and the
-    creation date of the input's header ``raw`` as it was written there."""
-    rewrite_header(out, restate(writer.header, stats), raw)
+    creation date of the input's header ``raw`` as it was written there (``header``: the one given to the writer)."""
+    rewrite_header(out, restate(writer.header, stats, header), raw)
 
 
 def _stored_points(header: laspy.LasHeader, kept: np.dtype, xyz: np.ndarray, rest: np.ndarray) -> laspy.PackedPointRecord:
@@ -204,7 +204,7 @@ def _decompress_points(f: pcz.PointsPczFile, input, output, box: np.ndarray | No
                 written += _write_points(writer, header, _stored_points(header, kept, *f.block(int(b))), box, output, stats)
             if evlrs:
                 writer.write_evlrs(evlrs)
-        _finish(out, writer, stats, f.header_bytes)
+        _finish(out, writer, stats, f.header_bytes, header)
     return written
 
 
@@ -346,6 +346,6 @@ def decompress(
                     write(writer, _stored_points(header, kept, rxyz, rrec), True)
                 if evlrs:
                     writer.write_evlrs(evlrs)
-            _finish(out, writer, stats, f.header_bytes)
+            _finish(out, writer, stats, f.header_bytes, header)
     return DecompressSummary(input=str(input), output=str(output), reconstructed=written[0], residual=written[1],
                              seconds=time.perf_counter() - t0)
