@@ -227,3 +227,32 @@ def test_drop_stores_a_zero_of_a_scaled_extra_dimension_that_cannot_hold_a_scale
         decompress(tmp_path / f"{keep}.pcz", tmp_path / f"{keep}.las")
         back = laspy.read(tmp_path / f"{keep}.las")
         assert not np.asarray(back.points.array["s8"]).any() and np.all(np.asarray(back["s8"]) == 100.0), keep
+
+
+def test_points_at_the_ends_of_las_32_bit_range_come_back_within_the_budget(tmp_path):
+    """X = 2^31 - 1 and X = -2^31 are LAS coordinates: rounded to multiples of k steps (k = 57 at 5 cm on a 1 mm grid)
+    they lie beyond the range, and decompress called the .pcz compress had just written damaged, in both modes.  Now
+    they come back at the range's end, within the budget, and every point of points mode within it."""
+    rng = np.random.default_rng(0)
+    n = 2000
+    for name, edge in (("hi", 2**31 - 1), ("lo", -(2**31))):
+        h = laspy.LasHeader(point_format=6, version="1.4")
+        h.scales, h.offsets = [0.001] * 3, [0.0] * 3
+        las = laspy.LasData(h)
+        las.points = laspy.ScaleAwarePointRecord.zeros(n, header=h)
+        sign = -1 if edge > 0 else 1
+        X = edge + sign * rng.integers(0, 20000, n)
+        X[:3] = edge
+        las.X, las.Y, las.Z = X, rng.integers(0, 20000, n), rng.integers(0, 100, n)
+        las.return_number, las.number_of_returns = np.ones(n, int), np.ones(n, int)
+        src = tmp_path / f"{name}.las"
+        las.write(src)
+        for keep in (True, False):
+            pcz = tmp_path / f"{name}{keep}.pcz"
+            compress(src, pcz, max_error=0.05, keep_points=keep, quiet=True)
+            decompress(pcz, tmp_path / f"{name}{keep}.las")
+            back = laspy.read(tmp_path / f"{name}{keep}.las")
+            assert len(back.points) >= n // 2, (name, keep)
+            if keep:
+                d = np.sqrt((back.x - las.x) ** 2 + (back.y - las.y) ** 2 + (back.z - las.z) ** 2)
+                assert d.max() <= 0.05 and np.any(np.asarray(back.X) == edge), (name, keep)

@@ -381,10 +381,11 @@ def _refined(path, xyz: np.ndarray, steps, where: str) -> np.ndarray:
     """(n, 3) int32: stored X, Y, Z (multiples ``steps`` of the input's integers) back on the input's grid; beyond int32: damaged."""
     if tuple(steps) == (1, 1, 1):
         return xyz
-    out = np.column_stack([refine(xyz[:, a], int(steps[a])) for a in range(3)])
-    if out.size and (out.min() < -(2**31) or out.max() >= 2**31):
+    k = np.asarray(steps, dtype=np.int64)
+    far = xyz.astype(np.int64) * k  # a coded point lies at most k / 2 steps beyond LAS's range (refine brings it back)
+    if far.size and (far.min() < -(2**31) - k.max() or far.max() >= 2**31 + k.max()):
         raise PatchcloudIOError(f"{path}: damaged .pcz file ({where}'s coordinates lie beyond what LAS coordinates can hold)")
-    return out.astype(np.int32)
+    return np.column_stack([refine(xyz[:, a], int(steps[a])) for a in range(3)]).astype(np.int32)
 
 
 #: An array of at most this many bytes is read whole at its first read, and its rows then come from memory: a tile's

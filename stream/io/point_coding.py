@@ -61,8 +61,15 @@ def coarsen(X: np.ndarray, k: int) -> np.ndarray:
 
 
 def refine(Xq: np.ndarray, k: int) -> np.ndarray:
-    """The integers of the file's grid that :func:`coarsen`'s ``Xq`` stand for (int64)."""
-    return np.asarray(Xq, dtype=np.int64) * k
+    """The integers of the file's grid that :func:`coarsen`'s ``Xq`` stand for (int64), within LAS's 32-bit range.
+
+    A point within ``k / 2`` steps of the range's end rounds to a multiple
+    of ``k`` beyond it: it comes back at the end, nearer to where it was.
+
+    >>> refine(coarsen(np.array([2**31 - 1, -(2**31), 1000]), 57), 57).tolist()
+    [2147483647, -2147483648, 1026]
+    """
+    return np.clip(np.asarray(Xq, dtype=np.int64) * k, -(2**31), 2**31 - 1)
 
 
 def dropped_fields(point_format: laspy.PointFormat, names, where: str = "") -> tuple[str, ...]:

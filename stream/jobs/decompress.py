@@ -308,8 +308,8 @@ def decompress(
             written[int(is_res)] += _write_points(writer, header, rec, box, output, stats)
 
         # the input's bounds in its integers: a sampled point stays within them
-        lowest = np.ceil((np.asarray(source.mins) - offset) / scale - 1e-9).astype(np.int64)
-        highest = np.floor((np.asarray(source.maxs) - offset) / scale + 1e-9).astype(np.int64)
+        lowest = np.maximum(np.ceil((np.asarray(source.mins) - offset) / scale - 1e-9), -(2.0**31)).astype(np.int64)
+        highest = np.minimum(np.floor((np.asarray(source.maxs) - offset) / scale + 1e-9), 2.0**31 - 1).astype(np.int64)
         with atomic_output(output, overwrite) as out:
             with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
                             laz_backend=laz_backend()) as writer:
@@ -326,12 +326,10 @@ def decompress(
                         check_memory(per_point * int(some.sum()), f"{input}: tile {int(t)}'s batch of {int(some.sum()):,} points")
                         pts, k = sample_models(models, some, seed=seed + int(t) if b == 0 else [seed + int(t), b])
                         check_in_tile(input, pts, f.tiles[int(t)], f.tile_size, reach)
-                        xyz = np.rint((pts + origin - offset) / scale)
-                        if xyz.size and (xyz.min() < -(2**31) or xyz.max() >= 2**31):
-                            raise PatchcloudIOError(f"{input}: damaged .pcz file (tile {tile_name(f.tiles[int(t)])} lies beyond "
-                                                    "what LAS coordinates can hold)")
-                        # a patch's mask cell may reach past the cloud's edge (a tile cut at the file's border): such
-                        # samples are brought back onto the input's bounds, not made up beyond them
+                        xyz = np.rint((pts + origin - offset) / scale)  # within the tile and its reach (checked)
+                        # a patch's mask cell may reach past the cloud's edge (a tile cut at the file's border, or at
+                        # the end of LAS's 32-bit range): such samples are brought back onto the input's bounds, not
+                        # made up beyond them
                         xyz = np.clip(xyz.astype(np.int64), lowest, highest)
                         sampled = laspy.PackedPointRecord.zeros(len(xyz), header.point_format)
                         sampled["X"], sampled["Y"], sampled["Z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
