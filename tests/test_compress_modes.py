@@ -256,3 +256,62 @@ def test_points_at_the_ends_of_las_32_bit_range_come_back_within_the_budget(tmp_
             if keep:
                 d = np.sqrt((back.x - las.x) ** 2 + (back.y - las.y) ** 2 + (back.z - las.z) ** 2)
                 assert d.max() <= 0.05 and np.any(np.asarray(back.X) == edge), (name, keep)
+
+
+def _with_internal_waveforms(path, point_format: int, version: str, n: int = 2000) -> None:
+    """A LAS file of point format 4 or 9 whose wave packets lie in its internal waveform data packet record (LAS 1.3:
+    after the points, the header pointing at it; LAS 1.4: its first EVLR), 64 random bytes a point."""
+    import struct
+
+    h = laspy.LasHeader(point_format=point_format, version=version)
+    h.scales, h.offsets = [0.01] * 3, [0.0] * 3
+    h.vlrs.append(laspy.VLR(user_id="LASF_Spec", record_id=101, description="wf desc",
+                            record_data=struct.pack("<BBIIdd", 8, 0, 64, 100, 1.0, 0.0)))
+    rng = np.random.default_rng(0)
+    las = laspy.LasData(h)
+    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=h)
+    las.x, las.y, las.z = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.normal(0, 0.01, n)
+    las.return_number, las.number_of_returns = np.ones(n, int), np.ones(n, int)
+    las.wavepacket_index, las.wavepacket_offset, las.wavepacket_size = np.ones(n, int), 60 + np.arange(n) * 64, np.full(n, 64)
+    las.write(path)
+    b = bytearray(path.read_bytes())
+    w = len(b)
+    data = rng.integers(0, 255, n * 64, dtype=np.uint8).tobytes()
+    b += struct.pack("<H16sHQ32s", 0, b"LASF_Spec", 65535, len(data), b"waveform data") + data
+    struct.pack_into("<Q", b, 227, w)  # start_of_waveform_data_packet_record
+    if version == "1.4":
+        struct.pack_into("<QI", b, 235, w, 1)  # its first EVLR
+    struct.pack_into("<H", b, 6, struct.unpack_from("<H", b, 6)[0] | 2)  # global encoding: waveform data internal
+    path.write_bytes(bytes(b))
+
+
+def _waves(path) -> tuple[int, list[bytes]]:
+    import struct
+
+    b = path.read_bytes()
+    at = struct.unpack_from("<Q", b, 227)[0]
+    las = laspy.read(path)
+    return at, [b[at + o : at + o + s] for o, s in zip(np.asarray(las.wavepacket_offset), np.asarray(las.wavepacket_size))]
+
+
+@pytest.mark.parametrize("point_format, version", [(4, "1.3"), (9, "1.4")])
+def test_internal_waveforms_come_back_in_points_mode_and_are_left_out_in_model_mode(tmp_path, point_format, version):
+    """Points mode gives back the internal waveform data packet record (a LAS 1.3 input's as the LAS 1.4 output's first
+    EVLR), the header pointing at it, so every point's wave packet is its bytes (a 1.3 input's record was lost and a
+    1.4 input's pointed at by the input's offset); model mode's points keep no wave packet: no record, no pointer."""
+    src = tmp_path / "wf.las"
+    _with_internal_waveforms(src, point_format, version)
+    at, want = _waves(src)
+    assert at > 0 and len(set(want)) > 1000
+    compress(src, tmp_path / "p.pcz", max_error=0.05, keep_points=True, quiet=True)
+    decompress(tmp_path / "p.pcz", tmp_path / "p.las")
+    at, got = _waves(tmp_path / "p.las")
+    back = laspy.read(tmp_path / "p.las")
+    assert at > 0 and back.header.global_encoding.waveform_data_packets_internal and got == want
+    compress(src, tmp_path / "m.pcz", max_error=0.05, quiet=True)
+    decompress(tmp_path / "m.pcz", tmp_path / "m.las")
+    model = laspy.read(tmp_path / "m.las")
+    assert model.header.start_of_waveform_data_packet_record == 0
+    assert not model.header.global_encoding.waveform_data_packets_internal
+    assert not any(v.record_id == 65535 for v in model.header.evlrs)
+    assert (tmp_path / "m.pcz").stat().st_size < 64 * 2000  # the waveforms are not in it

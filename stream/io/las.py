@@ -36,7 +36,7 @@ from .las_records import (
 __all__ = [
     "LasSource", "CorruptPointsError", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_directory_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
-    "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "chunk_table", "POINTWISE_COMPRESSOR", "raw_header",
+    "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "chunk_table", "POINTWISE_COMPRESSOR", "raw_header", "waves_of_las13", "split_evlrs", "is_waveform_evlr",
     "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS", "content_fingerprint", "FINGERPRINT_BLOCKS", "FINGERPRINT_BLOCK", "holds",
 ]
 
@@ -915,8 +915,15 @@ def _laspy_described(st: ExtraBytesStruct) -> bool:
     return bytes(st.description).split(b"\0", 1)[0].decode("ascii", "replace") == UNDESCRIBED_DESCRIPTION
 
 
-def raw_header(path: str | os.PathLike) -> tuple[bytes, bytes]:
-    """A LAS/LAZ file's header and VLRs, and its extended VLRs (LAS 1.4; after the points), as raw bytes."""
+def raw_header(path: str | os.PathLike, waveforms: bool = True) -> tuple[bytes, bytes]:
+    """A LAS/LAZ file's header and VLRs, and its extended VLRs (after the points), as raw bytes.
+
+    A LAS 1.3 file's internal waveform data packet record (from the
+    header's offset to the end, an EVLR's layout) is its one EVLR.  With
+    ``waveforms`` False the waveform record is left out (points that keep
+    no wave packet descriptors do not point into it), and the header says
+    so: no internal waveform data, no offset to it, one EVLR fewer.
+    """
     with open(path, "rb") as f:
         h = laspy.LasHeader.read_from(f)
         f.seek(0)
@@ -925,7 +932,47 @@ def raw_header(path: str | os.PathLike) -> tuple[bytes, bytes]:
         if h.version.minor >= 4 and h.number_of_evlrs > 0:
             f.seek(h.start_of_first_evlr)
             evlrs = f.read()
+        elif waves_of_las13(h):
+            f.seek(h.start_of_waveform_data_packet_record)
+            evlrs = f.read()
+    if waveforms or not h.global_encoding.waveform_data_packets_internal:
         return head, evlrs
+    head = bytearray(head)
+    struct.pack_into("<H", head, 6, struct.unpack_from("<H", head, 6)[0] & ~2)  # global encoding: no internal waveforms
+    if h.version.minor >= 3:
+        struct.pack_into("<Q", head, 227, 0)  # start of the waveform data packet record
+    if h.version.minor < 4:
+        return bytes(head), b""
+    kept = [r for r in split_evlrs(evlrs, h.number_of_evlrs) if not is_waveform_evlr(r)]
+    if len(kept) < h.number_of_evlrs:
+        struct.pack_into("<QI", head, 235, h.start_of_first_evlr if kept else 0, len(kept))
+    return bytes(head), b"".join(kept)
+
+
+def waves_of_las13(h: laspy.LasHeader) -> bool:
+    """Whether ``h`` is a LAS 1.3 header whose internal waveform data packet record follows the points."""
+    return h.version.minor == 3 and bool(h.global_encoding.waveform_data_packets_internal) \
+        and int(h.start_of_waveform_data_packet_record or 0) > 0
+
+
+#: An EVLR's header: reserved, user id, record id, length after the header, description (60 bytes).
+_EVLR_HEADER = struct.Struct("<H16sHQ32s")
+
+
+def split_evlrs(raw: bytes, count: int) -> list[bytes]:
+    """The first ``count`` EVLRs of ``raw`` (EVLRs one after the other), each its bytes; fewer where ``raw`` ends."""
+    out, at = [], 0
+    while len(out) < count and at + _EVLR_HEADER.size <= len(raw):
+        size = _EVLR_HEADER.size + _EVLR_HEADER.unpack_from(raw, at)[3]
+        out.append(raw[at : at + size])
+        at += size
+    return out
+
+
+def is_waveform_evlr(raw: bytes) -> bool:
+    """Whether the EVLR ``raw`` (its bytes) is a waveform data packet record (LASF_Spec, record 65535)."""
+    _, user, record, _, _ = _EVLR_HEADER.unpack_from(raw, 0)
+    return user.rstrip(b"\0") == b"LASF_Spec" and record == 65535
 
 
 def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:

@@ -466,9 +466,10 @@ class _OpenPcz:
         raw = self.header_bytes
         return raw[104] & 0x3F if len(raw) > 104 else -1
 
-    def evlr_bytes(self, count: int) -> bytes:
-        """The bytes of the input's ``count`` extended VLRs (LAS 1.4), as they were; empty when it had none."""
-        raw = bytes(self._read("evlrs")) if count else b""
+    def evlr_bytes(self, count: int, stored: bool = False) -> bytes:
+        """The bytes of the input's ``count`` extended VLRs (LAS 1.4), as they were; empty when it had none.
+        ``stored``: whatever bytes the file holds, however many records they are."""
+        raw = bytes(self._read("evlrs")) if count or stored else b""
         if count * 60 > len(raw):
             raise PatchcloudIOError(f"{self.path}: the input's header says {count:,} extended VLRs, the file holds {len(raw):,} bytes of them")
         return raw

@@ -264,7 +264,7 @@ class CompressJob(Job):
 
     def write(self, ctx: JobContext) -> None:
         st, src, pf, budget = ctx.store, ctx.source, self.point_format, self.options.max_error
-        head, evlrs = raw_header(src.path)
+        head, evlrs = raw_header(src.path, waveforms=False)  # no point of model mode keeps a wave packet
         self.counts = pcz.write_pcz(
             ctx.output, _parts(st, budget), max_error=budget, grid=st.grid.to_json(), header=head, evlrs=evlrs,
             source=pcz_source(src, pf.id, self.record_source, ctx.units.symbol, ctx.catalog.crs), record_bytes=pf.size - 12, overwrite=ctx.run.overwrite,

@@ -26,7 +26,8 @@ from patchcloud.stream.io import pcz
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.dims import DECOMPRESS_DIMS
 from patchcloud.stream.io.store import tile_name
-from patchcloud.stream.io.las import assemble_header, atomic_output, check_las_output, check_not_input, check_writable, is_laz_name, laz_backend, wave_packets_break_laz
+from patchcloud.stream.io.las import (EVLR_BYTES, assemble_header, atomic_output, check_las_output, check_not_input, check_writable,
+                                      is_laz_name, laz_backend, wave_packets_break_laz, waves_of_las13)
 from patchcloud.stream.io.las_output import copy_records, point_stats, restate, rewrite_header
 from patchcloud.stream.io.las_records import parse_records, provenance_vlr
 from patchcloud.stream.engine.background import stops_what_it_starts
@@ -123,6 +124,8 @@ def _output_header(f, input, dims, parameters: dict) -> tuple[laspy.LasHeader, n
     size, _, count = struct.unpack_from("<HII", raw, 94)
     vlrs = parse_records(raw, size, count, False, f"{input}: the input's header")
     n_evlrs = header.number_of_evlrs if header.version.minor >= 4 else 0
+    if waves_of_las13(header):  # a LAS 1.3 input's waveform record, kept as its one EVLR (none by versions before)
+        n_evlrs = 1 if len(f.evlr_bytes(0, stored=True)) >= EVLR_BYTES else 0
     evlrs = parse_records(f.evlr_bytes(n_evlrs), 0, n_evlrs, True, f"{input}: the input's EVLRs")
     kept = header.point_format.dtype()
     assumed = f.attrs["source"].get("assumed_crs")
@@ -138,8 +141,29 @@ def _output_header(f, input, dims, parameters: dict) -> tuple[laspy.LasHeader, n
 
 def _finish(out, writer, stats: list, raw: bytes, header: laspy.LasHeader) -> None:
     """Rewrite the written file's header with the statistics of what was written (bounds, counts by return), and the
-    creation date of the input's header ``raw`` as it was written there (``header``: the one given to the writer)."""
-    rewrite_header(out, restate(writer.header, stats, header), raw)
+    creation date of the input's header ``raw`` as it was written there (``header``: the one given to the writer).
+
+    The header points at the waveform data packet record among the EVLRs
+    written (the input's, where it had one inside: a LAS 1.3 input's is the
+    output's first EVLR), and says the wave packets are internal only then.
+    """
+    h = restate(writer.header, stats, header)
+    h.start_of_waveform_data_packet_record = _waveform_record_at(h, header.evlrs)
+    h.global_encoding.waveform_data_packets_internal = bool(h.start_of_waveform_data_packet_record)
+    rewrite_header(out, h, raw)
+
+
+def _waveform_record_at(h: laspy.LasHeader, evlrs) -> int:
+    """Where the written file of header ``h`` holds a waveform data packet record among its EVLRs (``evlrs``, laspy's
+    records, written in this order from ``h.start_of_first_evlr``); 0 where none."""
+    if not h.number_of_evlrs or not h.start_of_first_evlr:
+        return 0
+    where = h.start_of_first_evlr
+    for v in list(evlrs)[: h.number_of_evlrs]:
+        if v.user_id == "LASF_Spec" and v.record_id == 65535:
+            return where
+        where += EVLR_BYTES + len(v.record_data_bytes())
+    return 0
 
 
 def _stored_points(header: laspy.LasHeader, kept: np.dtype, xyz: np.ndarray, rest: np.ndarray) -> laspy.PackedPointRecord:
