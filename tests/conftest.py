@@ -30,3 +30,20 @@ def shared_file(rel: str) -> Path:
     if not path.exists():
         pytest.skip(f"shared data file {rel} not found beside the repo (../shared/data); this test needs it")
     return path
+
+
+def flat_las(point_format: int = 6, version: str = "1.4", extra=(), n: int = 2000, seed: int = 0):
+    """A laspy.LasData of ``n`` points on a noisy 20 m x 20 m plane (1 cm grid, offset 0), one return each, with the
+    extra-bytes dimensions ``extra`` (laspy.ExtraBytesParams) zero: for tests of what the jobs write of a file's fields."""
+    import laspy
+
+    h = laspy.LasHeader(point_format=point_format, version=version)
+    h.scales, h.offsets = [0.01] * 3, [0.0] * 3
+    if extra:
+        h.add_extra_dims(list(extra))
+    rng = np.random.default_rng(seed)
+    las = laspy.LasData(h)
+    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=h)
+    las.x, las.y, las.z = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.normal(0, 0.01, n)
+    las.return_number, las.number_of_returns = np.ones(n, int), np.ones(n, int)
+    return las

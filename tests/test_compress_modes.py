@@ -4,7 +4,7 @@ import laspy
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import ROOT, shared_file
+from conftest import ROOT, flat_las, shared_file
 
 from patchcloud.core import PatchcloudIOError, PatchcloudValueError, dequantise_models, patch_distances
 from patchcloud.stream import compress, decompress
@@ -210,16 +210,8 @@ def test_a_block_whose_laz_disagrees_with_the_index_is_refused(tmp_path):
 def test_drop_stores_a_zero_of_a_scaled_extra_dimension_that_cannot_hold_a_scaled_zero(tmp_path):
     """A uint8 extra dimension of offset 100 and scale 0.5 cannot hold the value 0 (stored -200): --drop stores 0 (the
     value 100), in points mode as in model mode, where it was an internal error."""
-    h = laspy.LasHeader(point_format=6, version="1.4")
-    h.scales, h.offsets = [0.01] * 3, [0.0] * 3
-    h.add_extra_dims([laspy.ExtraBytesParams("s8", "u1", scales=np.array([0.5]), offsets=np.array([100.0]))])
-    rng = np.random.default_rng(0)
-    n = 2000
-    las = laspy.LasData(h)
-    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=h)
-    las.x, las.y, las.z = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.normal(0, 0.01, n)
-    las.return_number, las.number_of_returns = np.ones(n, int), np.ones(n, int)
-    las.points.array["s8"] = rng.integers(1, 255, n)
+    las = flat_las(extra=[laspy.ExtraBytesParams("s8", "u1", scales=np.array([0.5]), offsets=np.array([100.0]))])
+    las.points.array["s8"] = np.random.default_rng(0).integers(1, 255, len(las.points))
     src = tmp_path / "s8.las"
     las.write(src)
     for keep in (True, False):
@@ -263,15 +255,10 @@ def _with_internal_waveforms(path, point_format: int, version: str, n: int = 200
     after the points, the header pointing at it; LAS 1.4: its first EVLR), 64 random bytes a point."""
     import struct
 
-    h = laspy.LasHeader(point_format=point_format, version=version)
-    h.scales, h.offsets = [0.01] * 3, [0.0] * 3
-    h.vlrs.append(laspy.VLR(user_id="LASF_Spec", record_id=101, description="wf desc",
-                            record_data=struct.pack("<BBIIdd", 8, 0, 64, 100, 1.0, 0.0)))
+    las = flat_las(point_format, version, n=n)
+    las.header.vlrs.append(laspy.VLR(user_id="LASF_Spec", record_id=101, description="wf desc",
+                                     record_data=struct.pack("<BBIIdd", 8, 0, 64, 100, 1.0, 0.0)))
     rng = np.random.default_rng(0)
-    las = laspy.LasData(h)
-    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=h)
-    las.x, las.y, las.z = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.normal(0, 0.01, n)
-    las.return_number, las.number_of_returns = np.ones(n, int), np.ones(n, int)
     las.wavepacket_index, las.wavepacket_offset, las.wavepacket_size = np.ones(n, int), 60 + np.arange(n) * 64, np.full(n, 64)
     las.write(path)
     b = bytearray(path.read_bytes())

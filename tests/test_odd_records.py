@@ -14,7 +14,7 @@ import laspy
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import shared_file
+from conftest import flat_las, shared_file
 from test_stream import write_scene
 
 from patchcloud.core import PatchcloudIOError
@@ -266,16 +266,8 @@ def test_an_entry_of_undocumented_extra_bytes_keeps_its_data_type_0(tmp_path):
     and the output said so, with min and max bits it never had), and its records' bytes are unchanged."""
     from patchcloud.stream import compress, decompress, normals
 
-    h = laspy.LasHeader(point_format=6, version="1.4")
-    h.scales, h.offsets = [0.01] * 3, [0.0] * 3
-    h.add_extra_dims([laspy.ExtraBytesParams("opaque", "3u1")])
-    rng = np.random.default_rng(0)
-    n = 2000
-    las = laspy.LasData(h)
-    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=h)
-    las.x, las.y, las.z = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.normal(0, 0.01, n)
-    las.return_number, las.number_of_returns = np.ones(n, int), np.ones(n, int)
-    las["opaque"] = rng.integers(0, 255, (n, 3))
+    las = flat_las(extra=[laspy.ExtraBytesParams("opaque", "3u1")])
+    las["opaque"] = np.random.default_rng(0).integers(0, 255, (len(las.points), 3))
     src = tmp_path / "m.las"
     las.write(src)
 
