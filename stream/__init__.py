@@ -34,7 +34,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     'patchcloud.stream.jobs.normals': ('NormalsSummary', 'normals'),
     'patchcloud.stream.jobs.segment': ('segment',),
     'patchcloud.stream.jobs.tile': ('tile',),
-    'patchcloud.stream.views.render': ('RenderImage', 'RenderSummary', 'render', 'render_array', 'render_arrays'),
+    'patchcloud.stream.views.render': ('RenderImage', 'RenderSummary', 'render', 'render_array', 'render_arrays', 'render_figure'),
     'patchcloud.stream.views.render_tiles': ('TilesSummary', 'render_tiles'),
     'patchcloud.stream.views.report': ('report_compress', 'report_don', 'report_normals', 'write_report'),
 }
@@ -46,7 +46,7 @@ __all__ = [
     # how jobs run, and running your own per-tile function
     "RunOptions", "Runner", "map_tiles", "Store",
     # pictures and reports
-    "render", "render_array", "render_arrays", "RenderImage", "RenderSummary", "render_tiles", "TilesSummary",
+    "render", "render_array", "render_arrays", "render_figure", "RenderImage", "RenderSummary", "render_tiles", "TilesSummary",
     "write_report", "report_normals", "report_don", "report_compress",
 ]
 

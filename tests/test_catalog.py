@@ -224,6 +224,7 @@ def test_compress_of_a_catalog_is_each_file_compressed_alone(cut, tmp_path):
     total = sum(laspy.read(str(d / "in" / f"tile_{k}.las")).header.point_count for k in range(4))
     assert "patchcloud compress: 4 files" in page and f"{total:,}" in page
     assert all(f"<td>tile_{k}.las</td>" in page for k in range(4)) and page.count("<img") == 2  # the map, bits per file
+    assert "<th>residual points</th>" in page and "kept exactly" not in page  # rounded within the budget, not exact
     alone = tmp_path / "alone.pcz"
     compress(d / "in" / "tile_2.las", alone, quiet=True)
     assert pcz_digests(alone) == pcz_digests(tmp_path / "o" / "tile_2.pcz")

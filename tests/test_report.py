@@ -275,3 +275,22 @@ def test_a_don_report_without_any_defined_don_says_none_not_nan():
     rows = dict(don_rows(s))
     assert rows["median DoN magnitude"] == "none (no DoN defined)" and rows["DoN defined"] == "0 (0.0%)"
     assert "nan" not in " ".join(v for _, v in don_rows(s))
+
+
+def test_reports_count_the_points_left_out_and_tell_them_from_undefined_don(scene_las, tmp_path):
+    """With --classes 2,6 the bush (class 5) is left out: the normals and DoN reports have the summary's "left out" row
+    (they had none, and their tables added up to the selected points only), and the DoN report's note counts only the
+    selected points without a DoN (it gave every left-out point the reason "fewer than 3 points in a ball")."""
+    from patchcloud.stream import don
+
+    path, n = scene_las
+    bush = int((laspy.read(path).classification == 5).sum())
+    s = normals(path, tmp_path / "n.las", classes=(2, 6), scheduler="synchronous", quiet=True)
+    page = report_normals(s, tmp_path / "n.html", views=False).read_text()
+    assert f"<th>left out</th><td>{bush:,} ({bush / n:.1%}): {bush:,} not of classes 2, 6" in page
+    d = don(path, tmp_path / "d.las", r_small=0.3, r_large=1.5, classes=(2, 6), scheduler="synchronous", quiet=True)
+    page = report_don(d, tmp_path / "d.html", views=False).read_text()
+    assert f"<th>left out</th><td>{bush:,} (" in page
+    undefined = n - d.defined - bush
+    assert (f"{undefined:,} points have no DoN" in page) == (undefined > 0)
+    assert f"{n - d.defined:,} points have no DoN" not in page

@@ -40,8 +40,9 @@ def compress_command(paths, max_error, keep_points, drop, record_source, report,
     Model mode (the default): smooth surfaces become quantised quadric
     patches (octree cell, point count, frame, quadric, extent); the points
     of edges, vegetation and other rough parts are kept one by one, each
-    within --max-error of where it was, with its class, intensity and
-    returns.  Memory depends on --tile-size, not on the file.
+    within --max-error of where it was, with its class, its intensity on 64
+    levels and one return (their other dimensions zero).  Memory depends on
+    --tile-size, not on the file.
 
     Points mode (--keep-points): every point, in input order, within
     --max-error, every attribute exact but those --drop names.
@@ -90,9 +91,13 @@ def compress_command(paths, max_error, keep_points, drop, record_source, report,
 def decompress_command(input, output, density, lod, bbox, seed, overwrite, quiet):
     """Points of INPUT (a .pcz) written to OUTPUT (LAS/LAZ): patch samples and the residual points.
 
-    OUTPUT has the original file's header and VLRs and a Reconstructed
-    dimension (1: sampled from a patch, with the patch's majority class and
-    mean intensity; 0: a residual point, exactly as it was).
+    OUTPUT has the original file's header and VLRs.  Of a model-mode .pcz,
+    with a Reconstructed dimension: 1, sampled from a patch, with the
+    patch's majority class and mean intensity; 0, a residual point, within
+    the budget of where it was, with its class, its intensity on 64 levels
+    and one return.  Of a points-mode .pcz: the input's points in input
+    order, each within the budget, every attribute as it was but those
+    --drop named.
     """
     from patchcloud.stream import decompress
 

@@ -23,7 +23,8 @@ from . import options
               "so NormalZ >= 0 everywhere (the principal curvatures follow). Unlike --orient up, which turns whole patch groups. "
               "Default: off (PDAL's default is on).")
 @click.option("--fallback-knn", "k_fallback", type=int, default=NormalsOptions.k_fallback, show_default=True, metavar="K",
-              help="Neighbours of the k-NN fallback (3 to 1000): the PCA normal of the points of edge and sparse patches (NormalMethod 3). "
+              help="Neighbours of the k-NN fallback (3 to 1000): the PCA normal of the points of edge and sparse patches that have no "
+              "moment normal (NormalMethod 3; NormalMethod 4: cell moments). "
               "Not PDAL's knn, the neighbours of every normal: patchcloud's other normals come from the patches' quadrics.")
 @click.option("--viewpoint", type=float, nargs=3, default=None, metavar="X Y Z",
               help="Every normal faces this point (file coordinates), point by point, as PDAL's viewpoint: it implies --orient "

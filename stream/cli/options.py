@@ -163,7 +163,8 @@ summary_json = click.option(
     "--summary-json", default=None, metavar="PATH", type=click.Path(dir_okay=False), expose_value=False,
     callback=_summary_json_path,
     help="Also write the summary's figures as one JSON object there (for batch pipelines; lengths in the file's "
-    "horizontal unit, named by 'units'); replaced when it exists, written under a temporary name and renamed.",
+    "horizontal unit, which normals, don, segment and compress name in 'units' and render in 'unit'); replaced when it "
+    "exists, written under a temporary name and renamed.",
 )
 
 

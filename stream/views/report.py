@@ -48,7 +48,7 @@ from matplotlib.figure import Figure
 
 from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.job import memory_scope
+from patchcloud.stream.engine.job import left_out_lines, memory_scope
 from patchcloud.stream.io.las import atomic_output, open_source, read_chunks, same_file
 from patchcloud.stream.views.plots import CMAP, STYLE, new_figure, style_axes
 
@@ -357,6 +357,29 @@ def _unit(summary) -> str:
     return (getattr(summary, "units", None) or {}).get("symbol", "m")
 
 
+def left_out_rows(summary, fate: str = "no value, in no neighbourhood") -> list[tuple[str, str]]:
+    """The summary's row on the points left out (by ``--classes``, noise, withheld: by reason, and what became of them)
+    and the selection asked for; none where no point was left out.
+
+    >>> from patchcloud.stream import NormalsSummary
+    >>> s = NormalsSummary("in.las", "out.las", 100, 1, 64.0, {}, {}, {}, left_out={"classes": 5, "noise": 2, "withheld": 0},
+    ...                    selection={"classes": [2], "keep_noise": False})
+    >>> left_out_rows(s)[0]
+    ('left out', '7 (7.0%): 5 not of classes 2, 2 noise (class 7, 18); no value, in no neighbourhood')
+    """
+    lines = left_out_lines(getattr(summary, "left_out", None) or {}, getattr(summary, "selection", None), summary.points, fate)
+    if not lines:
+        return []
+    rows = [("left out", lines[0].strip()[len("left out"):].strip())]  # the summary's line, without its label
+    if getattr(summary, "selection", None):
+        rows.append(("selection", _value(summary.selection)))
+    return rows
+
+
+def _left_out_total(summary) -> int:
+    return sum(int(v) for v in (getattr(summary, "left_out", None) or {}).values())
+
+
 def _job_rows(seconds: dict[str, float], points: int, peak_memory: int, scheduler: str | None, store: str | None) -> list[tuple[str, str]]:
     total = sum(seconds.values())
     rows = [(f"time: {step}", f"{t:.2f} s") for step, t in seconds.items()]
@@ -386,6 +409,7 @@ def normals_rows(summary: "NormalsSummary") -> list[tuple[str, str]]:
         ("patches", f"{sum(k.values()):,}: " + ", ".join(f"{name} {v:,}" for name, v in k.items())),
     ]
     rows += [(f"normals: {name}", _share(v, s.points)) for name, v in m.items()]
+    rows += left_out_rows(s)
     rows += [(f"parameter: {name}", _value(v)) for name, v in s.parameters.items()]
     return rows + _job_rows(s.seconds, s.points, s.peak_memory, s.scheduler, s.store) + file_rows(s)
 
@@ -402,6 +426,7 @@ def don_rows(summary: "DonSummary") -> list[tuple[str, str]]:
         rows.append(("kept (above the threshold)", _share(s.kept, s.points)))
     if s.segments is not None:
         rows.append(("segments", _n(s.segments)))
+    rows += left_out_rows(s)
     rows += [(f"parameter: {name}", _value(v)) for name, v in s.parameters.items()]
     return rows + _job_rows(s.seconds, s.points, s.peak_memory, s.scheduler, s.store) + file_rows(s)
 
@@ -856,7 +881,7 @@ def report_don(
                                     "Histograms"))
     else:
         notes.append("No point has a defined DoN: no histogram.")
-    undefined = summary.points - summary.defined
+    undefined = summary.points - summary.defined - _left_out_total(summary)  # the points left out have none either
     if undefined:
         notes.append(f"{undefined:,} points have no DoN (fewer than {summary.parameters.get('min_points', 3)} points, or only "
                      "collinear ones, in a ball): they are not in the histogram.")
@@ -944,7 +969,7 @@ def report_compress_catalog(
             seconds[step] = seconds.get(step, 0.0) + t
     rows = [
         ("files", _n(len(summaries))), ("points", _n(points)), ("points on patches", _share(points - residual, points)),
-        ("patches", _n(sum(s.patches for s in summaries))), ("residual points (kept exactly)", _share(residual, points)),
+        ("patches", _n(sum(s.patches for s in summaries))), ("residual points", _share(residual, points)),
         ("error budget", ", ".join(sorted({f"{s.max_error:g} {_unit(s)}" for s in summaries}))),
         ("mean error of the modelled points", f"{sum(s.mean_error * (s.points - s.residual) for s in summaries) / max(points - residual, 1):.4f} "
          f"{_unit(summaries[0])} (before quantisation, which adds at most half the budget)"),
