@@ -332,6 +332,8 @@ def decompress(
             written[int(is_res)] += _write_points(writer, header, rec, box, output, stats)
 
         # the input's bounds in its integers: a sampled point stays within them
+        # a tile holding input points reaches at most a tile (and its slack) past LAS's 32-bit range: farther is damage
+        beyond = float(np.max((1.0 + 2.0 * TILE_SLACK) * f.tile_size / scale + 4.0 * reach / scale))
         lowest = np.maximum(np.ceil((np.asarray(source.mins) - offset) / scale - 1e-9), -(2.0**31)).astype(np.int64)
         highest = np.minimum(np.floor((np.asarray(source.maxs) - offset) / scale + 1e-9), 2.0**31 - 1).astype(np.int64)
         with atomic_output(output, overwrite) as out:
@@ -351,6 +353,9 @@ def decompress(
                         pts, k = sample_models(models, some, seed=seed + int(t) if b == 0 else [seed + int(t), b])
                         check_in_tile(input, pts, f.tiles[int(t)], f.tile_size, reach)
                         xyz = np.rint((pts + origin - offset) / scale)  # within the tile and its reach (checked)
+                        if xyz.size and (xyz.min() < -(2**31) - beyond or xyz.max() >= 2**31 + beyond):
+                            raise PatchcloudIOError(f"{input}: damaged .pcz file (tile {tile_name(f.tiles[int(t)])} lies beyond "
+                                                    "what LAS coordinates can hold)")
                         # a patch's mask cell may reach past the cloud's edge (a tile cut at the file's border, or at
                         # the end of LAS's 32-bit range): such samples are brought back onto the input's bounds, not
                         # made up beyond them
