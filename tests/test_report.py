@@ -294,3 +294,19 @@ def test_reports_count_the_points_left_out_and_tell_them_from_undefined_don(scen
     undefined = n - d.defined - bush
     assert (f"{undefined:,} points have no DoN" in page) == (undefined > 0)
     assert f"{n - d.defined:,} points have no DoN" not in page
+
+
+def test_report_compress_of_a_catalogs_summaries_is_the_catalogs_report(scene_las, tmp_path):
+    """compress of a catalog (out_dir) returns a list of summaries: report_compress takes it and writes the catalog's
+    report (it raised AttributeError: 'list' object has no attribute 'points'), with its counts as thousands."""
+    import shutil
+
+    path, n = scene_las
+    (tmp_path / "in").mkdir()
+    for name in ("a.las", "b.las"):
+        shutil.copy(path, tmp_path / "in" / name)
+    summaries = compress(tmp_path / "in", out_dir=tmp_path / "o", max_error=0.02, scheduler="synchronous", quiet=True)
+    page = report_compress(summaries, tmp_path / "c.html", views=False).read_text()
+    assert "patchcloud compress: 2 files" in page and f"<td>{2 * n:,}</td>" in page and "kept exactly" not in page
+    single = report_compress(summaries[0], tmp_path / "one.html", views=False).read_text()
+    assert f"<th>cells</th><td>{summaries[0].cells:,}</td>" in single

@@ -330,6 +330,24 @@ def _value(v) -> str:
     return str(v)
 
 
+def _half_count(v: float) -> str:
+    """The median of counts (a whole number or a half): ``42``, ``42.5``, ``1,234,567.5``.
+
+    >>> _half_count(42.0), _half_count(42.5), _half_count(1234567.5)
+    ('42', '42.5', '1,234,567.5')
+    """
+    return f"{int(v):,}" if v.is_integer() else f"{v:,.1f}"
+
+
+def _count_or_value(v) -> str:
+    """A count with thousands separators (``1,592``), anything else as :func:`_value` writes it.
+
+    >>> _count_or_value(1592), _count_or_value(np.int64(20000)), _count_or_value(True), _count_or_value([1, 1, 1])
+    ('1,592', '20,000', 'yes', '1, 1, 1')
+    """
+    return _n(v) if isinstance(v, (int, np.integer)) and not isinstance(v, bool) else _value(v)
+
+
 def run_files(summary) -> tuple[list[str], list[str]]:
     """The inputs and outputs of a run: one each, or a catalog's files (``summary.files``: (input, output, points))."""
     files = getattr(summary, "files", None) or []
@@ -447,7 +465,7 @@ def compress_rows(summary: "CompressSummary") -> list[tuple[str, str]]:
     ]
     known = {f.name for f in fields(s)} - {"input", "output", "points", "patches", "residual", "max_error", "input_bytes",
                                            "output_bytes", "mean_error", "seconds", "peak_memory"}
-    rows += [(name.replace("_", " "), _value(getattr(s, name))) for name in sorted(known)]  # fields added later
+    rows += [(name.replace("_", " "), _count_or_value(getattr(s, name))) for name in sorted(known)]  # fields added later
     return rows + _job_rows(s.seconds, s.points, s.peak_memory, None, None)
 
 
@@ -889,7 +907,7 @@ def report_don(
         sizes = segment_sizes(run_files(summary)[1], chunk=chunk)
         if sizes.size:
             rows += [("segment size: smallest, median, largest",
-                      f"{int(sizes.min()):,}, {int(np.median(sizes)):,}, {int(sizes.max()):,} points")]
+                      f"{int(sizes.min()):,}, {_half_count(float(np.median(sizes)))}, {int(sizes.max()):,} points")]
             figures.append(ReportFigure(figure_png(histogram_figure(
                 segment_size_histogram(sizes), title="Segment sizes", xlabel="points per segment (log scale)",
                 ylabel="segments", log=False, logx=True)),
@@ -908,7 +926,11 @@ def report_compress(
     classification; bits per point by part of the ``.pcz``; the error
     budget beside the mean error; the table of the tiles (the
     ``max_tile_rows`` largest, by points).  Parameters as :func:`report_normals`.
+    The list of summaries ``compress`` returns for a catalog (``out_dir``)
+    gets the catalog's report (:func:`report_compress_catalog`).
     """
+    if isinstance(summary, (list, tuple)):
+        return report_compress_catalog(summary, path, views=views, view_width=view_width)
     s = summary
     rows = compress_rows(s)
     notes: list[str] = []
