@@ -77,7 +77,7 @@ from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store
 
 __all__ = [
     "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "default_store_path", "write_profile",
-    "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines",
+    "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines", "left_out_text",
 ]
 
 @dataclass(frozen=True)
@@ -326,21 +326,31 @@ def units_line(units: dict) -> str:
             "every length here and every distance option")
 
 
-def left_out_lines(left_out: dict, selection: dict | None, points: int, fate: str = "no value, in no neighbourhood") -> list[str]:
-    """A summary's line on the points left out of every neighbourhood (by reason), and what became of them (``fate``);
-    none when none.
+def left_out_text(left_out: dict, selection: dict | None, points: int, fate: str = "no value, in no neighbourhood") -> str:
+    """How many points were left out of every neighbourhood, by reason, and what became of them (``fate``); "" when
+    none: the summary's line and the report's row.
 
-    >>> print(left_out_lines({"classes": 5, "noise": 2, "withheld": 0}, {"classes": [2], "keep_noise": False}, 100)[0])
-      left out        7 (7.0%): 5 not of classes 2, 2 noise (class 7, 18); no value, in no neighbourhood
+    >>> left_out_text({"classes": 5, "noise": 2, "withheld": 0}, {"classes": [2], "keep_noise": False}, 100)
+    '7 (7.0%): 5 not of classes 2, 2 noise (class 7, 18); no value, in no neighbourhood'
     """
     total = sum(int(v) for v in left_out.values())
     if total == 0:
-        return []
+        return ""
     classes = (selection or {}).get("classes")
     words = {"classes": "not of classes " + ", ".join(str(c) for c in classes or []), "noise": "noise (class 7, 18)",
              "withheld": "withheld"}
     why = ", ".join(f"{int(left_out[r]):,} {words[r]}" for r in REASONS if int(left_out.get(r, 0)))
-    return [f"  left out        {total:,} ({total / max(points, 1):.1%}): {why}; {fate}"]
+    return f"{total:,} ({total / max(points, 1):.1%}): {why}; {fate}"
+
+
+def left_out_lines(left_out: dict, selection: dict | None, points: int, fate: str = "no value, in no neighbourhood") -> list[str]:
+    """A summary's line on the points left out of every neighbourhood (:func:`left_out_text`); none when none.
+
+    >>> print(left_out_lines({"classes": 5, "noise": 2, "withheld": 0}, {"classes": [2], "keep_noise": False}, 100)[0])
+      left out        7 (7.0%): 5 not of classes 2, 2 noise (class 7, 18); no value, in no neighbourhood
+    """
+    text = left_out_text(left_out, selection, points, fate)
+    return [f"  left out        {text}"] if text else []
 
 
 def file_lines(files: list[tuple[str, str, int]]) -> list[str]:

@@ -45,7 +45,7 @@ from patchcloud.core import PatchcloudIOError
 from . import laz_layers
 from .las import chunk_table, laz_point_range
 
-__all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "reset_statistics", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
+__all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "reset_statistics", "is_waveform_record", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
            "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "keep_creation_date", "CREATION_AT", "rewrite_header", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
@@ -484,7 +484,8 @@ def _append(src, dst, first: int = 0) -> None:
     shutil.copyfileobj(src, dst, 1 << 24)
 
 
-def _is_waveform_record(v) -> bool:
+def is_waveform_record(v) -> bool:
+    """Whether the (E)VLR ``v`` (laspy's) is a waveform data packet record (LASF_Spec, record 65535)."""
     return v.user_id == "LASF_Spec" and v.record_id == 65535
 
 
@@ -593,7 +594,7 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
                     _append(src, f, sh.start_of_waveform_data_packet_record)
                     count += 1
         for v in evlrs:
-            if waves and _is_waveform_record(v) and not h.start_of_waveform_data_packet_record:
+            if waves and is_waveform_record(v) and not h.start_of_waveform_data_packet_record:
                 h.start_of_waveform_data_packet_record = f.tell()
             type(header.evlrs)([v]).write_to(f, as_extended=True)
             count += 1

@@ -28,7 +28,7 @@ from patchcloud.stream.io.dims import DECOMPRESS_DIMS
 from patchcloud.stream.io.store import tile_name
 from patchcloud.stream.io.las import (EVLR_BYTES, assemble_header, atomic_output, check_las_output, check_not_input, check_writable,
                                       is_laz_name, laz_backend, wave_packets_break_laz, waves_of_las13)
-from patchcloud.stream.io.las_output import copy_records, point_stats, restate, rewrite_header
+from patchcloud.stream.io.las_output import copy_records, is_waveform_record, point_stats, restate, rewrite_header
 from patchcloud.stream.io.las_records import parse_records, provenance_vlr
 from patchcloud.stream.engine.background import stops_what_it_starts
 
@@ -123,10 +123,13 @@ def _output_header(f, input, dims, parameters: dict) -> tuple[laspy.LasHeader, n
     raw = f.header_bytes
     size, _, count = struct.unpack_from("<HII", raw, 94)
     vlrs = parse_records(raw, size, count, False, f"{input}: the input's header")
-    n_evlrs = header.number_of_evlrs if header.version.minor >= 4 else 0
     if waves_of_las13(header):  # a LAS 1.3 input's waveform record, kept as its one EVLR (none by versions before)
-        n_evlrs = 1 if len(f.evlr_bytes(0, stored=True)) >= EVLR_BYTES else 0
-    evlrs = parse_records(f.evlr_bytes(n_evlrs), 0, n_evlrs, True, f"{input}: the input's EVLRs")
+        stored = f.evlr_bytes(0, stored=True)
+        n_evlrs = 1 if len(stored) >= EVLR_BYTES else 0
+    else:
+        n_evlrs = header.number_of_evlrs if header.version.minor >= 4 else 0
+        stored = f.evlr_bytes(n_evlrs)
+    evlrs = parse_records(stored, 0, n_evlrs, True, f"{input}: the input's EVLRs")
     kept = header.point_format.dtype()
     assumed = f.attrs["source"].get("assumed_crs")
     from pyproj.exceptions import CRSError
@@ -160,7 +163,7 @@ def _waveform_record_at(h: laspy.LasHeader, evlrs) -> int:
         return 0
     where = h.start_of_first_evlr
     for v in list(evlrs)[: h.number_of_evlrs]:
-        if v.user_id == "LASF_Spec" and v.record_id == 65535:
+        if is_waveform_record(v):
             return where
         where += EVLR_BYTES + len(v.record_data_bytes())
     return 0

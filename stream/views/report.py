@@ -48,7 +48,7 @@ from matplotlib.figure import Figure
 
 from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.job import left_out_lines, memory_scope
+from patchcloud.stream.engine.job import left_out_text, memory_scope
 from patchcloud.stream.io.las import atomic_output, open_source, read_chunks, same_file
 from patchcloud.stream.views.plots import CMAP, STYLE, new_figure, style_axes
 
@@ -385,10 +385,10 @@ def left_out_rows(summary, fate: str = "no value, in no neighbourhood") -> list[
     >>> left_out_rows(s)[0]
     ('left out', '7 (7.0%): 5 not of classes 2, 2 noise (class 7, 18); no value, in no neighbourhood')
     """
-    lines = left_out_lines(getattr(summary, "left_out", None) or {}, getattr(summary, "selection", None), summary.points, fate)
-    if not lines:
+    text = left_out_text(getattr(summary, "left_out", None) or {}, getattr(summary, "selection", None), summary.points, fate)
+    if not text:
         return []
-    rows = [("left out", lines[0].strip()[len("left out"):].strip())]  # the summary's line, without its label
+    rows = [("left out", text)]
     if getattr(summary, "selection", None):
         rows.append(("selection", _value(summary.selection)))
     return rows
