@@ -335,10 +335,10 @@ def decompress(
             written[int(is_res)] += _write_points(writer, header, rec, box, output, stats)
 
         # the input's bounds in its integers: a sampled point stays within them
-        # a tile holding input points reaches at most a tile (and its slack) past LAS's 32-bit range: farther is damage
-        beyond = float(np.max((1.0 + 2.0 * TILE_SLACK) * f.tile_size / scale + 4.0 * reach / scale))
         lowest = np.maximum(np.ceil((np.asarray(source.mins) - offset) / scale - 1e-9), -(2.0**31)).astype(np.int64)
         highest = np.minimum(np.floor((np.asarray(source.maxs) - offset) / scale + 1e-9), 2.0**31 - 1).astype(np.int64)
+        # a tile holding input points reaches at most a tile (and its slack) past LAS's 32-bit range: farther is damage
+        beyond = float(np.max((1.0 + 2.0 * TILE_SLACK) * f.tile_size / scale + 4.0 * reach / scale))
         with atomic_output(output, overwrite) as out:
             with laspy.open(out, mode="w", header=header, do_compress=is_laz_name(output), closefd=False,
                             laz_backend=laz_backend()) as writer:
