@@ -118,3 +118,42 @@ def test_the_patchcloud_command_is_the_console_script():
     with open(ROOT / "pyproject.toml", "rb") as f:
         scripts = tomllib.load(f)["project"]["scripts"]
     assert scripts["patchcloud"] == "patchcloud.stream.console:run"
+
+
+def _leave_in_a_process(body: str):
+    import subprocess
+    import sys
+
+    code = f"import atexit, sys\natexit.register(lambda: print('teardown', flush=True))\nfrom patchcloud.stream.cli import leave\n{body}\n"
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("body, status, out, err", [
+    ("print('summary', end=''); leave(None)", 0, "summary", ""),
+    ("sys.stderr.write('error: x\\n'); leave(2)", 2, "", "error: x\n"),
+    ("leave('a message')", 1, "", "a message\n"),
+    ("print('partial'); leave(130)", 130, "partial\n", ""),
+])
+def test_the_console_script_leaves_with_its_status_its_output_flushed_and_no_teardown(body, status, out, err):
+    r = _leave_in_a_process(body)
+    assert (r.returncode, r.stdout, r.stderr) == (status, out, err)  # no "teardown": the exit hooks did not run
+
+
+def test_the_console_script_leaves_with_120_when_its_output_cannot_be_flushed():
+    r = _leave_in_a_process("import os\nr, w = os.pipe(); os.close(r); sys.stdout = open(w, 'w')\nprint('lost'); leave(0)")
+    assert r.returncode == 120
+
+
+def test_the_console_script_runs_a_job_to_the_end_and_says_so(tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "n.laz"
+    r = subprocess.run([sys.executable, "-m", "patchcloud.stream.console", "normals", SAMPLE, str(out)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[0].endswith(f"-> {out}") and "peak memory" in r.stdout.splitlines()[-1]
+    assert laspy.read(out).header.point_count == 60_653
+    r = subprocess.run([sys.executable, "-m", "patchcloud.stream.console", "normals", str(tmp_path / "none.laz"), str(out)],
+                       capture_output=True, text=True, timeout=600)
+    assert (r.returncode, r.stdout, r.stderr.count("\n")) == (2, "", 1) and "no such file" in r.stderr
