@@ -173,3 +173,42 @@ def test_tiles_hold_their_points_in_input_order_whatever_the_parts(scene, tmp_pa
         back[a.read(t, "rank")] = rows
         assert np.array_equal(back, xyz[keys == ingest.pack_tile_keys(np.array([t]))[0]])  # input order
         assert np.array_equal(rows, b.read(t, "xyz"))
+
+
+@pytest.mark.parametrize("n, size", [(10_000_000, 500_000), (20_000_000, 200_000), (250_000, 100_000), (230_001, 100_000),
+                                     (1_000_003, 1_000_000), (60_653, 100_000), (100_000, 50_000)])
+def test_parts_cover_the_file_in_whole_chunks_and_end_in_one_chunk_parts(n, size):
+    parts = ingest.part_ranges(n, size)
+    firsts, counts = np.array(parts).T
+    assert firsts[0] == 0 and np.all(firsts[1:] == firsts[:-1] + counts[:-1]) and firsts[-1] + counts[-1] == n
+    assert np.all(counts[:-1] % 50_000 == 0) and np.all(counts <= size) and np.all(counts > 0)
+    assert np.all(np.diff(counts) <= 0) or n == 230_001  # never growing (a remainder part at the end excepted)
+    if n > 2 * size:  # the end cut finer: the last two parts of at most one chunk; whole parts before the finer ones
+        full = counts == size
+        assert np.all(counts[-2:] <= 50_000) and full[: full.sum()].all() and full.sum() < len(counts) - 2
+    else:
+        assert parts == [(f, min(size, n - f)) for f in range(0, n, size)]
+    assert ingest.part_ranges(n, size, taper=False) == [(f, min(size, n - f)) for f in range(0, n, size)]
+
+
+def test_only_the_last_file_of_a_catalog_ends_in_finer_parts():
+    class Src:
+        def __init__(self, n):
+            self.point_count = n
+
+    class Cat:
+        sources = [Src(1_000_000), Src(0), Src(1_000_000)]
+
+    parts = ingest.catalog_parts(Cat, 200_000)
+    assert [c for f, _, c in parts if f == 0] == [200_000] * 5
+    assert [c for f, _, c in parts if f == 2] == [200_000] * 3 + [100_000, 100_000, 50_000, 50_000, 50_000, 50_000]
+
+
+def test_finer_last_parts_change_no_output_byte(tmp_path):
+    las = tmp_path / "s.las"
+    write_scene(las, n=230_000, seed=4)
+    assert [c for _, c in ingest.part_ranges(laspy.open(str(las)).header.point_count, 100_000)][-3:] != [100_000] * 3
+    a, b = tmp_path / "a.las", tmp_path / "b.las"
+    normals(las, a, tile_size=16, quiet=True, scheduler="synchronous", chunk=100_000)
+    normals(las, b, tile_size=16, quiet=True, scheduler="synchronous", chunk=1_000_000)
+    assert a.read_bytes() == b.read_bytes()

@@ -242,21 +242,48 @@ def part_size(point_count: int, slots: int, chunk: int | None = None) -> int:
     return int(np.clip(-(-per // LAZ_CHUNK) * LAZ_CHUNK, 2 * LAZ_CHUNK, 10 * LAZ_CHUNK))
 
 
-def part_ranges(point_count: int, size: int) -> list[tuple[int, int]]:
-    """(first point, points) of every part of a file of ``point_count`` points cut every ``size`` points.
+def part_ranges(point_count: int, size: int, unit: int = LAZ_CHUNK, taper: bool = True) -> list[tuple[int, int]]:
+    """(first point, points) of every part of a file of ``point_count`` points cut every ``size`` points, its last
+    ``2 size`` points or fewer cut finer.
+
+    Tasks run in the order of their parts, so the last parts are the step's
+    tail, during which workers that have finished wait for the others.  With
+    ``taper``, where ``size`` is a whole number of ``unit`` (a LAZ chunk) and the file holds
+    more than two parts, the points left after the last whole part that
+    leaves more than ``2 size`` are cut into parts of a quarter of what
+    remains, rounded up to a whole ``unit``, down to one ``unit``: the
+    step ends with parts of one unit, not of ``size`` (10M-point LAZ, 2
+    workers: parts of 10 chunks end with 5, 4, 3, 2, 2, 1, 1, 1, 1 chunks).
+    Every part but a file's last is still a whole number of units.
 
     >>> part_ranges(250, 100)
     [(0, 100), (100, 100), (200, 50)]
+    >>> [c for _, c in part_ranges(50, 10, unit=1)]
+    [10, 10, 10, 5, 4, 3, 2, 2, 1, 1, 1, 1]
     """
-    return [(first, min(size, point_count - first)) for first in range(0, point_count, size)]
+    if not taper or point_count <= 2 * size or size % unit:
+        return [(first, min(size, point_count - first)) for first in range(0, point_count, size)]
+    whole = (point_count - 2 * size - 1) // size + 1  # whole parts while more than 2 size points would be left after
+    out = [(k * size, size) for k in range(whole)]
+    first = whole * size
+    while first < point_count:
+        left = point_count - first
+        quarter = -(-left // 4)
+        count = min(left, max(unit, -(-quarter // unit) * unit))
+        out.append((first, count))
+        first += count
+    return out
 
 
 def catalog_parts(catalog: Catalog, size: int) -> list[tuple[int, int, int]]:
     """(file, first point in the file, points) of every part of a catalog: each file cut every ``size`` points.
 
-    Parts are numbered in this order (files in catalog order); no part spans two files.
+    Parts are numbered in this order (files in catalog order); no part spans two files.  Only the last file's end is
+    cut finer (:func:`part_ranges`): the others' ends are not a step's tail.
     """
-    return [(f, first, count) for f, s in enumerate(catalog.sources) for first, count in part_ranges(s.point_count, size)]
+    last = len(catalog.sources) - 1
+    return [(f, first, count) for f, s in enumerate(catalog.sources)
+            for first, count in part_ranges(s.point_count, size, taper=f == last)]
 
 
 def part_path(p: int) -> str:

@@ -71,7 +71,9 @@ __all__ = [
 FORMAT = "patchcloud-store"
 #: 2: arrays carry chunk checksums and the store's uid; 3: and their own path (an array moved to another tile is refused);
 #: 4: normals of edge and sparse leaves from cell moments (NormalMethod 4), so a version-3 store's normals are not reused.
-VERSION = 4
+#: 5: the input's last parts cut finer (:func:`patchcloud.stream.engine.ingest.part_ranges`), so a version-4 store's
+#: parts, which its index and the export follow, are not this version's.
+VERSION = 5
 #: What a damaged store's error tells the user to do.
 START_OVER = "remove the store to start over"
 #: The grid origin is a multiple of this (metres), so grids of every power-of-two tile size up to it align (core's

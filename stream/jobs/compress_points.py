@@ -100,7 +100,7 @@ class PointsJob(Job):
         folder.mkdir()
         # the blocks are part of the .pcz: cut by the point count (and chunk) only, never by the workers, so that the file
         # is the same bytes whatever the scheduler and the worker count (eight or more blocks, for as many tasks)
-        parts = part_ranges(src.point_count, part_size(src.point_count, 1, ctx.run.chunk))
+        parts = part_ranges(src.point_count, part_size(src.point_count, 1, ctx.run.chunk), taper=False)
         laz_parallel = runner.laz_parallel  # tasks in this process: lazrs may use the cores
         calls = [((src, first, count, self.steps_, self.dropped, str(folder), b), {"laz_parallel": laz_parallel})
                  for b, (first, count) in enumerate(parts)]
