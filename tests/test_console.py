@@ -139,6 +139,11 @@ def test_the_console_script_leaves_with_its_status_its_output_flushed_and_no_tea
     assert (r.returncode, r.stdout, r.stderr) == (status, out, err)  # no "teardown": the exit hooks did not run
 
 
+def test_under_a_profiler_the_console_script_leaves_as_python_does():
+    r = _leave_in_a_process("sys.setprofile(lambda *a: None)\nprint('summary', end=''); leave(3)")
+    assert (r.returncode, r.stdout) == (3, "summaryteardown\n")  # the exit hooks ran (a profiler writes its results there)
+
+
 def test_the_console_script_leaves_with_120_when_its_output_cannot_be_flushed():
     r = _leave_in_a_process("import os\nr, w = os.pipe(); os.close(r); sys.stdout = open(w, 'w')\nprint('lost'); leave(0)")
     assert r.returncode == 120

@@ -137,8 +137,13 @@ def leave(code) -> None:
     processes' own (:func:`patchcloud.stream.engine.worker_setup.exit_now`).
     A message is written on stderr with status 1, as Python does; an
     output stream that cannot be flushed (a closed pipe: ``patchcloud info
-    x.laz | head -1``) gives status 120, as Python does.
+    x.laz | head -1``) gives status 120, as Python does.  Under a profiler
+    or a tracer (``python -m cProfile -m patchcloud.stream.console``,
+    coverage, a debugger), which write their results at exit, the process
+    ends as Python ends it (``sys.exit``).
     """
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        sys.exit(code)
     if code is None:
         status = 0
     elif isinstance(code, int):
