@@ -100,9 +100,11 @@ def run() -> None:
     less often (every 100,000 allocations, not 700) and, at the end, stops
     tracking everything so the exit does not walk it.  Measured on the
     embedded 60,000-point tile, whole process: 0.87x the time (median of
-    12 interleaved pairs).  Memory is held by arrays, which reference counting frees
-    as before.  The process then ends without the interpreter's teardown (:func:`leave`).  Only the console script does this: in another program
-    (or CliRunner) :func:`main` leaves the collector alone.  So too numba's
+    12 interleaved pairs).  Memory is held by arrays, which reference
+    counting frees as before.  The process then ends without the
+    interpreter's teardown (:func:`leave`).  Only the console script does
+    this: in another program (or CliRunner) :func:`main` leaves the
+    collector alone and returns.  So too numba's
     BLAS probe, which the console script skips
     (:func:`~patchcloud.stream.engine.numba_start.skip_numba_blas_probe`), numba's compiler set-up when it loads
     cached kernels, laspy's HTTP support and pyproj (:mod:`~patchcloud.stream.engine.laspy_start`) and dask's HTML
