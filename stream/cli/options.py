@@ -209,18 +209,14 @@ def write_summary_json(summary) -> None:
     temporary name, then renamed."""
     import json
 
+    from patchcloud.stream.io.las import atomic_output
+
     path = summary_json_path()
     if path is None:
         return
-    tmp = f"{path}.partial"
-    try:
-        with open(tmp, "w") as f:
-            json.dump(summary_dict(summary), f, indent=2, sort_keys=True, allow_nan=False)
-            f.write("\n")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    text = json.dumps(summary_dict(summary), indent=2, sort_keys=True, allow_nan=False) + "\n"
+    with atomic_output(path, overwrite=True) as f:
+        f.write(text.encode("utf-8"))
 
 
 #: INPUT OUTPUT, or INPUT... with --out-dir (a catalog): see :func:`input_and_output`.

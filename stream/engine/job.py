@@ -67,7 +67,7 @@ from patchcloud.stream.io.crs import UNITS, Units, units_of
 from patchcloud.stream.io.las_records import provenance_vlr
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
-from patchcloud.stream.io.las import CorruptPointsError, LasSource, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source, same_file
+from patchcloud.stream.io.las import CorruptPointsError, LasSource, atomic_output, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import memory_group
 from patchcloud.stream.io.budget import check_memory
@@ -488,9 +488,8 @@ def write_profile(path: str | os.PathLike, runner: Runner, seconds: dict, starte
         scheduler=runner.scheduler, slots=runner.slots, started=started, ready=ready, ended=ended, steps=seconds,
         tasks=[list(t) for t in runner.tasks], cpu=runner.cpu_usage(),
     )
-    tmp = Path(str(path) + ".partial")
-    tmp.write_text(json.dumps(data))
-    tmp.replace(path)
+    with atomic_output(path, overwrite=True) as f:
+        f.write(json.dumps(data).encode("utf-8"))
 
 
 def _check_inputs_kept(catalog: Catalog, outs, store: str | None) -> None:
@@ -624,8 +623,8 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
         out.mkdir()
     # a catalog: OUT_DIR/patchcloud.lock, and each output's own lock, the one a run on that file alone takes
     locked = [out] if run.out_dir is None else [out / "patchcloud", *outs]
-    if run.store is not None and "://" not in run.store:
-        locked.append(run.store)
+    if not in_memory and "://" not in url:  # the store too, given or not: another run may be given it as its --store
+        locked.append(url)
     try:
         with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
             ours = _left_complete(catalog, outs, url, in_memory)

@@ -9,6 +9,7 @@ only when complete.
 
 from __future__ import annotations
 
+import errno
 import functools
 import json
 import os
@@ -1030,13 +1031,70 @@ def check_directory_writable(directory: str | os.PathLike, for_path: str | os.Pa
 
 @contextmanager
 def atomic_output(path: str | os.PathLike, overwrite: bool):
-    """Open ``path``'s temporary name for binary writing; rename to ``path`` on success, remove on failure."""
+    """Open ``path``'s temporary name ``PATH.partial`` for binary writing; rename it to ``path`` on success, remove it
+    on failure.
+
+    The commands that write one file without a lock (``decompress``,
+    ``render``, reports, ``--summary-json``) may run twice at once on the
+    same output: the temporary file is held with an exclusive ``flock``
+    while it is written, so a second run refuses it (one error naming the
+    output) instead of writing into the same file, and neither run removes
+    a temporary file that is not its own.  The lock ends with its process,
+    so a temporary file left by a run that was killed is taken over.
+    Without ``overwrite``, a file that another run put at ``path``
+    meanwhile is not replaced.
+
+    Raises
+    ------
+    PatchcloudIOError
+        Another run is writing ``path`` now.
+    PatchcloudExistsError
+        ``path`` exists (at the start, or at the end without ``overwrite``).
+    """
     p = check_writable(path, overwrite)
     tmp = p.with_name(p.name + ".partial")
+    fd = _locked_partial(p, tmp)
     try:
-        with open(tmp, "wb") as f:
-            yield f
-        rename_into_place(tmp, p)
+        ours = os.fstat(fd).st_ino
+        os.ftruncate(fd, 0)
+        try:
+            with os.fdopen(os.dup(fd), "wb") as f:
+                yield f
+            if not overwrite and p.exists():
+                raise PatchcloudExistsError(f"{p}: exists: another run wrote it meanwhile (use --overwrite to replace it)")
+            rename_into_place(tmp, p)
+        except BaseException:
+            try:
+                if os.stat(tmp).st_ino == ours:  # still ours: no other run has made its own since
+                    tmp.unlink()
+            except OSError:
+                pass
+            raise
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        os.close(fd)  # (the lock ends with it)
+
+
+def _locked_partial(p: Path, tmp: Path) -> int:
+    """A descriptor of ``tmp`` (made if absent, not truncated) under an exclusive ``flock``, still named ``tmp``: a
+    file that another run renamed to its output between our open and our lock is let go, and ``tmp`` opened again."""
+    try:
+        import fcntl
+    except ImportError:  # (Windows: no flock) the temporary file as it is
+        return os.open(tmp, os.O_RDWR | os.O_CREAT, 0o666)
+    for _ in range(100):
+        fd = os.open(tmp, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):  # a file system without locks: as it is
+                return fd
+            os.close(fd)
+            raise PatchcloudIOError(f"{p}: another run is writing it now (its temporary file {tmp.name} is locked)") from None
+        try:
+            same = os.stat(tmp).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        os.close(fd)  # renamed away (another run's finished output): not ours to write
+    raise PatchcloudIOError(f"{p}: its temporary file {tmp.name} keeps being replaced by other runs")
