@@ -17,7 +17,7 @@ from test_stream import write_scene
 from patchcloud.core import PatchcloudValueError
 from patchcloud.stream import normals
 from patchcloud.stream.cli import main
-from patchcloud.stream.io.lock import STALE, PatchcloudLockedError, RunLock, lock_path
+from patchcloud.stream.io.lock import STALE, PatchcloudLockedError, RunLock, lock_path, process_start
 from patchcloud.stream.jobs import normals_tiles
 
 
@@ -59,6 +59,19 @@ def test_a_given_store_is_locked_too(scene, tmp_path):
     assert not (tmp_path / "out.las").exists() and not store.exists()
 
 
+def test_the_default_store_is_locked_too(scene, tmp_path):
+    """A run on disk keeps its store beside its output: another run given that store (``--store``) used to write into it
+    at the same time, and the first ended in ``KeyError: 'fit'`` (bug hunt E)."""
+    store = tmp_path / "out.las.store"
+    _hold(store, os.getpid(), socket.gethostname())
+    with pytest.raises(PatchcloudLockedError, match=r"out.las.store: another patchcloud run"):
+        normals(scene, tmp_path / "out.las", in_memory=False, scheduler="synchronous", quiet=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.las.store.lock"]
+    os.unlink(lock_path(store))
+    normals(scene, tmp_path / "out.las", in_memory=True, scheduler="synchronous", quiet=True)  # in memory: no store
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.las"]
+
+
 def _zombie():
     """A child that has ended and that its parent (this test) has not reaped: what a run killed by ``timeout -s KILL``
     is until its parent, or the init process, reaps it; os.kill(pid, 0) still finds it."""
@@ -71,7 +84,7 @@ def _zombie():
     raise AssertionError("the child did not end")
 
 
-@pytest.mark.parametrize("holder", ["dead pid", "zombie", "silent host"])
+@pytest.mark.parametrize("holder", ["dead pid", "zombie", "silent host", "reused pid"])
 def test_a_stale_lock_is_taken_over_with_a_note_and_released_after(scene, tmp_path, capfd, holder):
     out = tmp_path / "out.las"
     child = None
@@ -82,11 +95,16 @@ def test_a_stale_lock_is_taken_over_with_a_note_and_released_after(scene, tmp_pa
             pytest.skip("a zombie's state is read from /proc (Linux)")
         child = _zombie()
         _hold(out, child.pid, socket.gethostname())
+    elif holder == "reused pid":  # a container started again: this process has the pid of the run that took the lock
+        if process_start(os.getpid()) is None:
+            pytest.skip("a process's start is read from /proc (Linux)")
+        _hold(out, os.getpid(), socket.gethostname(), age=time.time() - process_start(os.getpid()) + 60)
     else:
         _hold(out, 1, "another-host.example", age=STALE + 60)
     normals(scene, out, quiet=True)
     err = capfd.readouterr().err
-    assert "taking over a stale lock" in err and ("no heartbeat from another-host" if holder == "silent host" else "is dead") in err
+    why = {"silent host": "no heartbeat from another-host", "reused pid": "is another process, started after the lock"}
+    assert "taking over a stale lock" in err and why.get(holder, "is dead") in err
     assert len(laspy.read(str(out))) == len(laspy.read(str(scene))) and not lock_path(out).exists()
     if child is not None:
         child.wait()

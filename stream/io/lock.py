@@ -4,7 +4,9 @@ A lock is a file ``PATH.lock`` created atomically (``O_CREAT | O_EXCL``)
 holding the owner's pid, host, start time and a token; the owner touches
 it every :data:`HEARTBEAT` seconds.  A second run finding it stops with
 one line naming the owner.  A stale lock (its pid dead on this host, or
-no heartbeat for :data:`STALE` seconds from another host: a run killed
+run by a process started after the lock was taken: a container started
+again, its pids reused; or no heartbeat for :data:`STALE` seconds from
+another host: a run killed
 with ``kill -9``, a machine that went down) is taken over with a note on
 stderr; two runs taking over the same stale lock are ordered by a second
 file created atomically, ``PATH.lock.takeover``.  Stores at fsspec URLs
@@ -33,7 +35,7 @@ from pathlib import Path
 
 from patchcloud.core import PatchcloudIOError
 
-__all__ = ["RunLock", "PatchcloudLockedError", "lock_path", "alive", "HEARTBEAT", "STALE", "COMMAND_WORDS"]
+__all__ = ["RunLock", "PatchcloudLockedError", "lock_path", "alive", "process_start", "HEARTBEAT", "STALE", "COMMAND_WORDS"]
 
 #: Seconds between two touches of a held lock.
 HEARTBEAT = 30.0
@@ -73,6 +75,25 @@ def alive(pid: int) -> bool:
     return state not in ("Z", "X")
 
 
+#: Seconds by which a process may seem to have started after a lock it took (the boot time /proc gives is whole seconds).
+_START_SLACK = 2.0
+
+
+def process_start(pid: int) -> float | None:
+    """When process ``pid`` started, seconds since the epoch (Linux: /proc), or None where that cannot be read.
+
+    >>> abs(process_start(os.getpid()) - time.time()) < 1e6
+    True
+    """
+    try:
+        ticks = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+        with open("/proc/stat") as f:
+            boot = next(float(line.split()[1]) for line in f if line.startswith("btime"))
+        return boot + ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
 def _read(lock: Path) -> dict | None:
     try:
         return json.loads(lock.read_text())
@@ -89,7 +110,14 @@ def _stale(lock: Path, info: dict | None) -> str | None:
     if info is None:  # being written right now, or garbage
         return f"unreadable and untouched for {age:.0f} s" if age > _TAKEOVER_STALE else None
     if info.get("host") == socket.gethostname():
-        return None if alive(int(info.get("pid", -1))) else f"pid {info.get('pid')} on this host is dead"
+        pid = int(info.get("pid", -1))
+        if not alive(pid):
+            return f"pid {pid} on this host is dead"
+        began = process_start(pid)
+        if began is not None and began > float(info.get("started", 0.0)) + _START_SLACK:
+            # (a container started again runs as the same pid on the same host name, and waited for its own lock)
+            return f"pid {pid} on this host is another process, started after the lock was taken"
+        return None
     return f"no heartbeat from {info.get('host')} for {age:.0f} s" if age > STALE else None
 
 
