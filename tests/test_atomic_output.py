@@ -85,3 +85,29 @@ def test_decompress_refuses_an_output_another_run_is_writing(pcz, tmp_path):
     finally:
         if fd >= 0:
             os.close(fd)
+
+
+def _limited(limit_bytes):
+    import resource
+
+    def set_limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+    return set_limit
+
+
+@pytest.mark.parametrize("command", ["decompress", "normals"])
+def test_a_write_past_the_room_left_names_the_output_and_leaves_nothing(pcz, tmp_path, command):
+    """A disk full, a quota or ``ulimit -f`` while writing the output: one line naming that output (it named the
+    store, which may be on another disk, or nothing at all: bug hunt E), exit status 2, no file left."""
+    import subprocess
+    import sys
+
+    src = pcz if command == "decompress" else pcz.with_name("scene.las")
+    out = tmp_path / "out.las"
+    args = [sys.executable, "-m", "patchcloud.stream.console", command, str(src), str(out), "-q"]
+    if command == "normals":
+        args += ["--in-memory", "--tile-size", "16"]
+    r = subprocess.run(args, capture_output=True, text=True, timeout=600, preexec_fn=_limited(256 * 1024))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith(f"error: {out}") and "File too large" in r.stderr, r.stderr
+    assert os.listdir(tmp_path) == []

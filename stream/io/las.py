@@ -30,6 +30,7 @@ from patchcloud.core import PatchcloudExistsError, PatchcloudIOError, Patchcloud
 from .crs import is_crs_record, with_crs
 from .crs_cache import header_crs
 from .renamed import rename_into_place
+from .write_errors import naming_failed_writes
 from .las_records import (
     EVLR_BYTES, VLR_BYTES, RawRecord, as_vlr, ascii_text, file_records, header_record_fields, is_extra_bytes, kept, software_version,
 )
@@ -1058,7 +1059,7 @@ def atomic_output(path: str | os.PathLike, overwrite: bool):
         ours = os.fstat(fd).st_ino
         os.ftruncate(fd, 0)
         try:
-            with os.fdopen(os.dup(fd), "wb") as f:
+            with naming_failed_writes(p), os.fdopen(os.dup(fd), "wb") as f:
                 yield f
             if not overwrite and p.exists():
                 raise PatchcloudExistsError(f"{p}: exists: another run wrote it meanwhile (use --overwrite to replace it)")

@@ -43,6 +43,7 @@ from laspy.vlrs.known import LasZipVlr
 from patchcloud.core import PatchcloudIOError
 
 from . import laz_layers
+from .write_errors import naming_failed_writes
 from .las import chunk_table, laz_point_range
 
 __all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "reset_statistics", "is_waveform_record", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
@@ -298,7 +299,7 @@ def begin(header: laspy.LasHeader, tmp: str | os.PathLike, point_count: int) -> 
     buf = io.BytesIO()
     header.write_to(buf)
     start = len(buf.getvalue())
-    with open(tmp, "wb") as f:
+    with naming_failed_writes(tmp), open(tmp, "wb") as f:
         f.write(buf.getvalue())
         if not header.are_points_compressed:
             f.truncate(start + point_count * header.point_format.size)
@@ -317,8 +318,9 @@ def write_las_part(tmp: str | os.PathLike, start: int, first: int, points: laspy
     try:
         data = memoryview(points.array).cast("B")
         off, done = start + first * points.array.dtype.itemsize, 0
-        while done < len(data):
-            done += os.pwrite(fd, data[done:], off + done)
+        with naming_failed_writes(tmp):
+            while done < len(data):
+                done += os.pwrite(fd, data[done:], off + done)
     finally:
         os.close(fd)
 
@@ -454,7 +456,7 @@ def write_laz_part_layered(tmp: str | os.PathLike, part: int, source: LayeredSou
 def _write_fragment(tmp: str | os.PathLike, part: int, pieces) -> None:
     """Fragment ``part`` of ``tmp``: the bytes ``pieces``, in order, under a temporary name renamed when complete."""
     name = fragments_dir(tmp) / f"{part:06d}"
-    with open(str(name) + ".tmp", "wb") as f:
+    with naming_failed_writes(tmp), open(str(name) + ".tmp", "wb") as f:
         for piece in pieces:
             f.write(piece)
     os.replace(str(name) + ".tmp", name)
@@ -543,7 +545,7 @@ def stitch(tmp: str | os.PathLike, parts: Iterable[int]) -> None:
     copy: the copy of the compressed points is not a serial step at the end.
     """
     d = fragments_dir(tmp)
-    with open(tmp, "r+b") as f:
+    with naming_failed_writes(tmp), open(tmp, "r+b") as f:
         f.seek(0, os.SEEK_END)
         for part in parts:
             name = d / f"{part:06d}"
@@ -575,7 +577,7 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
     if h.are_points_compressed:  # the fragments not stitched yet (those stitched are gone, and came first)
         d = fragments_dir(tmp)
         stitch(tmp, [part for part in range(len(tables)) if (d / f"{part:06d}").exists()])
-    with open(tmp, "r+b") as f:
+    with naming_failed_writes(tmp), open(tmp, "r+b") as f:
         if h.are_points_compressed:
             table_at = f.seek(0, os.SEEK_END)
             vlr = lazrs.LazVlr(h.vlrs.get("LasZipVlr")[0].record_data)
