@@ -97,12 +97,13 @@ def run() -> None:
     short-lived ones.  The garbage collector would walk the first kind
     again and again during the run (numba's kernels bring over 50,000
     objects) and once more at exit; here it collects the young objects
-    less often (every 100,000 allocations, not 700) and, at the end, stops
-    tracking everything so the exit does not walk it.  Measured on the
+    less often (every 100,000 allocations, not 700).  Measured on the
     embedded 60,000-point tile, whole process: 0.87x the time (median of
     12 interleaved pairs).  Memory is held by arrays, which reference
     counting frees as before.  The process then ends without the
-    interpreter's teardown (:func:`leave`).  Only the console script does
+    interpreter's teardown (:func:`leave`; where a command raises instead,
+    a bug's traceback, everything is untracked first, so the exit does not
+    walk it).  Only the console script does
     this: in another program (or CliRunner) :func:`main` leaves the
     collector alone and returns.  So too numba's
     BLAS probe, which the console script skips
