@@ -722,3 +722,57 @@ def test_a_laz_that_says_no_points_but_holds_chunks_is_refused(cut, tmp_path):
     (tmp_path / "in" / "tile_1.las").write_bytes((d / "in" / "tile_1.las").read_bytes())
     with pytest.raises(PatchcloudIOError, match=rf"z.laz: the header says 0 points but the LAZ chunk table holds {n:,}"):
         open_catalog(tmp_path / "in")
+
+
+def _write(path, xyz, scale, offset=(0.0, 0.0, 0.0)):
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales, h.offsets = np.asarray(scale, dtype=np.float64), np.asarray(offset, dtype=np.float64)
+    h.add_crs(CRS.from_epsg(2154))
+    out = laspy.LasData(h)
+    out.x, out.y, out.z = xyz.T
+    out.write(str(path))
+
+
+def test_don_of_files_of_two_scales_is_the_merged_files(tmp_path):
+    """A plane in cm beside a 5 mm wide strip in mm: the catalog's balls were collinear to 1 cm (the coarser file's
+    step), so every strip point had DoN 0, where the merged file (on the mm grid) has values (bug hunt F)."""
+    rng = np.random.default_rng(0)
+    x, y = np.meshgrid(np.arange(0, 10, 0.1), np.arange(0, 10, 0.1))
+    a = np.round(np.c_[x.ravel(), y.ravel(), np.zeros(x.size)], 2)
+    t = np.arange(0, 10, 0.02)
+    b = np.round(np.c_[30 + t, 5.0 + rng.integers(0, 6, t.size) * 0.001, 1 + 0.1 * t], 3)
+    (tmp_path / "in").mkdir()
+    _write(tmp_path / "in" / "a.las", a, [0.01] * 3)
+    _write(tmp_path / "in" / "b.las", b, [0.001] * 3)
+    _write(tmp_path / "merged.las", np.r_[a, b], [0.001] * 3)
+    kw = dict(mode="exact", r_small=0.2, r_large=1.0, quiet=True)
+    don(tmp_path / "in", out_dir=str(tmp_path / "out"), **kw)
+    don(tmp_path / "merged.las", tmp_path / "merged_don.las", **kw)
+    got = np.r_[laspy.read(str(tmp_path / "out" / "a.las"))["DoN"], laspy.read(str(tmp_path / "out" / "b.las"))["DoN"]]
+    want = np.asarray(laspy.read(str(tmp_path / "merged_don.las"))["DoN"])
+    assert np.count_nonzero(want[a.shape[0]:]) > 100 and np.array_equal(got, want)
+
+
+def test_files_whose_finest_scale_is_on_other_axes_share_one_grid(tmp_path):
+    """mm in x beside mm in z: the common grid is mm in x and z, cm in y (it was a StopIteration: bug hunt F)."""
+    rng = np.random.default_rng(1)
+    p = np.round(rng.uniform(0, 20, (3000, 3)) * [1, 1, 0.1], 2)
+    (tmp_path / "in").mkdir()
+    _write(tmp_path / "in" / "a.las", p[:1500], [0.001, 0.01, 0.01], offset=(0.0, 0.0, 5.0))
+    _write(tmp_path / "in" / "b.las", p[1500:], [0.01, 0.01, 0.001], offset=(1.0, 0.0, 0.0))
+    cat = open_catalog(tmp_path / "in")
+    assert cat.scale == (0.001, 0.01, 0.001) and cat.offset == (0.0, 0.0, 0.0)
+    assert cat.factor == ((1, 1, 10), (10, 1, 1)) and cat.shift == ((0, 0, 5000), (1000, 0, 0))
+    normals(tmp_path / "in", out_dir=str(tmp_path / "out"), tile_size=TILE, quiet=True)
+    assert len(laspy.read(str(tmp_path / "out" / "b.las"))) == 1500
+
+
+def test_a_directory_of_links_is_in_the_order_of_the_links_names(cut, tmp_path):
+    """Links t0..t3 to tile_3..tile_0: the catalog is t0, t1, t2, t3 (it was their targets' order: bug hunt F)."""
+    d, _ = cut
+    (tmp_path / "links").mkdir()
+    for k in range(4):
+        os.symlink(d / "in" / f"tile_{3 - k}.las", tmp_path / "links" / f"t{k}.las")
+    cat = open_catalog(tmp_path / "links")
+    # (a source's path is its file's, resolved: what a store records of it)
+    assert [os.path.basename(s.path) for s in cat.sources] == ["tile_3.las", "tile_2.las", "tile_1.las", "tile_0.las"]

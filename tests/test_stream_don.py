@@ -229,7 +229,7 @@ def test_cli_don_and_segment(scene, tmp_path):
         (["--rl", "1e9"], "--rl 1e+09 is wider than the cloud"),
         (["--tolerance", "1e6"], "--tolerance 1e+06 is wider than the cloud"),
         # narrower than the file's step (0.001): copies of the point alone (5e-301 said "density must be ... 0.0")
-        (["--rs", "0.5e-300"], "--rs 5e-301 is narrower than the coordinates' step (0.001, the files' scale)"),
+        (["--rs", "0.5e-300"], "--rs 5e-301 is narrower than the coordinates' step (0.001, the files' common grid's scale)"),
     ],
 )
 def test_cli_bad_parameters(scene, tmp_path, args, words):

@@ -201,7 +201,9 @@ def expand_inputs(inputs) -> list[Path]:
         seen = first.setdefault((st.st_dev, st.st_ino), q)
         if seen.name != q.name:
             raise PatchcloudIOError(f"{seen} and {q}: the same file under two names (give it once)")
-    return sorted(first.values(), key=lambda q: str(q.resolve()))
+    # sorted by the paths as given, made absolute but not resolved: a directory of symbolic links is in its links' order,
+    # as the outputs (named after them) are, not in their targets' (bug hunt F)
+    return sorted(first.values(), key=lambda q: os.path.abspath(q))
 
 
 def output_name(path: str | os.PathLike) -> str:
@@ -304,8 +306,10 @@ def open_catalog(inputs, assume_crs: str | None = None) -> Catalog:
         raise PatchcloudIOError(f"{sources[0].path} and {others}: every file holds no points")
     crs = _catalog_crs(sources, assume_crs)
     scale = tuple(min(s.scale[a] for s in holding) for a in range(3))
-    ref = next(s for s in holding if s.scale == scale)  # the first file on the finest grid
-    offset = ref.offset
+    # per axis, the first file on the finest grid of that axis (files may have their finest step on different axes)
+    refs = [next(s for s in holding if s.scale[a] == scale[a]) for a in range(3)]
+    offset = tuple(refs[a].offset[a] for a in range(3))
+    ref = refs[0]
     factor, shift = [], []
     for s in sources:
         if s.point_count == 0:  # no integers to put on the grid (whatever its header's scale and bounds)

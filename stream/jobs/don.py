@@ -109,9 +109,13 @@ def default_viewpoint_of(src: LasSource | Catalog) -> np.ndarray:
 
 
 def catalog_step(catalog: Catalog) -> float:
-    """The step a catalog's coordinates are rounded to: its files' largest scale (file units), the ``rounding`` of
-    :func:`patchcloud.core.radius_normals` (a ball collinear up to it has no normal)."""
-    return max(s.step for s in catalog.holding)
+    """The step a catalog's coordinates are rounded to: the largest scale of its common grid (file units), the
+    ``rounding`` of :func:`patchcloud.core.radius_normals` (a ball collinear up to it has no normal).
+
+    The catalog is its merged file, written on that grid: files of coarser
+    scales take its step too (their largest scale gave DoN 0 to points whose
+    balls the merged file's run finds not collinear: bug hunt F)."""
+    return float(max(catalog.scale))
 
 
 def cloud_density(st: Store, edge: float) -> float:
@@ -161,13 +165,13 @@ class DonJob(Job):
     def check(self, catalog) -> None:
         """A radius (or, for segments, a tolerance) wider than the cloud's bounds' diagonal is refused: every ball would
         hold every point (and each tile's halo the whole cloud); so is a radius narrower than the files' coordinate
-        step (their largest scale): a ball would hold copies of its point alone.  Bounds of zero width (a header that
+        step (the largest scale of their common grid): a ball would hold copies of its point alone.  Bounds of zero width (a header that
         does not state them) check the first only."""
         step = catalog_step(catalog)
         for name, r in (("r_small", float(self.options.r_small)), ("r_large", float(self.options.r_large))):
             if r < step:
                 raise PatchcloudValueError(f"{name}={r:g} is narrower than the coordinates' step ({step:g}, the files' "
-                                           "scale): a ball would hold nothing but copies of its point")
+                                           "common grid's scale): a ball would hold nothing but copies of its point")
         across = float(np.linalg.norm(np.subtract(catalog.maxs, catalog.mins)))
         if across <= 0 or not np.isfinite(across):
             return
