@@ -302,3 +302,20 @@ def test_internal_waveforms_come_back_in_points_mode_and_are_left_out_in_model_m
     assert not model.header.global_encoding.waveform_data_packets_internal
     assert not any(v.record_id == 65535 for v in model.header.evlrs)
     assert (tmp_path / "m.pcz").stat().st_size < 64 * 2000  # the waveforms are not in it
+
+
+def test_points_mode_stopped_while_encoding_leaves_no_blocks(tmp_path, monkeypatch):
+    """A full disk or Ctrl-C during the encoding left OUT.pcz.blocks behind (3 MB on a full disk: bug hunt E)."""
+    import os
+
+    from patchcloud.stream.jobs import compress_points
+
+    (tmp_path / "in").mkdir()
+    src = write_las(tmp_path / "in" / "a.las", noisy_scene(np.random.default_rng(1), 4000))
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(compress_points, "encode_block", full)
+    with pytest.raises(OSError, match="No space left"):
+        compress(src, tmp_path / "a.pcz", max_error=0.05, keep_points=True, quiet=True, scheduler="synchronous")
+    assert sorted(os.listdir(tmp_path)) == ["in"]

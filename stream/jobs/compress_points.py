@@ -104,7 +104,11 @@ class PointsJob(Job):
         laz_parallel = runner.laz_parallel  # tasks in this process: lazrs may use the cores
         calls = [((src, first, count, self.steps_, self.dropped, str(folder), b), {"laz_parallel": laz_parallel})
                  for b, (first, count) in enumerate(parts)]
-        self.blocks = runner.map(encode_block, calls, label="encode")
+        try:
+            self.blocks = runner.map(encode_block, calls, label="encode")
+        except BaseException:  # a full disk, Ctrl-C: the blocks, which nothing resumes from, are not left behind
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
 
     def write(self, ctx: JobContext) -> None:
         src, folder = ctx.source, blocks_folder(ctx.output)
