@@ -155,6 +155,8 @@ def test_a_second_run_on_the_same_crs_imports_no_pyproj_and_writes_the_same_file
         import sys
         if __name__ == "__main__":
             from patchcloud.stream.console import run
+            import patchcloud.stream.cli as cli
+            cli.leave = sys.exit  # (a probe: this process goes on after the command, to look at it)
             sys.argv = ["patchcloud", "normals", sys.argv[1], sys.argv[2], "-q", "--overwrite"]
             try:
                 run()

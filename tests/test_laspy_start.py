@@ -41,6 +41,8 @@ def test_the_console_script_and_a_worker_process_skip_requests(tmp_path):
     script = textwrap.dedent(f"""
         import sys
         from patchcloud.stream.cli import run
+        import patchcloud.stream.cli as cli
+        cli.leave = sys.exit  # (a probe: this process goes on after the command, to look at it)
         sys.argv = ["patchcloud", "info", {str(src)!r}]
         try:
             run()
@@ -143,6 +145,8 @@ def test_forked_workers_and_a_client_without_a_crs_import_neither_pyproj_nor_jin
             import sys
             if __name__ == "__main__":
                 from patchcloud.stream.console import run
+                import patchcloud.stream.cli as cli
+                cli.leave = sys.exit  # (a probe: this process goes on after the command, to look at it)
                 sys.argv = ["patchcloud", "normals", {str(path)!r}, {str(tmp_path / "out.laz")!r}, "-q", "--overwrite",
                             "--workers", "1", "--scheduler", "processes"]
                 try:
