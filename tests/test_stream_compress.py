@@ -6,7 +6,7 @@ import pytest
 from click.testing import CliRunner
 from laspy.vlrs.vlrlist import VLRList
 
-from patchcloud.core.errors import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core.errors import PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 from patchcloud.stream import compress, decompress
 from patchcloud.stream.cli import main
 from patchcloud.stream.io.point_coding import coarse_steps
@@ -320,3 +320,18 @@ def test_a_budget_up_to_the_tile_size_round_trips_and_a_larger_one_is_refused_be
         r = CliRunner().invoke(main, ["compress", sample, str(tmp_path / "x.pcz"), *args, "-q"])
         assert r.exit_code == 2 and r.output.count("\n") == 1 and says in r.output, r.output
         assert sorted(tmp_path.iterdir()) == before
+
+
+def test_a_pcz_renamed_into_place_before_its_store_was_removed_is_the_same_commands_to_finish(las_file, tmp_path):
+    """A single-file ``compress`` killed between renaming its ``.pcz`` into place and removing its store: the same
+    command said the ``.pcz`` exists and left the store (bug hunt E).  Kept here by ``keep_store`` (what the killed
+    run leaves): the same command without it finishes, the same bytes, and removes the store."""
+    out = tmp_path / "c.pcz"
+    kw = dict(max_error=0.05, tile_size=16, quiet=True, in_memory=False)
+    compress(las_file, out, keep_store=True, **kw)
+    first = out.read_bytes()
+    assert (tmp_path / "c.pcz.store").is_dir()
+    compress(las_file, out, **kw)
+    assert out.read_bytes() == first and sorted(p.name for p in tmp_path.iterdir()) == ["c.pcz"]
+    with pytest.raises(PatchcloudExistsError):  # a .pcz the store does not record is still not replaced
+        compress(las_file, out, **kw)

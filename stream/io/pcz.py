@@ -90,7 +90,7 @@ import warnings
 import zipfile
 from collections import Counter
 from contextlib import contextmanager
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -230,12 +230,14 @@ class _Column:
 
 
 @contextmanager
-def _building(path: str | os.PathLike, overwrite: bool):
+def _building(path: str | os.PathLike, overwrite: bool, before_rename: Callable[[Path], None] | None = None):
     """A zarr group to fill, zipped to ``path`` when the ``with`` block ends without error.
 
     The store is built in the directory ``path + ".build"`` (one a killed
     run left is removed first: callers hold the output's lock) and zipped
-    to ``path + ".partial"``, which is renamed to ``path`` when complete.
+    to ``path + ".partial"``, which is renamed to ``path`` when complete;
+    ``before_rename(partial)``, when given, is called just before (to record
+    the file as complete: a rename keeps its size and modification time).
     """
     out = Path(path)
     if out.exists() and not overwrite:
@@ -258,6 +260,8 @@ def _building(path: str | os.PathLike, overwrite: bool):
                         entry.compress_type = zipfile.ZIP_DEFLATED
                     with open(f, "rb") as src, z.open(entry, "w", force_zip64=True) as dst:
                         shutil.copyfileobj(src, dst, 1 << 22)
+        if before_rename is not None:
+            before_rename(tmp)
         rename_into_place(tmp, out)
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -268,16 +272,17 @@ def _building(path: str | os.PathLike, overwrite: bool):
 def write_pcz(
     path: str | os.PathLike, parts: Iterable[TilePart], *, max_error: float, grid: dict, header: bytes, source: dict,
     record_bytes: int, evlrs: bytes = b"", overwrite: bool = False, steps=(1, 1, 1), dropped=(),
+    before_rename: Callable[[Path], None] | None = None,
 ) -> dict:
     """Write a model-mode ``.pcz`` from tile parts, in the order given; memory: a chunk per array, not the file.
 
     ``steps``: the multiples of the input's integer coordinates the residual
     points' are rounded to (:mod:`.point_coding`; 1 exact); ``dropped``:
     their dimensions written as zeros.  Written under a temporary name,
-    renamed when complete.  Returns the file's counts (tiles, patches,
+    renamed when complete (``before_rename``: see :func:`_building`).  Returns the file's counts (tiles, patches,
     residual points, points).
     """
-    with _building(path, overwrite) as root:
+    with _building(path, overwrite, before_rename) as root:
         residual = root.require_group("residual")
         cols = {name: _Column(root.require_group(group), name, dt, tail)
                 for group, arrays in (("patches", _PATCH_ARRAYS), ("cells", _CELL_ARRAYS)) for name, dt, tail in arrays}
