@@ -25,6 +25,19 @@ def rng():
     return np.random.default_rng(12345)
 
 
+@pytest.fixture(scope="module")
+def small_pcz(tmp_path_factory):
+    """A model-mode .pcz of a 20,000-point scene (its LAS beside it, ``scene.las``): 5 cm, tiles of 16 m."""
+    from test_stream import write_scene
+
+    from patchcloud.stream import compress
+
+    d = tmp_path_factory.mktemp("pcz")
+    write_scene(d / "scene.las", n=20_000, seed=5)
+    compress(d / "scene.las", d / "scene.pcz", max_error=0.05, tile_size=16, quiet=True)
+    return d / "scene.pcz"
+
+
 def shared_file(rel: str) -> Path:
     path = SHARED / rel
     if not path.exists():

@@ -6,21 +6,10 @@ import os
 
 import pytest
 from click.testing import CliRunner
-from test_stream import write_scene
 
 from patchcloud.core import PatchcloudExistsError, PatchcloudIOError
-from patchcloud.stream import compress
 from patchcloud.stream.cli import main
 from patchcloud.stream.io.las import atomic_output
-
-
-
-@pytest.fixture(scope="module")
-def pcz(tmp_path_factory):
-    d = tmp_path_factory.mktemp("atomic")
-    write_scene(d / "scene.las", n=20_000, seed=5)
-    compress(d / "scene.las", d / "scene.pcz", max_error=0.05, tile_size=16, quiet=True)
-    return d / "scene.pcz"
 
 
 def test_a_second_writer_of_the_same_output_is_refused_while_the_first_writes(tmp_path):
@@ -66,7 +55,7 @@ def test_a_failed_run_removes_its_own_temporary_file_and_no_other(tmp_path):
     assert (tmp_path / "out.laz.partial").read_bytes() == b"another run's"
 
 
-def test_decompress_refuses_an_output_another_run_is_writing(pcz, tmp_path):
+def test_decompress_refuses_an_output_another_run_is_writing(small_pcz, tmp_path):
     """Two ``decompress`` runs at once on one output wrote into the same temporary file: a damaged LAZ, one of them
     exiting 0 (bug hunt E).  The second now says so in one line, and the first run's file is left alone."""
     partial = tmp_path / "out.laz.partial"
@@ -74,13 +63,13 @@ def test_decompress_refuses_an_output_another_run_is_writing(pcz, tmp_path):
     try:
         os.write(fd, b"the other run's bytes")
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # what a run writing out.laz holds
-        r = CliRunner().invoke(main, ["decompress", str(pcz), str(tmp_path / "out.laz"), "-q"])
+        r = CliRunner().invoke(main, ["decompress", str(small_pcz), str(tmp_path / "out.laz"), "-q"])
         assert (r.exit_code, r.output) == (2, f"error: {tmp_path / 'out.laz'}: another run is writing it now (its temporary "
                                               "file out.laz.partial is locked)\n")
         assert partial.read_bytes() == b"the other run's bytes" and not (tmp_path / "out.laz").exists()
         os.close(fd)
         fd = -1
-        r = CliRunner().invoke(main, ["decompress", str(pcz), str(tmp_path / "out.laz"), "-q"])  # that run gone: taken over
+        r = CliRunner().invoke(main, ["decompress", str(small_pcz), str(tmp_path / "out.laz"), "-q"])  # that run gone: taken over
         assert r.exit_code == 0 and sorted(os.listdir(tmp_path)) == ["out.laz"]
     finally:
         if fd >= 0:
@@ -96,13 +85,13 @@ def _limited(limit_bytes):
 
 
 @pytest.mark.parametrize("command", ["decompress", "normals"])
-def test_a_write_past_the_room_left_names_the_output_and_leaves_nothing(pcz, tmp_path, command):
+def test_a_write_past_the_room_left_names_the_output_and_leaves_nothing(small_pcz, tmp_path, command):
     """A disk full, a quota or ``ulimit -f`` while writing the output: one line naming that output (it named the
     store, which may be on another disk, or nothing at all: bug hunt E), exit status 2, no file left."""
     import subprocess
     import sys
 
-    src = pcz if command == "decompress" else pcz.with_name("scene.las")
+    src = small_pcz if command == "decompress" else small_pcz.with_name("scene.las")
     out = tmp_path / "out.las"
     args = [sys.executable, "-m", "patchcloud.stream.console", command, str(src), str(out), "-q"]
     if command == "normals":

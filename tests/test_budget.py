@@ -18,14 +18,6 @@ from patchcloud.stream.cli import main
 from patchcloud.stream.io import budget, pcz, residual_points
 
 
-@pytest.fixture(scope="module")
-def small_pcz(tmp_path_factory):
-    d = tmp_path_factory.mktemp("budget")
-    write_scene(d / "scene.las", n=20_000, seed=5)
-    compress(d / "scene.las", d / "scene.pcz", max_error=0.05, tile_size=16, quiet=True)
-    return d / "scene.pcz"
-
-
 def edited(src, dst, change):
     """A copy of the .pcz ``src`` at ``dst``, its zarr store changed by ``change(group)`` and zipped again as the writer does."""
     work = dst.parent / (dst.name + ".d")

@@ -52,7 +52,7 @@ from patchcloud.stream.io.store import Store
 from patchcloud.stream.io.renamed import rename_into_place
 
 __all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs", "file_record",
-           "output_record_name", "same_request"]
+           "output_record_name", "record_output", "same_request"]
 
 
 @dataclass(frozen=True)
@@ -318,6 +318,14 @@ def output_record_name(path: Path) -> str:
     return str(Path(path).resolve())
 
 
+def record_output(store: Store, output: Path, partial: Path, key: str, request: dict | None) -> None:
+    """Record in the store that ``output`` is complete, from its finished temporary file ``partial``, before the rename
+    (which keeps size and modification time): a run killed between the two finds its output complete
+    (:func:`complete_outputs`), not a file it may not replace."""
+    store.set_group_attrs("outputs", **{output_record_name(output): dict(
+        file_record(Path(partial)), path=str(Path(output).resolve()), key=key, request=request)})
+
+
 def export_columns(
     store: Store, outputs, columns: list[Column], dims, runner: Runner | None = None, overwrite: bool = False,
     quiet: bool = False, provenance: laspy.VLR | None = None, request: dict | None = None,
@@ -389,10 +397,7 @@ def export_columns(
             mine = results.pop(f)
             las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None,
                               source=cat.sources[f].path)
-            # recorded before the rename (which keeps size and modification time): a run killed between the two
-            # finds its output complete, not a file it may not replace
-            store.set_group_attrs("outputs", **{output_record_name(outs[f]): dict(
-                file_record(Path(tmps[f])), path=str(outs[f].resolve()), key=key, request=request)})
+            record_output(store, outs[f], Path(tmps[f]), key, request)
             if not in_memory:
                 rename_into_place(tmps[f], outs[f])
             else:

@@ -30,7 +30,7 @@ import numpy as np
 from patchcloud.core import (
     CompressOptions, PatchcloudValueError, PatchModels, QuantisedModels, dequantise_models, fit_models, patch_distances, quantise_models,
 )
-from patchcloud.stream.engine.export import complete_outputs, file_record, output_record_name
+from patchcloud.stream.engine.export import complete_outputs, file_record, record_output
 from patchcloud.stream.engine.ingest import bucket_records, make_grid, occupancy_spacing
 from patchcloud.stream.engine.job import (
     Job, JobContext, RunOptions, catalog_units, left_out_lines, params_key, run_job, run_request, split_options, time_and_memory_lines,
@@ -265,14 +265,10 @@ class CompressJob(Job):
     def write(self, ctx: JobContext) -> None:
         st, src, pf, budget = ctx.store, ctx.source, self.point_format, self.options.max_error
         head, evlrs = raw_header(src.path, waveforms=False)  # no point of model mode keeps a wave packet
-        out, key = Path(ctx.output), self.params["key"]
+        out, key, request = Path(ctx.output), self.params["key"], run_request(self, ctx.run)
 
-        def record(partial: Path) -> None:
-            # recorded in the store before the rename (which keeps size and modification time), as the export records
-            # its outputs: a run killed between the rename and the store's removal finds the .pcz complete (written
-            # again, the same bytes), not a file it may not replace
-            st.set_group_attrs("outputs", **{output_record_name(out): dict(
-                file_record(partial), path=str(out.resolve()), key=key, request=run_request(self, ctx.run))})
+        def record(partial: Path) -> None:  # as the export records its outputs: a .pcz recorded complete is written
+            record_output(st, out, partial, key, request)  # again by the same command (the same bytes), not refused
 
         again = complete_outputs(st, [out], key=key)[0]
         self.counts = pcz.write_pcz(
