@@ -231,3 +231,14 @@ def test_usage_errors_are_one_line_with_exit_2(args, says, tmp_path):
     output = re.sub(r"No such option: (--\S+)", r"No such option '\1'", r.output)
     assert r.exit_code == 2 and output.count("\n") == 1 and output.startswith(says), r.output
     assert not (tmp_path / "out.las").exists()
+
+
+def test_a_kept_store_holds_no_fragments_nor_trash_after_a_run(small_las, tmp_path):
+    """The parts' fragments and the export's arrays, removed in the background, are gone when the run returns."""
+    from patchcloud.stream.io.local_zarr import TRASH
+
+    store = tmp_path / "s.zarr"
+    res = _normals(small_las, tmp_path / "o.las", "--store", str(store), "--keep-store")
+    assert res.exit_code == 0, res.output
+    assert (store / "tiles").is_dir()
+    assert not (store / "parts").exists() and not (store / "export").exists() and not (store / TRASH).exists()

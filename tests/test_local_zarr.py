@@ -168,3 +168,25 @@ def test_a_run_on_a_local_store_imports_zarr_in_no_process(tmp_path):
     assert run.returncode == 0, run.stderr[-3000:]
     assert run.stdout.strip() == "False [False]"
     assert zarr.open_group(str(tmp_path / "s.zarr"), mode="r").attrs["format"] == "patchcloud-store"  # zarr reads it
+
+
+def test_a_node_removed_in_the_background_is_gone_at_once_and_its_files_once_settled(tmp_path):
+    """``delete(wait=False)`` takes the node out of the store before it returns; :func:`settle` waits for its files."""
+    from patchcloud.stream.io.local_zarr import TRASH, settle
+
+    z = LocalZarr(tmp_path)
+    z.write_array("parts/000000/xyz", np.arange(30.0).reshape(10, 3), 4, {})
+    z.write_array("keep/a", np.arange(3), 3, {})
+    z.delete("parts", wait=False)
+    assert not z.exists("parts/000000/xyz") and not (tmp_path / "parts").exists()
+    z.write_array("parts/000000/xyz", np.ones((2, 3)), 2, {})  # the name is free again: a new node, not the old one's files
+    settle(tmp_path)
+    assert not (tmp_path / TRASH).exists()
+    np.testing.assert_array_equal(z.array("parts/000000/xyz")[0:2], np.ones((2, 3)))
+    np.testing.assert_array_equal(z.array("keep/a")[0:3], np.arange(3))
+    # what a run killed during a removal left in the trash goes with the next settle
+    (tmp_path / TRASH / "parts-0123").mkdir(parents=True)
+    (tmp_path / TRASH / "parts-0123" / "c").write_bytes(b"x")
+    settle(tmp_path)
+    assert not (tmp_path / TRASH).exists()
+

@@ -81,3 +81,18 @@ def test_cached_kernels_load_without_the_refresh_and_give_the_same_bits(tmp_path
     assert extra == (3.0,) and light == plain and len(plain) > 0
     (refreshed, extra), light = run("light", "both")  # a signature not in the cache compiles, with the full set-up
     assert extra == (3.0, 6) and light == plain
+
+
+def test_a_module_imported_meanwhile_is_there_once_its_thread_ends_and_a_bad_name_is_left_to_the_caller():
+    """stream.engine.import_hooks.import_meanwhile: the client imports numcodecs while the read step runs."""
+    code = textwrap.dedent("""
+        import sys
+        from patchcloud.stream.engine.import_hooks import import_meanwhile
+        before = "numcodecs" in sys.modules
+        t = import_meanwhile("numcodecs", "no_such_module_here")
+        t.join()
+        print(before, "numcodecs" in sys.modules, import_meanwhile("numcodecs") is None)
+    """)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split() == ["False", "True", "True"]

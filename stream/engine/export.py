@@ -426,4 +426,4 @@ def export_columns(
     finally:
         for tmp in tmps:
             las_output.remove_partial(tmp)
-        store.remove("export")
+        store.remove("export", wait=False)

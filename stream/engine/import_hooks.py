@@ -9,12 +9,14 @@ and wraps the module's own loader.  Other imports are left alone.
 
 from __future__ import annotations
 
+import importlib
 import importlib.abc
 import importlib.machinery
 import sys
+import threading
 from collections.abc import Callable
 
-__all__ = ["hide_while_importing", "after_importing"]
+__all__ = ["hide_while_importing", "after_importing", "import_meanwhile"]
 
 
 def hide_while_importing(module: str, hidden: str) -> bool:
@@ -38,6 +40,32 @@ def after_importing(module: str, then: Callable) -> None:
         then(sys.modules[module])
         return
     _install(_Hook(module, then=then))
+
+
+def import_meanwhile(*modules: str) -> threading.Thread | None:
+    """Import ``modules`` on a thread of their own while the caller waits on something else (None: all imported already).
+
+    For a module the caller needs after a wait (a dask step's tasks): its
+    import then costs the caller nothing.  An import of it meanwhile waits
+    for this one, as imports do; an error here is left for that import to raise.
+
+    >>> import_meanwhile("sys") is None
+    True
+    """
+    todo = [m for m in modules if m not in sys.modules]
+    if not todo:
+        return None
+
+    def run() -> None:
+        for m in todo:
+            try:
+                importlib.import_module(m)
+            except Exception:  # the caller's own import says what is wrong
+                pass
+
+    thread = threading.Thread(target=run, name="patchcloud-import", daemon=True)
+    thread.start()
+    return thread
 
 
 def _install(hook: "_Hook") -> None:

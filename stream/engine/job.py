@@ -757,6 +757,7 @@ def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep
             windows.setdefault(name, []).append((w0, time.time()))
         t0, w0 = time.perf_counter(), time.time()
         job.write(ctx)
+        Store.settle(url)  # the working arrays removed in the background (the parts' fragments, the export's) are gone
         ctx.seconds[job.write_step] = time.perf_counter() - t0
         windows[job.write_step] = [(w0, time.time())]
         compiling = merge_intervals(clock.intervals + runner.compile_intervals)

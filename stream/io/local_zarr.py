@@ -33,12 +33,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import threading
 import uuid
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LocalZarr", "LocalArray", "local_root", "DATA_TYPES", "BLOSC"]
+__all__ = ["LocalZarr", "LocalArray", "local_root", "settle", "DATA_TYPES", "BLOSC", "TRASH"]
 
 #: The data types read and written directly (zarr's names are numpy's).
 DATA_TYPES = ("bool", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "float32", "float64")
@@ -47,6 +48,11 @@ DATA_TYPES = ("bool", "int8", "uint8", "int16", "uint16", "int32", "uint32", "in
 BLOSC = {"cname": "lz4", "clevel": 5, "shuffle": "shuffle"}
 #: Blosc's shuffle modes by zarr's names.
 _SHUFFLE = {"noshuffle": 0, "shuffle": 1, "bitshuffle": 2}
+#: The directory of a store's root where :meth:`LocalZarr.delete` moves what it removes in the background.
+TRASH = ".removing"
+#: The threads removing nodes in the background, by store root (:func:`settle` waits for them).
+_REMOVING: dict[str, list[threading.Thread]] = {}
+_REMOVING_LOCK = threading.Lock()
 
 
 def local_root(group) -> Path | None:
@@ -248,10 +254,36 @@ class LocalZarr:
     def exists(self, path: str) -> bool:
         return os.path.isfile(self._path(path, "zarr.json"))
 
-    def delete(self, path: str) -> None:
-        """Remove the node at ``path`` (array or group, with what it holds) if there."""
-        if path:
-            shutil.rmtree(self._path(path), ignore_errors=True)
+    def delete(self, path: str, wait: bool = True) -> None:
+        """Remove the node at ``path`` (array or group, with what it holds) if there.
+
+        With ``wait=False`` the node is renamed into the root's :data:`TRASH`
+        directory (at once: it is gone from the store) and its files are
+        unlinked on a thread, while the caller gets on (the fragments of a
+        10M-point file's parts are 240 MB: unlinking them took 0.1-0.3 s
+        between two steps, with the workers idle).  :func:`settle` waits for
+        that thread and empties the trash, a killed run's too.
+        """
+        if not path:
+            return
+        where = self._path(path)
+        if wait or not os.path.lexists(where):
+            shutil.rmtree(where, ignore_errors=True)
+            return
+        trash = self._path(TRASH)
+        gone = f"{trash}/{path.replace('/', '+')}-{uuid.uuid4().hex}"
+        try:
+            os.makedirs(trash, exist_ok=True)
+            os.replace(where, gone)
+        except OSError:  # (a file system that cannot rename it): removed here and now
+            shutil.rmtree(where, ignore_errors=True)
+            return
+        self._groups = {g for g in self._groups if g != path and not g.startswith(path + "/")}
+        thread = threading.Thread(target=shutil.rmtree, args=(gone,), kwargs=dict(ignore_errors=True), name="patchcloud-remove",
+                                  daemon=True)
+        with _REMOVING_LOCK:
+            _REMOVING.setdefault(os.path.abspath(self.root), []).append(thread)
+        thread.start()
 
     # -- groups ----------------------------------------------------------------
     def ensure_group(self, path: str) -> None:
@@ -322,6 +354,19 @@ class LocalZarr:
     def remove_dir(self, prefix: str) -> None:
         if prefix:
             shutil.rmtree(self._path(prefix), ignore_errors=True)
+
+
+def settle(root: str | os.PathLike) -> None:
+    """Wait for the background removals of the store at ``root`` (:meth:`LocalZarr.delete` with ``wait=False``), then
+    remove its :data:`TRASH` directory: what they left, or what a run killed meanwhile left."""
+    key = os.path.abspath(os.fspath(root))
+    with _REMOVING_LOCK:
+        threads = _REMOVING.pop(key, [])
+    for t in threads:
+        t.join()
+    trash = os.path.join(key, TRASH)
+    if os.path.isdir(trash):
+        shutil.rmtree(trash, ignore_errors=True)
 
 
 def readable(meta: dict) -> bool:

@@ -59,7 +59,7 @@ import numpy as np
 
 from patchcloud.core import GRID_ANCHOR, PatchcloudIOError, PatchcloudValueError, PatchTable, cell_indices, frame_shift, local_coordinates
 
-from . import memory_group
+from . import local_zarr, memory_group
 from .catalog import Catalog
 from .local_zarr import BLOSC, DATA_TYPES, LocalZarr, local_root
 
@@ -459,6 +459,7 @@ class Store:
         if memory_group.is_memory_url(url):
             memory_group.drop(url)
         elif "://" not in url and os.path.isdir(url):
+            local_zarr.settle(url)
             gone = removing_path(url)
             shutil.rmtree(gone, ignore_errors=True)
             try:
@@ -466,6 +467,13 @@ class Store:
             except OSError:
                 gone = url
             remove_store_dir(gone)
+
+    @classmethod
+    def settle(cls, url: str) -> None:
+        """Wait for the background removals in the store at ``url`` (:meth:`remove` with ``wait=False``) to end."""
+        root = _local_dir(url)
+        if root is not None and not memory_group.is_memory_url(url):
+            local_zarr.settle(root)
 
     @property
     def in_memory(self) -> bool:
@@ -802,10 +810,15 @@ class Store:
             return
         _set_attrs(self.group.require_group(path), json.loads(json.dumps(attrs)))
 
-    def remove(self, path: str) -> None:
-        """Remove the group or array at ``path`` if there."""
+    def remove(self, path: str, wait: bool = True) -> None:
+        """Remove the group or array at ``path`` if there.
+
+        With ``wait=False``, a store on a local disk removes its files on a
+        thread while the caller gets on (:meth:`~.local_zarr.LocalZarr.delete`);
+        :meth:`settle` waits for it.
+        """
         if self._local is not None:
-            self._local.delete(path)
+            self._local.delete(path, wait=wait)
             return
         if path in self.group:
             del self.group[path]
