@@ -86,25 +86,33 @@ def test_off(monkeypatch):
 
 def _files():
     files = [SAMPLE]
-    for name in ("lidar-autzen/autzen_trim.laz", "lidar-lastools/house.laz", "lidar-ign-stbarth/St_Barth_RGAF09_UTM20N_IGN_1988_SB_subset_100m.laz"):
+    for name in ("lidar-autzen/autzen_trim.laz", "lidar-lastools/house.laz", "lidar-ign-stbarth/St_Barth_RGAF09_UTM20N_IGN_1988_SB_subset_100m.laz",
+                 "tls-lone-star/lone-star.laz"):
         if (SHARED / name).is_file():
             files.append(SHARED / name)
     return files
 
 
-def test_header_crs_is_laspys_wkt_with_and_without_the_cache(cache):
-    """The WKT is what laspy and pyproj give (GeoTIFF keys, WKT records, none), read back from the cache the same;
-    the description and units of that WKT too."""
+def test_header_crs_is_the_crs_laspy_reads_with_and_without_the_cache(cache):
+    """The CRS is the one laspy and pyproj give (GeoTIFF keys, WKT records, none) where laspy reads the keys as PDAL
+    does, and a geocentric one where laspy took it for geographic (lone-star: GTModelType 3), read back from the cache
+    the same; the description and units of that WKT too."""
+    from pyproj import CRS
+
     for path in _files():
         header = laspy.open(path).header
         parsed = header.parse_crs()
-        expected = None if parsed is None else parsed.to_wkt()
-        expected_description = None if expected is None else crs_description(expected)
+        first = header_crs(header)
+        if path.name == "lone-star.laz":  # GeoTIFF keys: geocentric (1024 = 3) on WGS 84 (2048 = 4326)
+            assert CRS(first[0]).is_geocentric and CRS(first[0]).to_epsg() == 4978
+        else:
+            assert (first[0] is None) == (parsed is None), path
+            assert parsed is None or CRS(first[0]).equals(parsed, ignore_axis_order=True), path
+        expected_description = None if first[0] is None else crs_description(first[0])
         for _ in range(2):  # computed, then from the cache
-            assert header_crs(header) == (expected, None), path
-            if expected is not None:
-                crs_cache_description = crs_description(expected)
-                assert crs_cache_description == expected_description
+            assert header_crs(header) == first, path
+            if first[0] is not None:
+                assert crs_description(first[0]) == expected_description
     assert len(_kept(cache)) >= 2
 
 

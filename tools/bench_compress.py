@@ -372,7 +372,7 @@ def bench_file(name: str, path: Path, budgets, draco: bool, tmp: Path, log) -> d
         pcz = tmp / f"{name}-{budget:g}.pcz"
         out = tmp / f"{name}-{budget:g}.las"
         t = time.perf_counter()
-        # lone-star declares EPSG:4326 but holds metres (issue 18: a geographic CRS is refused unless --units says so)
+        # lone-star's GeoTIFF keys say geocentric WGS 84 (metres; laspy read them as geographic EPSG:4326): --units m as before
         s = compress(path, pcz, max_error=budget, quiet=True, overwrite=True, units="m" if "lone-star" in str(path) else None)
         tc = time.perf_counter() - t
         t = time.perf_counter()

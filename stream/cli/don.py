@@ -26,7 +26,8 @@ def don_command(paths, r_small, r_large, mode, viewpoint, report, **run):
     points within r of p, both facing the viewpoint.  OUTPUT (LAZ when its
     name ends in .laz) holds every input point once, in input order, every
     original dimension unchanged, plus DoN (the magnitude, 0 to 1) and
-    DoNX, DoNY, DoNZ (float32); 0 in all four where a ball holds too few
+    DoNX, DoNY, DoNZ (float32; an input dimension of one of these names takes
+    this run's values); 0 in all four where a ball holds too few
     points for a normal, and for the points left out (--classes; noise and
     withheld points unless --keep-noise), which are in no ball.  Memory
     depends on --tile-size, not on the file.

@@ -48,7 +48,8 @@ def normals_command(paths, criterion, threshold, orient, always_up, k_fallback, 
     OUTPUT (LAZ when its name ends in .laz) holds every input point once, in
     input order, with every original dimension unchanged, plus NormalX,
     NormalY, NormalZ, Curvature (surface variation), NormalMethod ({methods}) and
-    PatchId.  Points left out (--classes; noise and withheld points unless
+    PatchId (an input dimension of one of these names, such as PDAL's
+    NormalX, takes this run's values, keeping its type).  Points left out (--classes; noise and withheld points unless
     --keep-noise) get NormalMethod 0, a zero normal, Curvature 0 and PatchId
     4294967295.  Memory depends on --tile-size, not on the file.  A run that is
     stopped can be resumed by running the same command again with --store.

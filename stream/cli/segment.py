@@ -39,7 +39,9 @@ def segment_command(
     DoNX, DoNY, DoNZ and ClusterID (uint64): 1, 2, ... in order of each
     segment's first point in the file, 0 for no segment (and for the
     points left out: --classes; noise and withheld points unless
-    --keep-noise).  Segments that cross tile faces get one id.
+    --keep-noise).  Segments that cross tile faces get one id.  An input
+    dimension of one of these names (PDAL's int64 ClusterID) takes this
+    run's values, keeping its type.
 
     \b
     Example:

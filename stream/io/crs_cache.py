@@ -31,12 +31,16 @@ import os
 import tempfile
 from collections.abc import Callable
 
+from .geotiff_crs import geo_keys, geotiff_crs
+
 __all__ = ["remembered", "header_crs", "cache_dir", "CACHE_VERSION", "PROJECTION"]
 
 #: Changed when what is kept, or how it is keyed, changes: older files are then not read.
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: GeoTIFF keys read as libgeotiff reads them (geotiff_crs), not by laspy
 #: The user id of a LAS file's CRS records (laspy parses every record of it).
 PROJECTION = "LASF_Projection"
+#: Record ids of the OGC CRS WKT and of GeoTIFF's key directory, double and ASCII parameters.
+WKT_RECORD, GEO_KEY_DIRECTORY, GEO_DOUBLE_PARAMS, GEO_ASCII_PARAMS = 2112, 34735, 34736, 34737
 
 
 def cache_dir() -> str | None:
@@ -105,11 +109,15 @@ def remembered(kind: str, question: bytes, answer: Callable[[], dict]) -> dict:
 
 
 def header_crs(header) -> tuple[str | None, str | None]:
-    """A LAS header's CRS as laspy and pyproj read it: ``(WKT, None)``, ``(None, None)`` without one, or ``(None, why)``
+    """A LAS header's CRS as PDAL reads it: ``(WKT, None)``, ``(None, None)`` without one, or ``(None, why)``
     where its CRS records cannot be read (the error, as its type and message).
 
-    The question is the header's ``LASF_Projection`` records (what laspy's
-    ``parse_crs`` reads), in order.
+    GeoTIFF keys are read by :func:`~.geotiff_crs.geotiff_crs` (user-defined
+    projections, geocentric CRSs and unit keys, which laspy's ``parse_crs``
+    does not read), unless the global encoding's WKT bit says the WKT record
+    holds the CRS (LAS 1.4); the WKT record is read by laspy, where there are
+    no GeoTIFF keys or they define no CRS.  The question is the WKT bit and
+    the header's ``LASF_Projection`` records, in order.
 
     >>> import laspy
     >>> header_crs(laspy.LasHeader(point_format=6, version="1.4"))
@@ -118,14 +126,18 @@ def header_crs(header) -> tuple[str | None, str | None]:
     records = [r for r in list(header.vlrs) + list(header.evlrs or []) if r.user_id == PROJECTION]
     if not records:
         return None, None
-    question = b"".join(
-        b"%d:%d:" % (r.record_id, len(data)) + data
-        for r in records
-        for data in [bytes(r.record_data_bytes() if hasattr(r, "record_data_bytes") else r.record_data)]
-    )
+    data = [(r.record_id, bytes(r.record_data_bytes() if hasattr(r, "record_data_bytes") else r.record_data)) for r in records]
+    wkt_first = bool(getattr(header.global_encoding, "wkt", False))
+    question = b"%d;" % wkt_first + b"".join(b"%d:%d:" % (rid, len(d)) + d for rid, d in data)
 
     def parse() -> dict:
-        crs = header.parse_crs()
+        crs = None
+        by_id = {rid: d for rid, d in reversed(data)}  # the first record of each id
+        has_wkt = any(rid == WKT_RECORD for rid, _ in data)
+        if GEO_KEY_DIRECTORY in by_id and not (has_wkt and wkt_first):  # GeoTIFF keys, as libgeotiff (PDAL) reads them
+            crs = geotiff_crs(geo_keys(by_id[GEO_KEY_DIRECTORY], by_id.get(GEO_DOUBLE_PARAMS), by_id.get(GEO_ASCII_PARAMS)))
+        if crs is None and has_wkt:  # the WKT (the global encoding's WKT bit set, or no GeoTIFF keys): laspy reads it first
+            crs = header.parse_crs()
         return {"wkt": None if crs is None else crs.to_wkt()}
 
     try:
