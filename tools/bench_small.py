@@ -51,9 +51,9 @@ SHARED = ROOT.parent / "shared" / "data"
 SAMPLE = ROOT / "data" / "test_data_77055_627760_LA93_IGN69.laz"
 #: Files of at least this many points must be 3x faster than PDAL.
 BIG = 500_000
-#: Options a file needs (by label): lone-star declares EPSG:4326 but holds metres, which patchcloud refuses without
-#: ``--units`` (PDAL computes in whatever the coordinates are).
-FILE_OPTIONS = {"tls-lone-star/lone-star.laz": ["--units", "m"]}
+#: Options a file needs (by label): none since the GeoTIFF keys are read as PDAL reads them (lone-star's say geocentric
+#: WGS 84, in metres; laspy read them as geographic EPSG:4326, refused without ``--units m``).
+FILE_OPTIONS: dict[str, list[str]] = {}
 
 
 def point_count(path: Path) -> int:
