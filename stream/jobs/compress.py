@@ -405,8 +405,11 @@ def compress_catalog(inputs, options: CompressOptions, run: RunOptions, record_s
     paths = expand_inputs(inputs)
     out_dir = check_out_dir(run.out_dir)
     outs = output_paths(paths, out_dir, inputs, suffix=".pcz")
-    for p in paths:  # each file as its own run will take it (its CRS, the assumed one, its units), before any is written
-        catalog_units(open_catalog([p], run.assume_crs) if run.assume_crs is not None else Catalog.of(open_source(p)), run)
+    for p in paths:  # each file as its own run will take it (its CRS, the assumed one, its units, the job's own checks:
+        # --drop's names, the budget), before any is written
+        one_file = open_catalog([p], run.assume_crs) if run.assume_crs is not None else Catalog.of(open_source(p))
+        catalog_units(one_file, run)
+        _job(options, record_source, run.tile_size).check(one_file)
     for o in outs:
         check_not_input(o, paths)
     # what the run was asked (the same request kept outputs record), the source recording and the parts read

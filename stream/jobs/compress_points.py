@@ -28,7 +28,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import CompressOptions
+from patchcloud.core import CompressOptions, PatchcloudValueError
 from patchcloud.stream.engine.ingest import part_ranges, part_size
 from patchcloud.stream.engine.job import Job, JobContext
 from patchcloud.stream.io import pcz
@@ -85,6 +85,10 @@ class PointsJob(Job):
 
     def check(self, catalog) -> None:
         check_drop(catalog, self.options.drop)
+        # a points-mode .pcz has no tiles; its reader takes budgets up to the largest tile size (pcz.TILE_SIZES)
+        if self.options.max_error > pcz.TILE_SIZES[1]:
+            raise PatchcloudValueError(f"{catalog.path}: --max-error {self.options.max_error:g} is larger than a .pcz "
+                                       f"takes ({pcz.TILE_SIZES[1]:g} in the file's unit): give a smaller --max-error")
 
     def steps(self):
         return [("encode", self.encode)]

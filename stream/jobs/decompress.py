@@ -195,8 +195,9 @@ def _write_points(writer, header: laspy.LasHeader, rec: laspy.PackedPointRecord,
     return len(rec)
 
 
-def check_box_meets(box: np.ndarray, header: laspy.LasHeader, input) -> None:
-    """Refuse a box (xmin, ymin, zmin, xmax, ymax, zmax) outside the bounds of the input ``header`` says: it would give
+def check_box_meets(box: np.ndarray, header: laspy.LasHeader, input, reach: float = 0.0) -> None:
+    """Refuse a box (xmin, ymin, zmin, xmax, ymax, zmax) outside the bounds of the input ``header`` says, grown by
+    ``reach`` (the file's ``--max-error``: a decoded point lies up to that far from its input point): it would give
     an output without points.
 
     >>> h = laspy.LasHeader(point_format=1)
@@ -208,7 +209,7 @@ def check_box_meets(box: np.ndarray, header: laspy.LasHeader, input) -> None:
     patchcloud.core.errors.PatchcloudValueError: a.pcz: the box x -100 to -99, y -100 to -99, z -100 to -99 lies outside the input's bounds (x 0 to 10, y 0 to 20, z 0 to 5): no point to write
     """
     lo, hi = np.asarray(header.mins, dtype=np.float64), np.asarray(header.maxs, dtype=np.float64)
-    if np.all(box[:3] <= hi) and np.all(box[3:] >= lo):
+    if np.all(box[:3] <= hi + reach) and np.all(box[3:] >= lo - reach):
         return
     span = lambda a, b: ", ".join(f"{c} {a[i]:.10g} to {b[i]:.10g}" for i, c in enumerate("xyz"))  # noqa: E731
     raise PatchcloudValueError(f"{input}: the box {span(box[:3], box[3:])} lies outside the input's bounds ({span(lo, hi)}): "
@@ -296,7 +297,7 @@ def decompress(
     with pcz.open_pcz(input) as f:
         source = f.las_header()  # the input's header: its bounds bound the box asked for and the points sampled
         if box is not None:
-            check_box_meets(box, source, input)
+            check_box_meets(box, source, input, reach=float(f.max_error))
         if isinstance(f, pcz.PointsPczFile):
             if density is not None or lod is not None:
                 raise PatchcloudValueError(f"{input}: holds every point (compress --keep-points): density and lod (--density, --lod) "
