@@ -25,7 +25,7 @@ from . import options
 @click.option("--out-dir", default=None, type=click.Path(file_okay=False), metavar="DIR",
               help="Every argument is an input (files, directories of *.las/*.laz, quoted globs), each compressed on its own "
               "to DIR/NAME.pcz.")
-@options.assume_crs
+@options.assume_crs_each
 @click.option("--record-source", is_flag=True, default=False,
               help="Record the input's absolute path and modification time in the .pcz (default: its file name only, so the same "
               "input and parameters give the same bytes).")

@@ -14,7 +14,7 @@ import click
 
 from patchcloud.core import DonOptions, PatchcloudError, os_error_line
 
-__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "assume_crs", "catalog_options", "input_and_output", "check_side_files", "check_distinct", "check_json_path", "summary_json_path", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
+__all__ = ["OneLineErrors", "classes", "keep_noise", "paths_argument", "out_dir", "assume_crs", "assume_crs_each", "catalog_options", "input_and_output", "check_side_files", "check_distinct", "check_json_path", "summary_json_path", "tile_size", "units", "scheduler", "scheduler_file", "workers", "store", "keep_store", "in_memory", "overwrite", "quiet", "profile", "max_memory", "reports_errors", "in_option_words", "don_options", "job_options", "report_option", "check_report", "finish_job", "run_options", "summary_json", "summary_dict", "write_summary_json", "SUMMARY_JSON_KEY"]
 
 tile_size = click.option(
     "--tile-size", type=float, default=None, metavar="LENGTH",
@@ -235,6 +235,15 @@ assume_crs = click.option(
     "--assume-crs", default=None, metavar="CRS",
     help="The CRS of files that have none (e.g. EPSG:2154), which gives their unit and is written into their outputs; a "
     "file with another CRS is an error. Without it a file without a CRS among files with one is an error.",
+)
+
+
+#: --assume-crs of a job that runs a catalog file by file (compress): each file keeps its own CRS.
+assume_crs_each = click.option(
+    "--assume-crs", default=None, metavar="CRS",
+    help="The CRS of files that have none (e.g. EPSG:2154), which gives their unit and is kept for their decompression; a "
+    "file with another CRS is an error. Each file of a catalog is compressed on its own, in its own CRS (files of "
+    "different CRSs, or without one, are taken).",
 )
 
 
