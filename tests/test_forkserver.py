@@ -120,3 +120,30 @@ def test_workers_of_each_run_have_the_memory_budget_of_that_run():
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
     assert run.stdout.strip() == "[True, True, True] True", run.stdout
+
+
+def test_the_resource_tracker_cleans_up_a_killed_workers_semaphores_without_a_warning():
+    """A worker killed (kill -9) leaves its semaphores to the tracker, which warned of them after a run that dask had
+    recovered: two lines of UserWarning on stderr.  Control: without quiet_resource_tracker it still warns."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import sys
+        import multiprocessing, os
+        from multiprocessing import resource_tracker
+        from patchcloud.stream.engine.forkserver import quiet_resource_tracker
+        if sys.argv[1] == "quiet":
+            quiet_resource_tracker()
+        resource_tracker.ensure_running()
+        lock = multiprocessing.get_context("forkserver").Lock()  # a named semaphore, registered with the tracker
+        os._exit(0)  # as a killed process: never unregistered
+    """)
+    said = {}
+    for mode in ("quiet", "loud"):
+        run = subprocess.run([sys.executable, "-c", code, mode], capture_output=True, text=True, timeout=60)
+        assert run.returncode == 0, run.stderr
+        said[mode] = run.stderr
+    assert "leaked semaphore" in said["loud"]  # the control: what a run printed
+    assert said["quiet"] == ""

@@ -27,7 +27,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-__all__ = ["forked_workers", "start_server", "nanny_environ", "hold_ctrl_c", "PRELOAD", "METHOD_KEY"]
+__all__ = ["forked_workers", "start_server", "nanny_environ", "hold_ctrl_c", "quiet_resource_tracker", "TRACKER_QUIET", "PRELOAD", "METHOD_KEY"]
 
 #: The modules the server imports before it forks any worker.
 PRELOAD = ("patchcloud.stream.engine.worker_imports",)
@@ -45,8 +45,26 @@ def hold_ctrl_c() -> None:
     survives fork and exec), so a Ctrl-C meant for the run does not reach a worker still importing."""
     from multiprocessing import resource_tracker
 
+    quiet_resource_tracker()
     resource_tracker.ensure_running()
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+
+#: The warning option (``-W``) the resource tracker starts with (:func:`quiet_resource_tracker`).
+TRACKER_QUIET = "ignore:resource_tracker:UserWarning"
+
+
+def quiet_resource_tracker() -> None:
+    """Have multiprocessing's resource tracker, started after this, not warn of "leaked semaphore objects".
+
+    A worker process killed (kill -9, the kernel's OOM killer) cannot
+    unregister the semaphores it made; the tracker unlinks them when the run
+    ends, as it should, but warned of each (two lines of a UserWarning on
+    stderr, after a run that dask had recovered and that ended well).  The
+    tracker takes this process's ``-W`` options (``sys.warnoptions``).
+    """
+    if TRACKER_QUIET not in sys.warnoptions:
+        sys.warnoptions.append(TRACKER_QUIET)
 
 
 def _set_server_preload() -> None:
