@@ -8,7 +8,7 @@ import pytest
 from test_stream import write_scene
 
 from patchcloud.core import PatchcloudValueError
-from patchcloud.stream import normals, segment
+from patchcloud.stream import compress, decompress, normals, segment
 
 
 def with_dims(src, path, dims):
@@ -59,3 +59,22 @@ def test_a_dimension_too_narrow_for_the_values_is_refused_before_anything_is_wri
     with pytest.raises(PatchcloudValueError, match="NormalX of type uint8, which cannot hold"):
         normals(src, tmp_path / "out.las", quiet=True)
     assert not (tmp_path / "out.las").exists()
+
+
+
+def test_the_descriptors_of_a_second_extra_bytes_vlr_are_kept(tmp_path):
+    """laspy reads the first ExtraBytes VLR only: the bytes the second describes were written undescribed (PDAL then
+    saw no name for them); the outputs of normals and of a points-mode round trip describe them as the input did."""
+    from test_odd_records import _two_blocks
+
+    src = _two_blocks(tmp_path, 1, "in.las", n=3000)
+    original = laspy.read(str(src))
+    normals(src, tmp_path / "n.las", quiet=True)
+    compress(src, tmp_path / "p.pcz", keep_points=True, quiet=True)
+    decompress(tmp_path / "p.pcz", tmp_path / "d.las")
+    for out in (tmp_path / "n.las", tmp_path / "d.las"):
+        got = laspy.read(str(out))
+        names = [d.name for d in got.point_format.extra_dimensions]
+        assert names[0] == "TrueNormal" and names[-1] == "conf", names
+        np.testing.assert_array_equal(np.asarray(got["conf"]), np.asarray(original["ExtraBytes"]).ravel())
+        np.testing.assert_array_equal(np.asarray(got["TrueNormal"]), np.asarray(original["TrueNormal"]))

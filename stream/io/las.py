@@ -873,12 +873,24 @@ def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[
             # many uint8: the type differs, the dtype does not)
             if raw.format_name() == structs[i].format_name() and raw.dtype() == structs[i].dtype():
                 structs[i] = raw
+        # the bytes another ExtraBytes VLR of the input describes (RIEGL's files hold two; laspy reads the first), last in
+        # the record and undescribed here: their descriptors follow, in the one VLR (PDAL then names them)
+        later = _entries(b"".join(r.data for r in vlrs[inputs + 1:] if is_extra_bytes(r)))
+        extra = list(header.point_format.extra_dimensions)
+        if later and len(structs) == len(extra) - 1 and extra[-1].name == UNDESCRIBED_NAME and \
+                extra[-1].num_bytes == sum(e.dtype().itemsize for e in later):
+            structs.extend(later)
         header.vlrs.remove(eb[0])
         header.vlrs.insert(sum(kept(r) for r in vlrs[:inputs]), eb[0])
     header.evlrs = laspy.vlrs.vlrlist.VLRList([as_vlr(r) for r in evlrs if kept(r)])
     header.system_identifier = ascii_text(header.system_identifier)
     header.generating_software = f"patchcloud {software_version()}"
     return header if crs is None else with_crs(header, crs)
+
+
+def _entries(data: bytes) -> list:
+    """The ExtraBytes descriptors (192 bytes each) of an ExtraBytes VLR's data, as laspy's structs."""
+    return [ExtraBytesStruct.from_buffer_copy(data[192 * i : 192 * (i + 1)]) for i in range(len(data) // 192)]
 
 
 #: The name and description laspy gives the bytes of a record that no extra-bytes VLR entry describes.

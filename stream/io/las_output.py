@@ -44,7 +44,7 @@ from patchcloud.core import PatchcloudIOError
 
 from . import laz_layers
 from .write_errors import naming_failed_writes
-from .las import chunk_table, laz_point_range
+from .las import UNDESCRIBED_NAME, chunk_table, laz_point_range
 
 __all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "reset_statistics", "is_waveform_record", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
            "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "keep_creation_date", "CREATION_AT", "rewrite_header", "restate"]
@@ -160,6 +160,25 @@ def _eb_range(st, points: laspy.PackedPointRecord | None, columns: dict, n: int 
     return lo, hi
 
 
+def _described_later(structs, points: laspy.PackedPointRecord, columns: dict) -> dict:
+    """``columns`` with the values of the descriptors that name no field of ``points``: those of an input's second
+    ExtraBytes VLR (:func:`~.las.assemble_header`), whose bytes laspy reads as the record's last, undescribed field,
+    in order from its start."""
+    names = points.array.dtype.names or ()
+    if UNDESCRIBED_NAME not in names or not len(points):
+        return columns
+    raw = np.ascontiguousarray(points.array[UNDESCRIBED_NAME]).view(np.uint8).reshape(len(points), -1)
+    out, at = dict(columns), 0
+    for st in structs:
+        name = st.format_name()
+        if st.data_type == 0 or name in names or name in columns:
+            continue
+        size = st.dtype().itemsize
+        out[name] = np.ascontiguousarray(raw[:, at : at + size]).view(st.dtype().base)
+        at += size
+    return out
+
+
 def _valid_range(col: np.ndarray, no_data, lo, hi):
     """(min, max) of ``col`` without ``no_data`` and NaN values; (``lo``, ``hi``) where none is left.
 
@@ -218,7 +237,7 @@ def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord, column
     reset_statistics(h)
     if len(points):
         _grow(h, points)
-    ranges = [_eb_range(st, points, columns) for st in structs]
+    ranges = [_eb_range(st, points, _described_later(structs, points, columns)) for st in structs]
     return PointStats(
         mins=np.asarray(h.mins, dtype=np.float64), maxs=np.asarray(h.maxs, dtype=np.float64),
         gps=(float(h.min_gps_time), float(h.max_gps_time)), by_return=np.asarray(h.number_of_points_by_return, dtype=np.uint64),
