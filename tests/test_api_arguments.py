@@ -112,6 +112,24 @@ def test_header_bounds_that_understate_the_cloud(tmp_path):
     assert not (tmp_path / "bad.png").exists()
 
 
+def test_render_draws_a_file_whose_header_bounds_are_rounded_within_half_a_step(tmp_path):
+    """PDAL's sample_c.las: its header's max x lies 6e-6 below its last point's (a step of 0.01, an offset that is no
+    whole number of steps); render refused it as "1 point outside its header's bounds" (bug hunt I)."""
+    src, off = tmp_path / "rounded.las", tmp_path / "off.las"
+    write_scene(src, n=20_000, seed=3, point_format=1, extra=False)
+    raw = bytearray(src.read_bytes())
+    step = struct.unpack_from("<d", raw, 131)[0]  # the x scale
+    max_x = struct.unpack_from("<d", raw, 179)[0]
+    struct.pack_into("<d", raw, 179, max_x - 0.4 * step)
+    src.write_bytes(bytes(raw))
+    r = CliRunner().invoke(main, ["render", str(src), str(tmp_path / "r.png"), "--color", "elevation", "-q"])
+    assert r.exit_code == 0 and (tmp_path / "r.png").exists(), r.output
+    struct.pack_into("<d", raw, 179, max_x - 2.0 * step)  # a point a whole step beyond: outside, refused as before
+    off.write_bytes(bytes(raw))
+    r = CliRunner().invoke(main, ["render", str(off), str(tmp_path / "o.png"), "--color", "elevation", "-q"])
+    assert r.exit_code == 2 and "lie outside its header's bounds" in r.output, r.output
+
+
 def test_root_grid_gives_the_commands_normals_in_memory(tmp_path):
     """estimate_normals(points, root="grid") of a whole file: the octree of the command's tile grid, so the normals of
     `patchcloud normals` of the file (the embedded IGN tile: no noise or withheld point to leave out)."""
@@ -193,3 +211,21 @@ def test_sample_models_takes_whole_counts_and_seeds_and_says_when_memory_cannot_
             sample_models(m, seed=seed)
     with pytest.raises(PatchcloudMemoryError, match=r"counts ask for [\d,]+ points"):
         sample_models(m, np.full(C, 10**13))
+
+
+def test_values_a_sweep_found_accepted_are_one_line_before_anything_runs(tmp_path):
+    """Bug hunt I: --max-memory 1e400 was a traceback (an int of infinity); --summary-json /dev/null ran the whole job,
+    wrote its output, then failed; --store '' ran on the default store and kept it; --workers 1e20 was taken."""
+    src = tmp_path / "in.las"
+    write_scene(src, n=2_000, seed=5, point_format=1, extra=False)
+    out = tmp_path / "out.las"
+    for extra, says in [
+        (["--max-memory", "1e400"], "a size must be below 8 EiB"),
+        (["--max-memory", "1e300TB"], "a size must be below 8 EiB"),
+        (["--summary-json", "/dev/null"], "exists and is not a file (a device or a pipe)"),
+        (["--store", ""], "store must be a path or an fsspec URL"),
+        (["--workers", "99999999999999999999"], "workers must be at most 4,096"),
+    ]:
+        r = CliRunner().invoke(main, ["normals", str(src), str(out), "-q", *extra])
+        assert r.exit_code == 2 and says in r.output and r.output.count("\n") == 1, (extra, r.output)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las"], extra  # nothing written, no store

@@ -87,6 +87,8 @@ def check_json_path(path: str, option: str, out_dir: str | None = None) -> None:
         check_directory_writable(parent, path)
     except PatchcloudIOError as exc:
         raise click.BadParameter(str(exc), param_hint=option) from None
+    if p.exists() and not p.is_file():  # a device or a pipe: the write at the end is refused (after the whole job)
+        raise click.BadParameter(f"{path}: exists and is not a file (a device or a pipe): {option} writes a file", param_hint=option)
     if p.exists():
         import json
 

@@ -76,9 +76,13 @@ from patchcloud.stream.io.renamed import file_state, renamed_here
 from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store_dir, removing_path
 
 __all__ = [
-    "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "default_store_path", "write_profile",
+    "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "MAX_WORKERS", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "default_store_path", "write_profile",
     "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines", "left_out_text",
 ]
+
+#: The most worker processes or threads a run starts (more is a typo: each is a process started on this machine).
+MAX_WORKERS = 4096
+
 
 @dataclass(frozen=True)
 class RunOptions:
@@ -183,6 +187,12 @@ class RunOptions:
         object.__setattr__(self, "classes", self.selection.classes)  # checked, as a sorted tuple
         if isinstance(self.store, os.PathLike):  # a pathlib.Path as well as a str
             object.__setattr__(self, "store", os.fspath(self.store))
+        if self.store is not None and not str(self.store).strip():  # ('' ran on the default store, then kept it)
+            raise PatchcloudValueError(f"store must be a path or an fsspec URL (leave it out for OUT.store, removed when the job "
+                                       f"succeeds); got {self.store!r}")
+        if self.workers is not None and not isinstance(self.workers, bool) and isinstance(self.workers, numbers.Real) and \
+                self.workers > MAX_WORKERS:
+            raise PatchcloudValueError(f"workers must be at most {MAX_WORKERS:,}, got {self.workers!r}")
         if self.units is not None and self.units not in UNITS:
             raise PatchcloudValueError(f"units must be one of {', '.join(UNITS)}; got {self.units!r}")
         if self.workers is not None and (isinstance(self.workers, bool) or not isinstance(self.workers, numbers.Real)

@@ -17,6 +17,7 @@ run, dask workers included) sets it; :func:`set_max_memory` from Python.
 from __future__ import annotations
 
 import functools
+import math
 import os
 import re
 
@@ -49,7 +50,10 @@ def parse_size(text) -> int:
             raise PatchcloudValueError(f"a size must be bytes, or a number with a unit such as 4GiB, 8GB or 512MiB (units: {', '.join(sorted(u for u in _UNITS if u))}); "
                                        f"got {text!r}")
         value, unit = float(m.group(1)), m.group(2).lower()
-    return int(value * _UNITS[unit])
+    nbytes = value * _UNITS[unit]
+    if not math.isfinite(nbytes) or nbytes >= 2.0**63:  # (1e400, 1e300TB: no memory is that large)
+        raise PatchcloudValueError(f"a size must be below 8 EiB (2**63 bytes); got {text!r}")
+    return int(nbytes)
 
 
 def _budget(size) -> int:

@@ -1038,6 +1038,9 @@ def render_arrays(
     zb = ZBuffer(frame.height, frame.width, channels)
     in_box = 0
     astray = 0  # points outside the headers' x, y bounds (without a bbox, which the frame is made from)
+    # by more than half a step: a header's bounds are rounded (sample_c.las: its max x 6e-6 below its last point's,
+    # an offset that is no whole number of steps), and laspy and PDAL take such a point as inside
+    slack = 0.5 * max(max(float(s.scale[0]), float(s.scale[1])) for s in sources)
     firsts = np.cumsum([0] + [s.point_count for s in sources])  # a point's index: its place in the catalog (ties: the first)
     chunks = ((int(first) + start, pts) for src, first in zip(sources, firsts) for start, pts in read_chunks(src, int(chunk)))
     for start, pts in chunks:
@@ -1049,7 +1052,7 @@ def render_arrays(
         if bbox is not None:
             sel = (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
         else:
-            astray += int(np.count_nonzero((x < lo[0]) | (x > hi[0]) | (y < lo[1]) | (y > hi[1])))
+            astray += int(np.count_nonzero((x < lo[0] - slack) | (x > hi[0] + slack) | (y < lo[1] - slack) | (y > hi[1] + slack)))
         if sel is not None:
             x, y, z, index = x[sel], y[sel], z[sel], index[sel]
         u = x * R[0, 0] + y * R[0, 1] + z * R[0, 2]
