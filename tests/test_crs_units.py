@@ -145,3 +145,22 @@ def test_reports_and_pcz_info_state_lengths_in_the_files_unit(tmp_path):
     r = CliRunner().invoke(main, ["tile", str(src), str(tmp_path / "st.zarr"), "-q"])
     r = CliRunner().invoke(main, ["info", str(tmp_path / "st.zarr")])
     assert r.exit_code == 0 and " us-ft (min/median/max per tile" in r.output, r.output  # a store's tiles too
+
+
+def test_don_scales_names_the_files_unit_and_refuses_degrees(tmp_path):
+    """don-scales' radii are in the file's unit, as every distance option: its table, best pair and summary said m for a
+    feet file, and it ran on a geographic CRS every other command refuses (bug hunt I)."""
+    import json
+
+    feet = _scene(tmp_path / "ft.las", crs="EPSG:2994")  # NAD83(HARN) / Oregon GIC Lambert (ft)
+    las = laspy.read(str(feet))
+    las.classification = np.where(np.asarray(las.z) > np.median(np.asarray(las.z)), 6, 2).astype(np.uint8)
+    las.write(str(feet))
+    r = CliRunner().invoke(main, ["don-scales", str(feet), "--radii", "0.5,1,2", "--sample", "2000", "--no-plot",
+                                  "--min-class-points", "10", "--summary-json", str(tmp_path / "s.json")])
+    assert r.exit_code == 0, r.output
+    assert "| r_s (ft) | r_l (ft) |" in r.output and " ft, Fisher ratio" in r.output and "(m)" not in r.output
+    assert json.loads((tmp_path / "s.json").read_text())["unit"] == "ft"
+    geo = _scene(tmp_path / "geo.las", crs="EPSG:4326")
+    r = CliRunner().invoke(main, ["don-scales", str(geo), "--no-plot"])
+    assert r.exit_code == 2 and "is geographic" in r.output and "--units" in r.output and r.output.count("\n") == 1, r.output

@@ -94,12 +94,13 @@ def _check_written(input: str, plot: str | None, table: str | None) -> None:
               help="The figure. Default: INPUT's stem + _don_scales.png in the current directory.")
 @click.option("--no-plot", is_flag=True, help="Do not draw the figure.")
 @click.option("--table", default=None, metavar="OUT.txt", help="Also write the table to this file.")
+@options.units
 @options.max_memory
 @options.quiet
 @options.summary_json
 @options.reports_errors
 def don_scales_command(input, radii, small, large, classes_from, classes, sample, mode, min_class_points, min_defined, max_points, seed,
-                       plot, no_plot, table, quiet):
+                       plot, no_plot, table, units, quiet):
     """The Difference-of-Normals radii that best separate the classes of INPUT (LAS/LAZ).
 
     For every pair r_s < r_l of the radii, the DoN magnitude is computed at
@@ -137,6 +138,7 @@ def don_scales_command(input, radii, small, large, classes_from, classes, sample
     result = don_scales(
         input, radii=radii_v, small=small_v, large=large_v, classes_from=classes_from, classes=classes_v, sample=sample,
         mode=mode, min_class_points=min_class_points, min_defined=min_defined, max_points=max_points, seed=seed, progress=say,
+        units=units,
     )
     text = result.format()
     options.write_summary_json(result)

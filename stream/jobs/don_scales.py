@@ -51,6 +51,7 @@ import numpy as np
 
 from patchcloud.core import MODES, PatchcloudValueError, check_grid_step, check_points, check_rounding, coordinate_step, default_viewpoint, radius_normals
 
+from patchcloud.stream.io.crs import units_of
 from patchcloud.stream.io.las import open_source, read_chunks
 
 __all__ = [
@@ -163,8 +164,8 @@ def scale_pairs(radii=DEFAULT_RADII, *, small=None, large=None) -> np.ndarray:
                 f"{', '.join(f'{v:g}' for v in DEFAULT_RADII)}; got {', '.join(f'{v:g}' for v in rs)}"
             )
         raise PatchcloudValueError(
-            f"no pair r_small < r_large: small radii {', '.join(f'{v:g}' for v in rs)} m, "
-            f"large radii {', '.join(f'{v:g}' for v in rl)} m; some small radius must be below some large one"
+            f"no pair r_small < r_large: small radii {', '.join(f'{v:g}' for v in rs)}, "
+            f"large radii {', '.join(f'{v:g}' for v in rl)}; some small radius must be below some large one"
         )
     return np.column_stack([s[keep], l[keep]])
 
@@ -318,6 +319,8 @@ class ScalesResult:
         Points in the cloud (all classes: the neighbours of every query).
     source : str or None
         The file read, or None for arrays.
+    unit : str
+        The symbol of the radii's unit: the file's horizontal unit (``m``, ``ft``, ``us-ft``), ``m`` for arrays.
     """
 
     r_small: np.ndarray
@@ -339,6 +342,7 @@ class ScalesResult:
     seed: int = 0
     point_count: int = 0
     source: str | None = None
+    unit: str = "m"
 
     @property
     def pairs(self) -> np.ndarray:
@@ -375,7 +379,7 @@ class ScalesResult:
         if self.excluded:
             lines.append("not compared: " + ", ".join(class_label(c, self.classes_from) for c in self.excluded))
         lines.append("")
-        head = ["r_s (m)", "r_l (m)", "Fisher", "defined"] + [f"{lab}: mean ± std" for lab in labels] + ["best"]
+        head = [f"r_s ({self.unit})", f"r_l ({self.unit})", "Fisher", "defined"] + [f"{lab}: mean ± std" for lab in labels] + ["best"]
         lines.append("| " + " | ".join(head) + " |")
         lines.append("|" + "|".join(["---:"] * (len(head) - 1) + [":---:"]) + "|")
         for i in range(self.r_small.size):
@@ -390,7 +394,7 @@ class ScalesResult:
         rs, rl = self.best_pair
         lines += [
             "",
-            f"best pair: r_s = {rs:g} m, r_l = {rl:g} m, Fisher ratio {_ratio(self.best_fisher)}",
+            f"best pair: r_s = {rs:g} {self.unit}, r_l = {rl:g} {self.unit}, Fisher ratio {_ratio(self.best_fisher)}",
             "",
             "| class | points | sampled | defined | mean | std | median |",
             "|---|---:|---:|---:|---:|---:|---:|",
@@ -489,6 +493,7 @@ def select_scales(
     _source: str | None = None,
     rounding: float | None = None,
     grid_step: float | None = None,
+    unit: str = "m",
 ) -> ScalesResult:
     """Per-class DoN magnitude statistics over radius pairs, for points in memory (see the module text).
 
@@ -524,6 +529,8 @@ def select_scales(
     rounding, grid_step : float, optional
         The coordinates' step and the step of their grid, as :func:`patchcloud.core.radius_normals`
         (default: a ``laspy.LasData``'s scale, else 0).
+    unit : str
+        The symbol of the coordinates' unit, which the radii are in (for display).
 
     Returns
     -------
@@ -577,7 +584,7 @@ def select_scales(
         normals[float(r)] = radius_normals(pts, float(r), viewpoint=vp, mode=mode, resolution=resolution, min_points=min_points, at=at,
                                             rounding=step, grid_step=tie)
         if progress is not None:
-            progress(f"radius normals r = {r:g} m at {at.size:,} points in {time.perf_counter() - t0:.1f} s")
+            progress(f"radius normals r = {r:g} {unit} at {at.size:,} points in {time.perf_counter() - t0:.1f} s")
     mag = np.empty((pairs.shape[0], at.size))
     for i, (rs, rl) in enumerate(pairs):
         d = (normals[float(rs)] - normals[float(rl)]) / 2.0
@@ -588,13 +595,13 @@ def select_scales(
         raise PatchcloudValueError(
             f"no pair of radii has two classes with at least min_class_points={min_class_points:,} defined DoN values "
             f"making up min_defined={min_defined:g} of their query points (radii "
-            f"{', '.join(f'{v:g}' for v in np.unique(pairs))} m, {at.size:,} query points); "
+            f"{', '.join(f'{v:g}' for v in np.unique(pairs))} {unit}, {at.size:,} query points); "
             "use larger radii, a larger sample or smaller min_class_points / min_defined"
         )
     if np.nanmax(fisher) == 0:
         raise PatchcloudValueError(
             f"no pair of radii separates the classes: at every pair their DoN magnitudes are alike (radii "
-            f"{', '.join(f'{v:g}' for v in np.unique(pairs))} m, {at.size:,} query points; a plane's are all 0)"
+            f"{', '.join(f'{v:g}' for v in np.unique(pairs))} {unit}, {at.size:,} query points; a plane's are all 0)"
         )
     best = int(np.nanargmax(np.where(np.isnan(fisher), -np.inf, fisher)))
     return ScalesResult(
@@ -602,7 +609,7 @@ def select_scales(
         mean=_frozen(mean), std=_frozen(std), median=_frozen(median), fisher=_frozen(fisher), best=best,
         class_points=_frozen(class_points), sampled=_frozen(sampled), excluded=excluded, classes_from=classes_from,
         mode=mode, min_class_points=min_class_points, min_defined=min_defined, seed=seed, point_count=int(pts.shape[0]),
-        source=_source,
+        source=_source, unit=unit,
     )
 
 
@@ -623,6 +630,7 @@ def don_scales(
     max_points: int = 50_000_000,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
+    units: str | None = None,
 ) -> ScalesResult:
     """The pair of DoN radii that best separates the classes of a labelled LAS/LAZ file.
 
@@ -666,6 +674,10 @@ def don_scales(
     progress : callable, optional
         Called with a one-line message after each step (all arguments and
         classes are checked before the first call).
+    units : {"m", "ft", "us-ft"}, optional
+        The unit of the file's coordinates, which the radii are in (default:
+        its CRS's horizontal unit, metres for a file without one; a
+        geographic CRS is refused): :func:`patchcloud.stream.io.crs.units_of`.
 
     Returns
     -------
@@ -710,6 +722,8 @@ def don_scales(
         raise PatchcloudValueError(f"classes_from must be the name of a dimension; got {classes_from!r}")
 
     src = open_source(input)
+    # the radii are in the file's unit, as every distance option (a geographic CRS refused, as by every job)
+    unit = units_of(src.crs, src.mins, src.maxs, units, where=str(input)).symbol
     with laspy.open(src.path) as reader:
         names = list(reader.header.point_format.dimension_names)
     if classes_from not in names:
@@ -752,4 +766,5 @@ def don_scales(
         seed=seed, classes_from=classes_from, progress=None if progress is None else step, _source=src.path,
         rounding=src.step,  # the file's step: a ball collinear up to it has no normal
         grid_step=float(min(src.scale)),  # and its grid, on which ties are decided
+        unit=unit,
     )

@@ -232,7 +232,8 @@ def scale_selection_figure(result: "ScalesResult") -> Figure:
     ax.set_xticks(range(rl_all.size), [f"{v:g}" for v in rl_all])
     ax.set_yticks(range(rs_all.size), [f"{v:g}" for v in rs_all])
     rs, rl = result.best_pair
-    style_axes(ax, f"Fisher ratio of |DoN| (best: {rs:g} m, {rl:g} m)", "large radius r_l (m)", "small radius r_s (m)")
+    u = result.unit
+    style_axes(ax, f"Fisher ratio of |DoN| (best: {rs:g} {u}, {rl:g} {u})", f"large radius r_l ({u})", f"small radius r_s ({u})")
     cb = fig.colorbar(im, ax=ax, shrink=0.9)
     cb.set_label("between / within class variance", fontsize=STYLE["label"])
     cb.ax.tick_params(labelsize=STYLE["tick"])
@@ -250,7 +251,7 @@ def scale_selection_figure(result: "ScalesResult") -> Figure:
     bx.set_xlim(-0.6, ncls - 0.4)
     bx.set_ylim(-0.02, 1.02)
     bx.grid(axis="y", alpha=0.3)
-    style_axes(bx, f"|DoN| per class at r_s={rs:g} m, r_l={rl:g} m", f"class ({result.classes_from}; defined points)",
+    style_axes(bx, f"|DoN| per class at r_s={rs:g} {u}, r_l={rl:g} {u}", f"class ({result.classes_from}; defined points)",
                "|DoN|: mean ± std (o), median (◇)")
     name = shorten(Path(result.source).name if result.source else "points", 70)
     fig.suptitle(
