@@ -386,3 +386,31 @@ def test_a_picture_named_other_than_png_is_refused_before_anything_is_drawn(tmp_
     r = CliRunner().invoke(main, ["render", str(src), str(out), "--color", "elevation", "-q"])
     assert r.exit_code == 2 and r.output.count("\n") == 1 and "out.jpg: a PNG is written: name it out.png" in r.output, r.output
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["in.las"]
+
+
+def test_two_outliers_do_not_turn_a_tile_read_whole_into_an_oblique_view(tmp_path):
+    """A tile 50 m wide whose points span 23.5 m of height (under half its width: a top view), with a bird 500 m up and
+    a return 80 m down: the view stays the top one.  The framing's room past the heights it found, clipped only by the
+    header's bounds, which the outliers widen, grew the range by a tenth (bug hunt I)."""
+    import json
+
+    rng = np.random.default_rng(11)
+    n = 20_000
+    x, y = rng.uniform(0.0, 50.0, n), rng.uniform(0.0, 50.0, n)
+    z = np.where(x > 25.0, 23.5 * (x - 25.0) / 25.0, 0.0) + rng.normal(0.0, 0.02, n)
+    views = []
+    for name, outliers in (("clean", False), ("birds", True)):
+        zz = z.copy()
+        if outliers:
+            zz[100], zz[200] = 500.0, -80.0
+        h = laspy.LasHeader(point_format=1, version="1.2")
+        h.scales, h.offsets = np.array([0.01, 0.01, 0.01]), np.array([700000.0, 6600000.0, 0.0])
+        las = laspy.LasData(h)
+        las.x, las.y, las.z = 700000.0 + x, 6600000.0 + y, zz
+        las.classification = np.full(n, 2, np.uint8)
+        las.write(str(tmp_path / f"{name}.las"))
+        r = CliRunner().invoke(main, ["render", str(tmp_path / f"{name}.las"), str(tmp_path / f"{name}.png"), "--color",
+                                      "classification", "-q", "--summary-json", str(tmp_path / f"{name}.json")])
+        assert r.exit_code == 0, r.output
+        views.append(json.loads((tmp_path / f"{name}.json").read_text())["view"])
+    assert views == ["top", "top"]

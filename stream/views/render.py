@@ -767,8 +767,10 @@ def robust_heights(src: LasSource) -> tuple[float, float]:
     down = np.concatenate([[q0], z[z < q0][::-1]])
     cut = np.flatnonzero(-np.diff(down) > gap)
     bottom = down[cut[0]] if cut.size else down[-1]
-    # the sample may miss the highest and lowest points of the cloud itself: a little room
-    pad = 0.05 * float(top - bottom)
+    # a sample may miss the highest and lowest points of the cloud itself: a little room (none where every point was
+    # read: past the cloud's own extremes, room clipped only by the header's bounds, which outliers widen, grew the
+    # range by a tenth, and turned a tile with two outliers from a top view to an oblique one; bug hunt I)
+    pad = 0.0 if n <= FRAME_WINDOWS * FRAME_WINDOW else 0.05 * float(top - bottom)
     return max(zmin, float(bottom) - pad), min(zmax, float(top) + pad)
 
 
