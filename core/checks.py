@@ -12,7 +12,7 @@ from .errors import PatchcloudValueError
 
 __all__ = [
     "coordinates", "CRITERIA", "ORIENT_RULES", "MODES", "check_positive", "check_radius", "check_viewpoint", "check_mode",
-    "check_cluster_sizes", "check_budget", "check_indices", "check_rounding", "is_lasdata",
+    "check_cluster_sizes", "check_budget", "check_indices", "check_rounding", "is_lasdata", "MAX_COORDINATE",
 ]
 
 #: Octree split criteria: quadric fit RMSE (metres) or surface variation.
@@ -104,7 +104,14 @@ def check_viewpoint(viewpoint, name: str = "viewpoint") -> np.ndarray:
         vp = np.zeros(0)
     if vp.shape != (3,) or not np.isfinite(vp).all():
         raise PatchcloudValueError(f"{name} must be three finite coordinates (x, y, z), got {viewpoint!r}")
+    if np.abs(vp).max() > MAX_COORDINATE:  # (1e308: squared distances overflow, and numpy warned on stderr)
+        raise PatchcloudValueError(f"{name} must lie within {MAX_COORDINATE:g} of the origin, got {viewpoint!r}")
     return vp
+
+
+#: The largest coordinate a point given as an option may have (a billion kilometres: past any CRS, and far from where
+#: squared distances overflow).
+MAX_COORDINATE = 1e12
 
 
 def check_rounding(rounding) -> float:

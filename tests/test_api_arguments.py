@@ -229,3 +229,17 @@ def test_values_a_sweep_found_accepted_are_one_line_before_anything_runs(tmp_pat
         r = CliRunner().invoke(main, ["normals", str(src), str(out), "-q", *extra])
         assert r.exit_code == 2 and says in r.output and r.output.count("\n") == 1, (extra, r.output)
         assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las"], extra  # nothing written, no store
+
+
+def test_huge_values_are_one_line_without_numpys_overflow_warnings(tmp_path):
+    """compress --max-error 1e308 said "--tile-size of at least inf" after two RuntimeWarnings; --viewpoint 1e308 ran
+    with four (bug hunt I)."""
+    src = tmp_path / "in.las"
+    write_scene(src, n=2_000, seed=5, point_format=1, extra=False)
+    for args, says in [
+        (["compress", str(src), str(tmp_path / "o.pcz"), "--max-error", "1e308"], "is larger than the tiles"),
+        (["normals", str(src), str(tmp_path / "o.las"), "--viewpoint", "1e308", "1e308", "1e308"], "--viewpoint must lie within"),
+    ]:
+        r = CliRunner().invoke(main, [*args, "-q"])
+        assert r.exit_code == 2 and says in r.output and r.output.count("\n") == 1 and "inf" not in r.output, r.output
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las"]

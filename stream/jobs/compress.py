@@ -20,6 +20,7 @@ store made by ``normals``, ``don`` or ``segment`` is reused):
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,7 +46,7 @@ from patchcloud.stream.io.residual_points import (
 )
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "check_budget_fits_tiles", "extra_dim", "point_format", "RESIDUAL_KEPT"]
+__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "check_budget_fits_tiles", "MAX_TILE_EXPONENT", "extra_dim", "point_format", "RESIDUAL_KEPT"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -292,6 +293,10 @@ class CompressJob(Job):
         )
 
 
+#: Tiles are at most 2**MAX_TILE_EXPONENT in the file's unit (what a .pcz takes: stream.io.pcz.TILE_SIZES).
+MAX_TILE_EXPONENT = 24
+
+
 def check_budget_fits_tiles(max_error: float, tile_size: float, where: str = "") -> None:
     """Refuse an error budget larger than the tiles (what a ``.pcz`` can hold: its reader refuses the file), before any
     work: a PatchcloudValueError naming both options.
@@ -303,9 +308,10 @@ def check_budget_fits_tiles(max_error: float, tile_size: float, where: str = "")
     patchcloud.core.errors.PatchcloudValueError: a.laz: --max-error 100 is larger than the tiles (64): give a smaller --max-error, or --tile-size of at least 128
     """
     if max_error > tile_size:
-        at_least = float(2.0 ** np.ceil(np.log2(max_error)))
+        exp = math.ceil(math.log2(max_error))
+        bigger = f", or --tile-size of at least {2.0 ** exp:g}" if exp <= MAX_TILE_EXPONENT else ""  # (1e308: no tile is that big)
         raise PatchcloudValueError(f"{where}: --max-error {max_error:g} is larger than the tiles ({tile_size:g}): give a smaller "
-                                   f"--max-error, or --tile-size of at least {at_least:g}")
+                                   f"--max-error{bigger}")
 
 
 def pcz_source(src: LasSource, point_format: int, record_source: bool = False, units: str | None = None,
