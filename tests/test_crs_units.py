@@ -164,3 +164,11 @@ def test_don_scales_names_the_files_unit_and_refuses_degrees(tmp_path):
     geo = _scene(tmp_path / "geo.las", crs="EPSG:4326")
     r = CliRunner().invoke(main, ["don-scales", str(geo), "--no-plot"])
     assert r.exit_code == 2 and "is geographic" in r.output and "--units" in r.output and r.output.count("\n") == 1, r.output
+
+
+def test_a_geocentric_crs_names_its_axes_in_metres_in_pictures():
+    """lone-star's CRS (geocentric WGS 84, as its GeoTIFF keys say) was labelled "file units" by render (bug hunt I)."""
+    from patchcloud.stream.views.units import axis_names
+
+    names = axis_names("EPSG:4978")
+    assert (names.horizontal, names.vertical) == ("m", "m"), names

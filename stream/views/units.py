@@ -123,7 +123,7 @@ def _crs_axis_names(crs: str | None) -> AxisNames:
     except Exception:  # pyproj missing or a CRS it cannot read: say nothing rather than fail the picture
         return AxisNames()
     parts = list(c.sub_crs_list) or [c]
-    horizontal = next((p for p in parts if p.is_projected or p.is_geographic), None)
+    horizontal = next((p for p in parts if p.is_projected or p.is_geographic or p.is_geocentric), None)
     vertical = next((p for p in parts if p.is_vertical), None)
     if horizontal is None:
         return AxisNames()
@@ -142,7 +142,7 @@ def _crs_axis_names(crs: str | None) -> AxisNames:
         zu = _axis(vertical.axis_info[0])[1]
     elif up is not None:
         zu = _axis(up)[1]
-    elif horizontal.is_projected:
+    elif horizontal.is_projected or horizontal.is_geocentric:  # (geocentric: x, y and z in one unit, lone-star's metres)
         zu = xu  # LAS practice: heights in the horizontal unit when no vertical CRS says otherwise
     else:
         zu = NO_CRS_UNIT
