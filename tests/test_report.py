@@ -310,3 +310,17 @@ def test_report_compress_of_a_catalogs_summaries_is_the_catalogs_report(scene_la
     assert "patchcloud compress: 2 files" in page and f"<td>{2 * n:,}</td>" in page and "kept exactly" not in page
     single = report_compress(summaries[0], tmp_path / "one.html", views=False).read_text()
     assert f"<th>cells</th><td>{summaries[0].cells:,}</td>" in single
+
+
+def test_a_points_mode_report_says_no_point_is_modelled():
+    """compress --keep-points models no point: its report said 'mean error of the modelled points 0.0000 m' (bug hunt I)."""
+    from patchcloud.stream.jobs.compress import CompressSummary
+    from patchcloud.stream.views.report import compress_rows
+
+    base = dict(input="a.las", output="a.pcz", points=100, patches=0, cells=0, residual=100, max_error=0.02, mean_error=0.0,
+                input_bytes=1000, output_bytes=500, seconds={}, peak_memory=0)
+    known = {f for f in CompressSummary.__dataclass_fields__}
+    rows = dict(compress_rows(CompressSummary(**{k: v for k, v in base.items() if k in known})))
+    assert rows["mean error of the modelled points"].startswith("none modelled")
+    modelled = dict(compress_rows(CompressSummary(**{k: v for k, v in {**base, "residual": 40, "mean_error": 0.004}.items() if k in known})))
+    assert modelled["mean error of the modelled points"].startswith("0.0040")

@@ -458,7 +458,8 @@ def compress_rows(summary: "CompressSummary") -> list[tuple[str, str]]:
         ("points on patches", _share(s.points - s.residual, s.points)), ("patches", _n(s.patches)),
         ("residual points", _share(s.residual, s.points)),
         ("error budget", f"{s.max_error:g} {_unit(s)}"),
-        ("mean error of the modelled points", f"{s.mean_error:.4f} {_unit(s)} (before quantisation, which adds at most half the budget)"),
+        ("mean error of the modelled points", f"{s.mean_error:.4f} {_unit(s)} (before quantisation, which adds at most half the budget)"
+         if s.points > s.residual else "none modelled (every point kept as it is, within the budget)"),
         ("input size", f"{s.input_bytes:,} bytes ({8 * s.input_bytes / n:.2f} bits/point)"),
         ("output size", f"{s.output_bytes:,} bytes ({8 * s.output_bytes / n:.2f} bits/point)"),
         ("compression ratio", f"{s.input_bytes / max(s.output_bytes, 1):.2f}"),
