@@ -297,3 +297,20 @@ def test_an_entry_of_undocumented_extra_bytes_keeps_its_data_type_0(tmp_path):
     for out in ("n.las", "d.las"):
         assert entry(tmp_path / out)[0] == raw, out
         assert np.array_equal(laspy.read(tmp_path / out).points.array["opaque"], laspy.read(src).points.array["opaque"])
+
+
+
+def test_a_layered_laz_whose_last_bytes_a_second_vlr_describes_is_exported_without_decoding(tmp_path, monkeypatch):
+    """IGN's file: the output describes its last byte as the input's second ExtraBytes VLR does ('confidence', no range
+    declared): its parts are still written from the route the ingest recorded, the input's chunks copied, no record
+    decoded (they were decoded whole when the descriptor came in: 12-15 % slower).  A descriptor that declares a
+    range (the synthetic two_blocks' 'conf') has its records decoded, for the range."""
+    from patchcloud.stream import normals
+    from patchcloud.stream.engine import export
+
+    src = shared_file("lidar-ign-extrabytes/las_with_several_extra_byte_bloc.laz")
+    monkeypatch.setattr(export, "_part_values", lambda *a, **k: (_ for _ in ()).throw(AssertionError("records decoded")))
+    normals(src, tmp_path / "out.laz", quiet=True, in_memory=True)
+    b = laspy.read(str(tmp_path / "out.laz"))
+    assert list(b.point_format.dimension_names)[-1] == "confidence"
+    np.testing.assert_array_equal(np.asarray(b["confidence"]), np.asarray(laspy.read(str(src))[UNDESCRIBED_NAME]).ravel())

@@ -240,7 +240,9 @@ def _export_routed(store: Store, src, p: int, local: int, first: int, count: int
     b = header.point_format.dtype()
     at, end = layered.plan.at, layered.plan.at + layered.plan.new_bytes  # the new bytes of each output record
     new_names = [name for name in b.names if at <= b.fields[name][1] < end]
-    if len(las_output.extra_bytes_structs(header)) != len(part_stats.eb_min) + len(new_names):
+    structs = las_output.extra_bytes_structs(header)
+    later = structs[len(part_stats.eb_min) + len(new_names):]  # an input's second ExtraBytes VLR's (stream.io.las.assemble_header)
+    if len(structs) < len(part_stats.eb_min) + len(new_names) or any(s.min_is_relevant() or s.max_is_relevant() for s in later):
         return None
     st = os.stat(src.path)
     if st.st_size != src.size or st.st_mtime_ns != src.mtime_ns:

@@ -167,6 +167,9 @@ def _described_later(structs, points: laspy.PackedPointRecord, columns: dict) ->
     names = points.array.dtype.names or ()
     if UNDESCRIBED_NAME not in names or not len(points):
         return columns
+    later = [st for st in structs if st.data_type != 0 and st.format_name() not in names and st.format_name() not in columns]
+    if not any(st.min_is_relevant() or st.max_is_relevant() for st in later):
+        return columns
     raw = np.ascontiguousarray(points.array[UNDESCRIBED_NAME]).view(np.uint8).reshape(len(points), -1)
     out, at = dict(columns), 0
     for st in structs:
@@ -174,7 +177,8 @@ def _described_later(structs, points: laspy.PackedPointRecord, columns: dict) ->
         if st.data_type == 0 or name in names or name in columns:
             continue
         size = st.dtype().itemsize
-        out[name] = np.ascontiguousarray(raw[:, at : at + size]).view(st.dtype().base)
+        if st.min_is_relevant() or st.max_is_relevant():  # else its range is not written: its bytes are not read (a
+            out[name] = np.ascontiguousarray(raw[:, at : at + size]).view(st.dtype().base)  # layered LAZ decodes them)
         at += size
     return out
 
@@ -237,7 +241,10 @@ def point_stats(header: laspy.LasHeader, points: laspy.PackedPointRecord, column
     reset_statistics(h)
     if len(points):
         _grow(h, points)
-    ranges = [_eb_range(st, points, _described_later(structs, points, columns)) for st in structs]
+    cols = _described_later(structs, points, columns)
+    names = points.array.dtype.names or ()
+    ranges = [_eb_range(st, points, cols) if st.data_type == 0 or st.format_name() in names or st.format_name() in cols
+              else _eb_range(st, None, cols, 0) for st in structs]  # (one that declares no range: no values read)
     return PointStats(
         mins=np.asarray(h.mins, dtype=np.float64), maxs=np.asarray(h.maxs, dtype=np.float64),
         gps=(float(h.min_gps_time), float(h.max_gps_time)), by_return=np.asarray(h.number_of_points_by_return, dtype=np.uint64),
@@ -250,7 +257,8 @@ def with_new_dims(stats: PointStats, header: laspy.LasHeader, columns: dict, n: 
     extra-bytes dimensions appended: ``header``'s last extra-bytes descriptors, whose stored values ``columns``
     holds (name: (n,) array), give their ranges (what :func:`point_stats` of the whole records gives)."""
     structs = extra_bytes_structs(header)[len(stats.eb_min):]
-    ranges = [_eb_range(st, None, columns, n) for st in structs]
+    # (after them, descriptors of the input's undescribed bytes that declare no range: no values, none read)
+    ranges = [_eb_range(st, None, columns, n if st.format_name() in columns else 0) for st in structs]
     return PointStats(mins=stats.mins, maxs=stats.maxs, gps=stats.gps, by_return=stats.by_return, count=stats.count,
                       eb_min=stats.eb_min + tuple(lo.tobytes() for lo, _ in ranges),
                       eb_max=stats.eb_max + tuple(hi.tobytes() for _, hi in ranges))
