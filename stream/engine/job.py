@@ -190,14 +190,13 @@ class RunOptions:
         if self.store is not None and not str(self.store).strip():  # ('' ran on the default store, then kept it)
             raise PatchcloudValueError(f"store must be a path or an fsspec URL (leave it out for OUT.store, removed when the job "
                                        f"succeeds); got {self.store!r}")
-        if self.workers is not None and not isinstance(self.workers, bool) and isinstance(self.workers, numbers.Real) and \
-                self.workers > MAX_WORKERS:
-            raise PatchcloudValueError(f"workers must be at most {MAX_WORKERS:,}, got {self.workers!r}")
         if self.units is not None and self.units not in UNITS:
             raise PatchcloudValueError(f"units must be one of {', '.join(UNITS)}; got {self.units!r}")
         if self.workers is not None and (isinstance(self.workers, bool) or not isinstance(self.workers, numbers.Real)
                                          or self.workers != int(self.workers) or self.workers < 1):
             raise PatchcloudValueError(f"workers must be a whole number of at least 1, got {self.workers!r}")
+        if self.workers is not None and self.workers > MAX_WORKERS:
+            raise PatchcloudValueError(f"workers must be at most {MAX_WORKERS:,}, got {self.workers!r}")
         if self.chunk is not None and (
             isinstance(self.chunk, bool) or int(self.chunk) != self.chunk or self.chunk < 1 or self.chunk % LAZ_CHUNK
         ):

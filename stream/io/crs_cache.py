@@ -31,7 +31,7 @@ import os
 import tempfile
 from collections.abc import Callable
 
-from .geotiff_crs import geo_keys, geotiff_crs
+from .geotiff_crs import GEO_ASCII_PARAMS, GEO_DOUBLE_PARAMS, GEO_KEY_DIRECTORY, geo_keys, geotiff_crs
 
 __all__ = ["remembered", "header_crs", "cache_dir", "CACHE_VERSION", "PROJECTION"]
 
@@ -39,8 +39,8 @@ __all__ = ["remembered", "header_crs", "cache_dir", "CACHE_VERSION", "PROJECTION
 CACHE_VERSION = 2  # 2: GeoTIFF keys read as libgeotiff reads them (geotiff_crs), not by laspy
 #: The user id of a LAS file's CRS records (laspy parses every record of it).
 PROJECTION = "LASF_Projection"
-#: Record ids of the OGC CRS WKT and of GeoTIFF's key directory, double and ASCII parameters.
-WKT_RECORD, GEO_KEY_DIRECTORY, GEO_DOUBLE_PARAMS, GEO_ASCII_PARAMS = 2112, 34735, 34736, 34737
+#: The record id of the OGC CRS WKT (GeoTIFF's: :mod:`.geotiff_crs`).
+WKT_RECORD = 2112
 
 
 def cache_dir() -> str | None:

@@ -33,7 +33,12 @@ from __future__ import annotations
 import math
 import struct
 
-__all__ = ["geo_keys", "geotiff_crs", "GeoKeyError", "METHODS", "USER_DEFINED"]
+__all__ = ["geo_keys", "geotiff_crs", "GeoKeyError", "METHODS", "USER_DEFINED", "GEO_KEY_DIRECTORY", "GEO_DOUBLE_PARAMS",
+           "GEO_ASCII_PARAMS"]
+
+#: The record ids (user id ``LASF_Projection``) of GeoTIFF's key directory, its double and its ASCII parameters (their
+#: TIFF tags too, which a key's location names).
+GEO_KEY_DIRECTORY, GEO_DOUBLE_PARAMS, GEO_ASCII_PARAMS = 34735, 34736, 34737
 
 #: The value of a code key that says "defined by the other keys".
 USER_DEFINED = 32767
@@ -78,11 +83,11 @@ def geo_keys(directory: bytes, doubles: bytes | None = None, ascii: bytes | None
         key, where, n, value = shorts[4 + 4 * k : 8 + 4 * k]
         if where == 0:
             keys[key] = int(value)
-        elif where == 34736:
+        elif where == GEO_DOUBLE_PARAMS:
             if value + n > len(values) or n == 0:
                 raise GeoKeyError(f"geo key {key} takes doubles {value} to {value + n - 1} of {len(values)}")
             keys[key] = float(values[value]) if n == 1 else tuple(values[value : value + n])
-        elif where == 34737:
+        elif where == GEO_ASCII_PARAMS:
             if value + n > len(text):
                 raise GeoKeyError(f"geo key {key} takes characters {value} to {value + n - 1} of {len(text)}")
             keys[key] = text[value : value + n].rstrip("|\x00")

@@ -459,7 +459,7 @@ class Store:
         if memory_group.is_memory_url(url):
             memory_group.drop(url)
         elif "://" not in url and os.path.isdir(url):
-            local_zarr.settle(url)
+            cls.settle(url)
             gone = removing_path(url)
             shutil.rmtree(gone, ignore_errors=True)
             try:
@@ -471,8 +471,8 @@ class Store:
     @classmethod
     def settle(cls, url: str) -> None:
         """Wait for the background removals in the store at ``url`` (:meth:`remove` with ``wait=False``) to end."""
-        root = _local_dir(url)
-        if root is not None and not memory_group.is_memory_url(url):
+        root = _local_dir(url)  # (None for another URL, memory:// included)
+        if root is not None:
             local_zarr.settle(root)
 
     @property

@@ -46,7 +46,7 @@ from patchcloud.stream.io.residual_points import (
 )
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "check_budget_fits_tiles", "MAX_TILE_EXPONENT", "extra_dim", "point_format", "RESIDUAL_KEPT"]
+__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "check_budget_fits_tiles", "extra_dim", "point_format", "RESIDUAL_KEPT"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -293,10 +293,6 @@ class CompressJob(Job):
         )
 
 
-#: Tiles are at most 2**MAX_TILE_EXPONENT in the file's unit (what a .pcz takes: stream.io.pcz.TILE_SIZES).
-MAX_TILE_EXPONENT = 24
-
-
 def check_budget_fits_tiles(max_error: float, tile_size: float, where: str = "") -> None:
     """Refuse an error budget larger than the tiles (what a ``.pcz`` can hold: its reader refuses the file), before any
     work: a PatchcloudValueError naming both options.
@@ -309,7 +305,8 @@ def check_budget_fits_tiles(max_error: float, tile_size: float, where: str = "")
     """
     if max_error > tile_size:
         exp = math.ceil(math.log2(max_error))
-        bigger = f", or --tile-size of at least {2.0 ** exp:g}" if exp <= MAX_TILE_EXPONENT else ""  # (1e308: no tile is that big)
+        fits = exp <= math.log2(pcz.TILE_SIZES[1])  # (1e308: no tile a .pcz takes is that big)
+        bigger = f", or --tile-size of at least {2.0 ** exp:g}" if fits else ""
         raise PatchcloudValueError(f"{where}: --max-error {max_error:g} is larger than the tiles ({tile_size:g}): give a smaller "
                                    f"--max-error{bigger}")
 
