@@ -8,6 +8,10 @@ in-memory :func:`patchcloud.core.estimate_normals`, say), and as a plain
 sequential loop for calls made inside :func:`single_threaded`, which is
 how the stream's tasks run when several share the machine: no task starts
 a pool of threads, and no two threads enter numba's thread pool at once.
+A call on small arrays (fewer than :data:`SEQUENTIAL_BELOW` rows in each)
+runs the sequential version too: it takes milliseconds, and the parallel
+one's first call costs more than that (loading it, starting numba's
+threads: 0.06 s of a 60,000-point file's run).
 Both give identical results (parallel loops only ever write rows of their own).
 """
 
@@ -19,9 +23,13 @@ import types
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+import numpy as np
 from numba import njit
 
-__all__ = ["parallel_kernel", "single_threaded", "in_single_threaded"]
+__all__ = ["parallel_kernel", "single_threaded", "in_single_threaded", "SEQUENTIAL_BELOW"]
+
+#: A kernel call whose arrays all have fewer rows than this runs sequentially, even outside :func:`single_threaded`.
+SEQUENTIAL_BELOW = 1 << 16
 
 _state = threading.local()
 
@@ -51,7 +59,8 @@ def single_threaded() -> Iterator[None]:
 def parallel_kernel(func: Callable) -> Callable:
     """Compile ``func`` (with ``prange`` loops) twice, parallel and sequential, both cached and ``nogil``; call the one that fits.
 
-    The sequential version is a copy of the function under another name, so
+    The sequential one runs inside :func:`single_threaded` and when every
+    array argument has fewer than :data:`SEQUENTIAL_BELOW` rows.  The sequential version is a copy of the function under another name, so
     numba's on-disk cache keeps the two apart.
     """
     par = njit(cache=True, nogil=True, parallel=True)(func)
@@ -62,8 +71,18 @@ def parallel_kernel(func: Callable) -> Callable:
 
     @functools.wraps(func)
     def call(*args):
-        return (seq if in_single_threaded() else par)(*args)
+        if in_single_threaded() or _small(args):
+            return seq(*args)
+        return par(*args)
 
     call.parallel = par
     call.sequential = seq
     return call
+
+
+def _small(args: tuple) -> bool:
+    """Whether every array among ``args`` has fewer than :data:`SEQUENTIAL_BELOW` rows."""
+    for a in args:
+        if isinstance(a, np.ndarray) and a.ndim and a.shape[0] >= SEQUENTIAL_BELOW:
+            return False
+    return True

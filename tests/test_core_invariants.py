@@ -155,20 +155,28 @@ def test_explicit_root_cube_aligns_leaves(rng):
     assert res.parameters.root_edge == 16.0
 
 
-def test_result_does_not_depend_on_thread_count(bumpy):
+def test_result_does_not_depend_on_thread_count(rng):
     numba = pytest.importorskip("numba")
+    from patchcloud.core.threads import SEQUENTIAL_BELOW, single_threaded
+
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("only one thread available: nothing to compare")
+    n = 2 * SEQUENTIAL_BELOW  # big enough for the kernels' parallel versions (smaller calls run sequentially)
+    xy = rng.uniform(0, 60, (n, 2))
+    cloud = np.column_stack([xy, 0.8 * np.sin(xy[:, 0] / 3.0) * np.cos(xy[:, 1] / 4.0)]) + rng.normal(scale=0.005, size=(n, 3))
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        a = estimate_normals(bumpy)
+        a = estimate_normals(cloud)
         numba.set_num_threads(2)
-        b = estimate_normals(bumpy)
+        b = estimate_normals(cloud)
     finally:
         numba.set_num_threads(before)
+    with single_threaded():  # the sequential versions
+        c = estimate_normals(cloud)
     for name in ("normals", "curvature", "k1", "k2", "dir1", "method", "patch"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert np.array_equal(getattr(a, name), getattr(c, name)), name
 
 
 def test_coincident_neighbours_get_no_normal():

@@ -302,3 +302,26 @@ def test_shift_to_parents_equals_the_loop_over_the_shift_entries_bit_for_bit(rng
     out = np.empty_like(ref)
     _kernels.shift_to_parents(moments, gstart, octant, coef, out)
     assert np.array_equal(out, ref)
+
+
+def test_small_calls_run_the_sequential_kernel():
+    """A parallel kernel called on arrays of fewer than SEQUENTIAL_BELOW rows runs its sequential version (no numba
+    threads started for milliseconds of work); at that size and above, the parallel one, with the same results."""
+    from numba import prange
+
+    from patchcloud.core.threads import SEQUENTIAL_BELOW, parallel_kernel
+
+    def doubled(values, out):
+        for i in prange(values.shape[0]):
+            out[i] = 2.0 * values[i]
+
+    kernel = parallel_kernel(doubled)
+    small = np.arange(SEQUENTIAL_BELOW - 1, dtype=np.float64)
+    out = np.empty_like(small)
+    kernel(small, out)
+    assert np.array_equal(out, 2.0 * small)
+    assert kernel.sequential.signatures and not kernel.parallel.signatures
+    big = np.arange(SEQUENTIAL_BELOW, dtype=np.float64)
+    out = np.empty_like(big)
+    kernel(big, out)
+    assert np.array_equal(out, 2.0 * big) and kernel.parallel.signatures

@@ -97,9 +97,9 @@ def test_more_neighbours_than_points_and_degenerate_clouds():
 
 
 def test_the_answer_does_not_depend_on_the_threads():
-    from patchcloud.core.threads import single_threaded
+    from patchcloud.core.threads import SEQUENTIAL_BELOW, single_threaded
 
-    points = np.random.default_rng(5).uniform(0, 50, (20000, 3))
+    points = np.random.default_rng(5).uniform(0, 50, (SEQUENTIAL_BELOW + 5000, 3))  # the parallel kernels' size
     g = point_grid(points, 16)
     a = nearest_neighbours(g, points[::3], 16)
     with single_threaded():

@@ -57,10 +57,12 @@ LIGHT = textwrap.dedent("""
     pts = np.column_stack([xy, 0.3 * np.sin(xy[:, 0]) + 0.1 * xy[:, 1]])
     res = estimate_normals(pts)
     refreshed = any(m in sys.modules for m in REFRESH_ONLY)
+    from llvmlite.binding import ffi
+    events = sum("llvm_lock" in getattr(a, "__qualname__", "") for a, _ in ffi.lib._lock._cblist)  # numba's callbacks
     sys.path.insert(0, sys.argv[2])
     import kernel_for_light_test as k  # a kernel of its own cache: cached for floats by the first run, ints compiled anew
     extra = (k.twice(1.5), k.twice(3)) if sys.argv[3] == "both" else (k.twice(1.5),)
-    sys.stdout.buffer.write(repr((refreshed, extra)).encode() + b"\\n" + res.normals.tobytes() + res.curvature.tobytes())
+    sys.stdout.buffer.write(repr((refreshed, events, extra)).encode() + b"\\n" + res.normals.tobytes() + res.curvature.tobytes())
 """)
 
 
@@ -74,12 +76,13 @@ def test_cached_kernels_load_without_the_refresh_and_give_the_same_bits(tmp_path
         head, _, data = out.stdout.partition(b"\n")
         return eval(head.decode()), data
 
-    (refreshed, extra), plain = run("plain", "floats")  # also fills the caches
-    assert refreshed and extra == (3.0,)
-    (refreshed, extra), light = run("light", "floats")
+    (refreshed, events, extra), plain = run("plain", "floats")  # also fills the caches
+    assert refreshed and events == 1 and extra == (3.0,)
+    (refreshed, events, extra), light = run("light", "floats")
     assert not refreshed  # every kernel came from the cache, without numba's compiler set-up
+    assert events == 0  # nor numba's events on llvmlite's lock
     assert extra == (3.0,) and light == plain and len(plain) > 0
-    (refreshed, extra), light = run("light", "both")  # a signature not in the cache compiles, with the full set-up
+    (refreshed, events, extra), light = run("light", "both")  # a signature not in the cache compiles, with the full set-up
     assert extra == (3.0, 6) and light == plain
 
 
@@ -96,3 +99,31 @@ def test_a_module_imported_meanwhile_is_there_once_its_thread_ends_and_a_bad_nam
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.split() == ["False", "True", "True"]
+
+
+YAML = textwrap.dedent("""
+    import os, sys
+    from patchcloud.stream.engine.numba_start import skip_numba_yaml
+    skipped = skip_numba_yaml()
+    import numba
+    sys.stdout.write(repr((skipped, "yaml" in sys.modules, numba.config.NUMBA_NUM_THREADS)))
+""")
+
+
+def test_numba_imports_yaml_only_for_its_settings_file(tmp_path):
+    """Without a .numba_config.yaml in the working directory numba's import leaves PyYAML alone; with one, numba reads
+    it as usual (here: its num_threads)."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
+
+    def run():
+        out = subprocess.run([sys.executable, "-c", YAML], capture_output=True, timeout=600, cwd=tmp_path, env=env)
+        assert out.returncode == 0, out.stderr.decode()[-2000:]
+        return eval(out.stdout.decode())
+
+    skipped, has_yaml, _ = run()
+    assert skipped and not has_yaml
+    (tmp_path / ".numba_config.yaml").write_text("num_threads: 1\n")
+    skipped, has_yaml, threads = run()
+    assert not skipped and has_yaml and threads == 1

@@ -11,7 +11,7 @@ import click
 
 from patchcloud.stream.engine.dask_start import skip_dask_templates
 from patchcloud.stream.engine.laspy_start import skip_laspy_http, skip_laspy_pyproj
-from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
+from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe, skip_numba_yaml
 
 from .compress import compress_command, decompress_command
 from .don import don_command
@@ -113,6 +113,7 @@ def run() -> None:
     """
     gc.set_threshold(100_000, 50, 50)
     skip_numba_blas_probe()  # 0.14 s of scipy that numba would import for nothing (stream.engine.numba_start)
+    skip_numba_yaml()  # 0.02 s of PyYAML, for a .numba_config.yaml that is not there (same module)
     load_cached_kernels_lightly()  # 0.07 s of numba's compiler set-up that a cached kernel does not need (same module)
     skip_laspy_http()  # 0.02 s of requests, for COPC over HTTP (stream.engine.laspy_start)
     skip_laspy_pyproj()  # pyproj imported where a CRS is read or written, not by laspy's import (same module)

@@ -29,7 +29,6 @@ True
 
 from __future__ import annotations
 
-import asyncio
 import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -73,6 +72,8 @@ def _offload_running() -> bool:
 
 def _stop_zarr(loop, thread) -> None:
     """Stop zarr's event loop, the executors its threads belong to, and its thread; zarr makes new ones when next used."""
+    import asyncio  # zarr, which made the loop, has imported it (a run in memory imports neither)
+
     sync = sys.modules["zarr.core.sync"]
     if loop.is_running():
         try:  # the loop's default executor: the asyncio_N threads

@@ -14,6 +14,10 @@ in the same process that used ``np.dot`` would then be refused by numba;
 so only the console script (:func:`patchcloud.stream.cli.run`) and the
 workers of its local cluster do it, not ``import patchcloud``.
 
+Nor does numba import PyYAML (0.02 s) unless the working directory has
+a ``.numba_config.yaml`` for it to read (:func:`skip_numba_yaml`): numba
+reads that file with it when it is imported, and for nothing else.
+
 The same processes load numba's cached kernels without the set-up that
 only compiling needs (:func:`load_cached_kernels_lightly`).  Before loading
 a kernel from its cache, numba "refreshes" its target: it imports every
@@ -25,21 +29,32 @@ used by machine code loaded from a cache; what such code links against is
 numba's runtime (initialised here, as numba's refresh does) and the
 symbols numba registers when its context is made, with the hash secret of
 ``numba.cpython.hashing`` (imported here too).  A kernel not in the cache
-is compiled as before, and compiling refreshes in full.
+is compiled as before, and compiling refreshes in full.  Loading a kernel
+makes hundreds of calls into LLVM, each under llvmlite's lock, on which
+numba hangs a start and an end event ("numba:llvm_lock", for its
+compile-time statistics): 4.5 microseconds a call, 0.035 s of a small
+file's run.  The same processes take those two callbacks off the lock
+(:func:`drop_llvm_lock_events`; the lock itself stays).
 """
 
 from __future__ import annotations
 
+import os
 import sys
 
 from patchcloud.stream.engine.import_hooks import after_importing, hide_while_importing
 
-__all__ = ["skip_numba_blas_probe", "load_cached_kernels_lightly", "PROBED", "PROBING", "CACHING"]
+__all__ = ["skip_numba_blas_probe", "skip_numba_yaml", "load_cached_kernels_lightly", "drop_llvm_lock_events", "PROBED",
+           "PROBING", "CONFIGURING", "NUMBA_CONFIG_FILE", "CACHING"]
 
 #: The module numba imports to find a BLAS.
 PROBED = "scipy.linalg.cython_blas"
 #: The numba module that imports it, once, as it is imported.
 PROBING = "numba.np.arraymath"
+#: The numba module that reads :data:`NUMBA_CONFIG_FILE` with PyYAML, when it is imported.
+CONFIGURING = "numba.core.config"
+#: numba's own settings file, in the working directory (numba's name for it).
+NUMBA_CONFIG_FILE = ".numba_config.yaml"
 #: The numba module whose cache loads kernels.
 CACHING = "numba.core.caching"
 
@@ -50,6 +65,17 @@ def skip_numba_blas_probe() -> bool:
     Returns whether it will: False when numba has already done its probe in this process.
     """
     return hide_while_importing(PROBING, PROBED)
+
+
+def skip_numba_yaml() -> bool:
+    """Have numba, when it is imported, not import PyYAML where the working directory has no :data:`NUMBA_CONFIG_FILE`.
+
+    Returns whether it will: False when numba's configuration is already
+    read in this process, or when the file is there (numba reads it as usual).
+    """
+    if os.path.isfile(NUMBA_CONFIG_FILE):
+        return False
+    return hide_while_importing(CONFIGURING, "yaml")
 
 
 def load_cached_kernels_lightly() -> bool:
@@ -76,7 +102,11 @@ def _lighten(caching) -> bool:
         return True
     from numba.core.runtime import nrt
 
+    dropped: list[int] = []
+
     def load_overload(self, sig, target_context):
+        if not dropped:
+            dropped.append(drop_llvm_lock_events())  # once, numba being whole by now
         nrt.rtsys.initialize(target_context)  # numba's runtime: what loaded code calls to allocate
         import numba.cpython.hashing  # noqa: F401  its import gives the LLVM symbols of Python's hash secret
         with self._guard_against_spurious_io_errors():
@@ -86,3 +116,23 @@ def _lighten(caching) -> bool:
     load_overload.__doc__ = cache.load_overload.__doc__
     cache.load_overload = load_overload
     return True
+
+
+def drop_llvm_lock_events() -> int:
+    """Take numba's "numba:llvm_lock" event callbacks off llvmlite's lock (see the module's notes); how many were taken.
+
+    Called once by the kernel loader of :func:`load_cached_kernels_lightly`, before its first load.
+    Other callbacks on the lock are left; where llvmlite keeps them
+    otherwise than this expects, nothing is taken (0).
+    """
+    import numba.core.base  # noqa: F401  registers the callbacks as it is imported
+    from llvmlite.binding import ffi
+
+    lock = getattr(getattr(ffi, "lib", None), "_lock", None)
+    pairs = getattr(lock, "_cblist", None)
+    if not isinstance(pairs, list) or not hasattr(ffi, "unregister_lock_callback"):
+        return 0
+    numba_events = [p for p in pairs if all("_initialize_llvm_lock_event" in getattr(f, "__qualname__", "") for f in p)]
+    for acquire, release in numba_events:
+        ffi.unregister_lock_callback(acquire, release)
+    return len(numba_events)

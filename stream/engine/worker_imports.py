@@ -25,9 +25,10 @@ from __future__ import annotations
 
 from patchcloud.stream.engine.dask_start import skip_dask_templates
 from patchcloud.stream.engine.laspy_start import skip_laspy_http, skip_laspy_pyproj
-from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
+from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe, skip_numba_yaml
 
 skip_numba_blas_probe()
+skip_numba_yaml()
 load_cached_kernels_lightly()
 skip_laspy_http()
 skip_laspy_pyproj()

@@ -28,7 +28,7 @@ import sys
 from patchcloud.stream.engine.allocator import tune_allocator
 from patchcloud.stream.engine.import_hooks import after_importing
 from patchcloud.stream.engine.laspy_start import skip_laspy_http, skip_laspy_pyproj
-from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe
+from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly, skip_numba_blas_probe, skip_numba_yaml
 
 __all__ = ["dask_setup", "exit_now", "worker_threads", "tune_running_worker"]
 
@@ -62,6 +62,7 @@ def dask_setup(worker) -> None:
     os.environ.setdefault("RAYON_NUM_THREADS", str(worker_threads(worker)))
     tune_allocator()
     skip_numba_blas_probe()
+    skip_numba_yaml()
     load_cached_kernels_lightly()
     skip_laspy_http()
     skip_laspy_pyproj()
