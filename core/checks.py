@@ -140,11 +140,14 @@ def check_mode(mode: str, resolution: int = 4, min_points: int = 3) -> None:
 
 
 def check_cluster_sizes(min_points, max_points) -> tuple[int, int | None]:
-    """Validated ``min_points`` (>= 1) and ``max_points`` (None or >= min_points)."""
-    if not isinstance(min_points, (int, np.integer)) or min_points < 1:
-        raise PatchcloudValueError(f"min_points must be a whole number of points, at least 1; got {min_points!r}")
+    """Validated ``min_points`` (1 to 2**63 - 1) and ``max_points`` (None or min_points to 2**63 - 1): counts of points."""
+    most = np.iinfo(np.int64).max
+    if not isinstance(min_points, (int, np.integer)) or not 1 <= min_points <= most:
+        raise PatchcloudValueError(f"min_points must be a whole number of points, at least 1 (at most {most}); got {min_points!r}")
     if max_points is not None and (not isinstance(max_points, (int, np.integer)) or max_points < min_points):
         raise PatchcloudValueError(f"max_points must be a whole number no smaller than min_points ({min_points}), or None; got {max_points!r}")
+    if max_points is not None and max_points > most:
+        raise PatchcloudValueError(f"max_points must be a whole number of points, at most {most}, or None; got {max_points!r}")
     return int(min_points), None if max_points is None else int(max_points)
 
 

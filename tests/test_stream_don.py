@@ -222,6 +222,8 @@ def test_cli_don_and_segment(scene, tmp_path):
         (["--threshold", "1.5"], "--threshold must be a DoN magnitude in [0, 1]"),
         (["--tolerance", "0"], "--tolerance must be a positive length"),
         (["--min-points", "0"], "--min-points must be"),
+        (["--min-points", str(2**63)], "at most 9223372036854775807"),
+        (["--max-points", str(2**63)], "--max-points must be a whole number of points, at most 9223372036854775807"),
         (["--min-points", "100", "--max-points", "10"], "no smaller than --min-points (100), or not given; got 10"),
         (["--axis-threshold", "0.2"], "--axis-threshold needs an axis"),
         (["--tile-size", "-4"], "--tile-size must be a positive"),
