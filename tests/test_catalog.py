@@ -776,3 +776,19 @@ def test_a_directory_of_links_is_in_the_order_of_the_links_names(cut, tmp_path):
     cat = open_catalog(tmp_path / "links")
     # (a source's path is its file's, resolved: what a store records of it)
     assert [os.path.basename(s.path) for s in cat.sources] == ["tile_3.las", "tile_2.las", "tile_1.las", "tile_0.las"]
+
+
+def test_a_catalog_of_links_is_listed_by_the_links_names(cut, tmp_path):
+    """Links in the input directory (to files named otherwise): the outputs and the summary's per-file rows take the
+    links' names, the ones the user sees (the rows named the files the links point to)."""
+    d, _ = cut
+    (tmp_path / "links").mkdir()
+    for k, name in enumerate(("north.las", "south.las")):
+        os.symlink(d / "in" / f"tile_{k}.las", tmp_path / "links" / name)
+    s = normals(tmp_path / "links", out_dir=str(tmp_path / "out"), tile_size=TILE, quiet=True)
+    assert [os.path.basename(i) for i, _, _ in s.files] == ["north.las", "south.las"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["north.las", "south.las"]
+    r = CliRunner().invoke(main, ["normals", str(tmp_path / "links"), "--out-dir", str(tmp_path / "out2"), "--tile-size", str(TILE)])
+    assert r.exit_code == 0, r.output
+    rows = [line.split()[0] for line in r.output.splitlines() if " points -> " in line]
+    assert rows == ["north.las", "south.las"]

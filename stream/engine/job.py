@@ -427,7 +427,7 @@ class JobContext:
     @property
     def files(self) -> list[tuple[str, str, int]]:
         """(input, output, points) of every file, for a summary's per-file rows (:func:`file_lines`)."""
-        return [(s.path, str(o), s.point_count) for s, o in zip(self.catalog.sources, self.outputs)]
+        return [(self.catalog.name(f), str(o), s.point_count) for f, (s, o) in enumerate(zip(self.catalog.sources, self.outputs))]
 
     def map_tiles(self, func: Callable, **kwargs) -> dict:
         """:func:`patchcloud.stream.engine.tasks.map_tiles` on this job's store and runner."""

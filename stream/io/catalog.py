@@ -66,6 +66,10 @@ class Catalog:
         File ``f``'s integers ``X_f`` are ``X_f * factor[f] + shift[f]`` on the common grid.
     crs : str or None
         The catalog's CRS (WKT), or None when no file has one.
+    names : tuple of str
+        The files' paths as they were named (a link's own name, where
+        ``sources`` hold the file's resolved path), in the same order; empty
+        for a catalog made otherwise (then :meth:`name` is the resolved one).
     """
 
     sources: tuple[LasSource, ...]
@@ -74,6 +78,11 @@ class Catalog:
     factor: tuple[tuple[int, int, int], ...]
     shift: tuple[tuple[int, int, int], ...]
     crs: str | None = None
+    names: tuple[str, ...] = ()
+
+    def name(self, f: int) -> str:
+        """File ``f``'s path as it was named (see ``names``)."""
+        return self.names[f] if len(self.names) == len(self.sources) else self.sources[f].path
 
     @property
     def point_count(self) -> int:
@@ -332,7 +341,8 @@ def open_catalog(inputs, assume_crs: str | None = None) -> Catalog:
                     )
         factor.append(fs[0])
         shift.append(fs[1])
-    return Catalog(sources=tuple(sources), scale=scale, offset=offset, factor=tuple(factor), shift=tuple(shift), crs=crs)
+    return Catalog(sources=tuple(sources), scale=scale, offset=offset, factor=tuple(factor), shift=tuple(shift), crs=crs,
+                   names=tuple(str(p) for p in paths))
 
 
 def _catalog_crs(sources: list[LasSource], assume_crs: str | None) -> str | None:
