@@ -9,6 +9,16 @@ so every result that follows is bit for bit the same.  Inside
 :func:`patchcloud.core.threads.single_threaded` (the stream's tasks, which
 share the machine already), and for fewer than :data:`MIN_PARALLEL` keys,
 it is ``np.argsort`` itself.
+
+Keys that come in runs of equal values (the cells of points already in
+space order: a tile's points sorted by Morton key, keyed by their cells
+of some level) are sorted run by run: the runs, by their key then their
+place, each run's rows kept in order, which is again the stable sort's
+permutation.  Runs of :data:`MIN_RUN` keys or more on average make it
+pay (``python tools/bench_runs_argsort.py``, tools/results/bench_runs_argsort-2026-11-28.txt:
+a million points in Morton order keyed by their moment cells, 2.8x faster
+at runs of 11 keys, 1.2x at runs of 3, the same on random keys); finding out costs one pass over
+the keys, cut short as soon as the runs turn out too many.
 """
 
 from __future__ import annotations
@@ -21,10 +31,14 @@ from numba import njit
 
 from .threads import in_single_threaded
 
-__all__ = ["stable_argsort", "MIN_PARALLEL"]
+__all__ = ["stable_argsort", "MIN_PARALLEL", "MIN_RUN", "MIN_RUNS_SORT"]
 
 #: Fewer keys than this are sorted in one call: the threads and the merge would cost more than they save.
 MIN_PARALLEL = 200_000
+#: Keys whose runs of equal values are at least this long on average are sorted run by run.
+MIN_RUN = 2
+#: Fewer keys than this are never sorted run by run (nothing to gain).
+MIN_RUNS_SORT = 4096
 
 
 def stable_argsort(keys: np.ndarray, threads: int | None = None) -> np.ndarray:
@@ -50,6 +64,11 @@ def stable_argsort(keys: np.ndarray, threads: int | None = None) -> np.ndarray:
     """
     keys = np.ascontiguousarray(keys)
     n = keys.shape[0]
+    if keys.ndim == 1 and n >= MIN_RUNS_SORT and keys.dtype.kind in "iu":
+        starts = _run_starts(keys, n // MIN_RUN)
+        if starts.size:  # few enough runs: the runs sorted stably (by key, then place), each expanded in place
+            order = stable_argsort(keys[starts], threads)
+            return _expand_runs(starts[order], np.append(starts[1:], n)[order], n)
     parts = 1
     if keys.ndim == 1 and n >= MIN_PARALLEL and keys.dtype.kind in "iu":  # else numba's thread pool is not even asked about
         if threads is None:
@@ -89,4 +108,35 @@ def _merge(keys, a, b):
         out[k] = b[j]
         j += 1
         k += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _run_starts(keys, most):
+    """The first index of each run of equal ``keys``; empty when there are more than ``most`` runs (counting stops there)."""
+    n = keys.shape[0]
+    runs = 0
+    for i in range(n):
+        if i == 0 or keys[i] != keys[i - 1]:
+            runs += 1
+            if runs > most:
+                return np.empty(0, dtype=np.int64)
+    out = np.empty(runs, dtype=np.int64)
+    r = 0
+    for i in range(n):
+        if i == 0 or keys[i] != keys[i - 1]:
+            out[r] = i
+            r += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _expand_runs(firsts, ends, n):
+    """Rows ``firsts[r]`` to ``ends[r] - 1`` of every run ``r`` in turn: (n,) int64."""
+    out = np.empty(n, dtype=np.int64)
+    k = 0
+    for r in range(firsts.shape[0]):
+        for i in range(firsts[r], ends[r]):
+            out[k] = i
+            k += 1
     return out

@@ -253,6 +253,32 @@ def test_stable_argsort_is_numpys_stable_argsort_ties_included(rng, threads):
         assert got.dtype == np.int64 and np.array_equal(got, np.argsort(keys, kind="stable"))
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_keys_in_runs_sort_run_by_run_as_numpys_stable_argsort(rng, threads):
+    """Keys in runs of equal values (cells of points in space order) are sorted run by run; equal keys in runs far
+    apart keep their input order (the stable sort's permutation, element for element)."""
+    from patchcloud.core.argsort import MIN_PARALLEL, MIN_RUN, MIN_RUNS_SORT, stable_argsort
+
+    def in_runs(values, mean):
+        lengths = rng.integers(1, 2 * mean, values.size)
+        return np.repeat(values, lengths)
+
+    n = 3 * MIN_RUNS_SORT
+    cases = [
+        in_runs(rng.integers(0, 40, n // 4), 4),  # few values: the same key in many runs far apart
+        in_runs(rng.integers(-2**62, 2**62, n // 6), 6),
+        in_runs(rng.integers(0, 2**64 - 1, n // 3, dtype=np.uint64), MIN_RUN),
+        in_runs(rng.integers(-3, 3, n // 10, dtype=np.int32), 10),
+        np.full(n, 7, dtype=np.int64),  # one run
+        in_runs(rng.integers(0, 9, 300), 10)[:MIN_RUNS_SORT - 1],  # too few keys: one numpy sort
+        np.repeat(rng.integers(0, 2**40, n // 2), 2)[::-1].copy(),
+        in_runs(rng.integers(0, 2**62, MIN_PARALLEL + 10_000), 4),  # so many runs that their keys are sorted in parts
+    ]
+    for keys in cases:
+        got = stable_argsort(keys, threads=threads)
+        assert got.dtype == np.int64 and np.array_equal(got, np.argsort(keys, kind="stable"))
+
+
 def test_rows_where_and_shifted_runs_equal_numpy(rng):
     pts = rng.normal(size=(5000, 3))
     keys = np.sort(rng.integers(0, 2**63, 5000, dtype=np.uint64))
