@@ -30,12 +30,23 @@ def _wait_for_workers(address: str, n: int, timeout: float = 60.0) -> None:
         c.wait_for_workers(n, timeout=timeout)
 
 
-def test_killed_worker_leaves_the_output_byte_identical(tmp_path):
+@pytest.mark.parametrize("step", ["finish", "export"])
+def test_killed_worker_leaves_the_output_byte_identical(tmp_path, step):
+    """A worker killed after its second task of ``step``.  Killed during the export, its parts whose results the client
+    had already taken (and appended to the LAZ) are computed again, their fragments written again: they were appended
+    twice, an unreadable file from a run that said it succeeded (found by a review of 2026-11-28)."""
     dask = Path(sys.executable).with_name("dask")
     if not dask.exists():
         pytest.skip(f"no dask command beside {sys.executable}")
+    source, options = SAMPLE, {"tile_size": 32}
+    if step == "export":  # enough export parts (one LAZ chunk each) that the client has appended some when one dies
+        import city_las
+
+        source = tmp_path / "city.laz"
+        city_las.write_city(source, 400_000, seed=3)
+        options = {"chunk": 50_000}
     ref = tmp_path / "ref.laz"
-    normals(SAMPLE, ref, tile_size=32, scheduler="synchronous", quiet=True)
+    normals(source, ref, scheduler="synchronous", quiet=True, **options)
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = dict(os.environ, PYTHONPATH=str(HERE) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -44,7 +55,7 @@ def test_killed_worker_leaves_the_output_byte_identical(tmp_path):
     mark = tmp_path / "killed"
     try:
         for k in range(2):
-            wenv = dict(env, PATCHCLOUD_KILL_STEP="finish", PATCHCLOUD_KILL_AFTER="2", PATCHCLOUD_KILL_MARK=str(mark)) if k == 0 else env
+            wenv = dict(env, PATCHCLOUD_KILL_STEP=step, PATCHCLOUD_KILL_AFTER="2", PATCHCLOUD_KILL_MARK=str(mark)) if k == 0 else env
             procs.append(subprocess.Popen(
                 [str(dask), "worker", address, "--nthreads", "1", "--nworkers", "1", "--preload", "cluster_killer",
                  "--preload", "patchcloud.stream.engine.allocator", "--host", "127.0.0.1", "--dashboard-address", ":0", "--name", f"w{k}"],
@@ -52,8 +63,8 @@ def test_killed_worker_leaves_the_output_byte_identical(tmp_path):
             ))
         _wait_for_workers(address, 2)
         out = tmp_path / "out.laz"
-        p = subprocess.run([sys.executable, "-m", "patchcloud.stream.cli", "normals", str(SAMPLE), str(out), "--tile-size", "32",
-                            "--scheduler", address, "-q"], capture_output=True, text=True, timeout=600)
+        run = f"from patchcloud.stream import normals; normals({str(source)!r}, {str(out)!r}, scheduler={address!r}, quiet=True, **{options!r})"
+        p = subprocess.run([sys.executable, "-c", run], capture_output=True, text=True, timeout=600)
         assert p.returncode == 0, p.stderr[-3000:]
         assert mark.exists(), "the worker was not killed: the test did not test anything"
         assert procs[1].poll() is not None  # the killed worker's nanny is gone too

@@ -74,10 +74,27 @@ def test_laz_parts_stitched_as_they_come_give_the_bytes_of_parts_stitched_at_the
     las_output.stitch(early, range(0, 1))
     las_output.stitch(early, range(1, 3))  # the first three parts in, the last one left to finish
     assert not (las_output.fragments_dir(early) / "000001").exists()
-    las_output.finish(header, early, start, stats, tables)
+    las_output.finish(header, early, start, stats, tables, stitched=3)
     assert early.read_bytes() == at_end.read_bytes()
     back = laspy.read(str(early))
     assert np.array_equal(back.points.array, pts.array)
+
+
+def test_a_part_written_again_after_it_was_stitched_is_not_stitched_twice(tmp_path):
+    """On a cluster, a worker lost after its export task's result was in has the task run again, which writes the
+    part's fragment a second time, after the client appended and removed the first: the output holds each part once
+    (every fragment still there was appended: two parts twice, an unreadable LAZ and a run that said it succeeded)."""
+    header, at_end, start, stats, tables, pts = _laz_parts(tmp_path, "end.laz.partial")
+    las_output.finish(header, at_end, start, stats, tables)
+    header, again, start, stats, tables, _ = _laz_parts(tmp_path, "again.laz.partial")
+    las_output.stitch(again, range(0, 3))
+    per = len(pts) // len(tables)
+    for k in (1, 2):  # the reruns of parts 1 and 2, after they were stitched: the same bytes again
+        part = laspy.PackedPointRecord(pts.array[k * per:(k + 1) * per].copy(), header.point_format)
+        assert las_output.write_laz_part(again, k, header, part) == tables[k]
+    las_output.finish(header, again, start, stats, tables, stitched=3)
+    assert again.read_bytes() == at_end.read_bytes()
+    assert np.array_equal(laspy.read(str(again)).points.array, pts.array)
 
 
 def test_the_legacy_counts_of_a_format_0_to_5_output_hold_points_of_returns_6_and_7(tmp_path):

@@ -398,7 +398,7 @@ def export_columns(
         def complete_file(f: int) -> None:  # every part of file f is in: finish, record, rename
             mine = results.pop(f)
             las_output.finish(headers[f], tmps[f], starts[f], [r[0] for r in mine], [r[1] for r in mine] if compressed[f] else None,
-                              source=cat.sources[f].path)
+                              source=cat.sources[f].path, stitched=stitched[f])
             record_output(store, outs[f], Path(tmps[f]), key, request)
             if not in_memory:
                 rename_into_place(tmps[f], outs[f])

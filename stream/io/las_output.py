@@ -582,12 +582,17 @@ def stitch(tmp: str | os.PathLike, parts: Iterable[int]) -> None:
 
 
 def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: list[PointStats], tables: list | None = None,
-           source: str | None = None) -> None:
+           source: str | None = None, stitched: int = 0) -> None:
     """Complete ``tmp``: the header with the merged ``stats``; for LAZ, the fragments not yet stitched (in part order)
     and the chunk table; then the header's EVLRs (LAS 1.4: a CRS WKT is often one), after the point data.
 
     ``tables``: each LAZ part's chunk-table entries, in part order (the
-    parts :func:`stitch` appended first, then those whose fragments remain).
+    parts :func:`stitch` appended first, then the others).
+    ``stitched``: how many parts :func:`stitch` has appended already (parts
+    0 to ``stitched - 1``); the others' fragments are appended here, each
+    of which must be there.  A fragment of a part appended already is not
+    appended again: on a cluster, a worker lost after its part was in has
+    its task run again, which writes the same fragment a second time.
     ``source``: the input file, whose creation date the output keeps as it
     is written there (:func:`keep_creation_date`), and whose internal waveform data packet record
     follows the points of the output too, the header pointing at it: a
@@ -601,9 +606,8 @@ def finish(header: laspy.LasHeader, tmp: str | os.PathLike, start: int, stats: l
     evlrs = list(header.evlrs) if header.version.minor >= 4 and header.evlrs else []
     waves = h.global_encoding.waveform_data_packets_internal
     h.start_of_waveform_data_packet_record = 0
-    if h.are_points_compressed:  # the fragments not stitched yet (those stitched are gone, and came first)
-        d = fragments_dir(tmp)
-        stitch(tmp, [part for part in range(len(tables)) if (d / f"{part:06d}").exists()])
+    if h.are_points_compressed:  # the fragments not stitched yet (those stitched came first)
+        stitch(tmp, range(stitched, len(tables)))
     with naming_failed_writes(tmp), open(tmp, "r+b") as f:
         if h.are_points_compressed:
             table_at = f.seek(0, os.SEEK_END)
