@@ -41,8 +41,13 @@ FLOOR_FACTOR = 0.02
 CALIBRATION_SCALE = 1.5
 #: Calibration cells used: those whose hash falls in 1 of this many.
 CALIBRATION_STRIDE = 8
-#: log10 bin edges of the fit-RMSE histograms (metres): 0.25 % wide.
-RMSE_BINS = np.linspace(-7.0, 2.0, 9 * 400 + 1)
+#: log10 bin edges of the fit-RMSE histograms (the coordinates' unit): 0.25 % wide, from 1e-12 to 1e12, so a cloud in
+#: millimetres (or any unit) keeps every fit.  The edges from 1e-7 to 100 are those of versions before 2026-11-28,
+#: exactly (their thresholds stand); those bins alone dropped the fits of more than 100 units, and the embedded tile
+#: in millimetres got a threshold 0.60 times that in metres (0.80 now: the cells differ, see estimate_normals), 0.48
+#: times in units of 1/1024 m (1.00 now) (review J).
+_STEP = 9.0 / 3600.0
+RMSE_BINS = np.concatenate([-7.0 - _STEP * np.arange(2000, 0, -1), np.linspace(-7.0, 2.0, 9 * 400 + 1), 2.0 + _STEP * np.arange(1, 4001)])
 _HASH = np.array([73856093, 19349663, 83492791], dtype=np.int64)
 
 

@@ -109,7 +109,7 @@ def resolve_parameters(store: Store, options: NormalsOptions, runner) -> dict:
         if options.criterion == "sigma3":
             threshold = 0.005
         else:
-            key = {"d_min": d_min, "n_min": options.n_min, "cells": "absolute, 1.5 d_min"}
+            key = {"d_min": d_min, "n_min": options.n_min, "cells": "absolute, 1.5 d_min", "rmse": "1e-12 to 1e12"}
             cached = a.get("calibration")
             if cached and cached.get("key") == key:
                 threshold = cached["threshold"]
