@@ -27,6 +27,7 @@ from patchcloud.stream.engine.compiling import CompileClock
 from patchcloud.stream.engine.forkserver import forked_workers, hold_ctrl_c
 from patchcloud.stream.engine.placement import AUTO_PROCESSES_POINTS, resolve_scheduler
 from patchcloud.stream.engine.progress import Progress
+from patchcloud.stream.engine.scheduler_probe import probe_scheduler
 from patchcloud.stream.io.budget import ENV as BUDGET_ENV
 
 __all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "ADDRESS_SCHEMES", "resolve_scheduler", "check_scheduler", "scheduler_from_file"]
@@ -178,6 +179,7 @@ class Runner:
         if self.scheduler not in SCHEDULERS:  # an address (check_scheduler took it)
             from dask.distributed import Client
 
+            probe_scheduler(self.scheduler)  # dask's client would wait for ever on a server that is not a scheduler
             try:
                 self._client = Client(self.scheduler, timeout="20s")
             except Exception as exc:
