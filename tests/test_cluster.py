@@ -1,4 +1,8 @@
-"""A real dask cluster from the dask command line, one worker killed mid-run: the output is still byte-identical."""
+"""A real dask cluster from the dask command line, one worker killed mid-run: the output is still byte-identical.
+
+The run's working directory is not the workers': its output and store, named relative to it, are found by the
+workers (they were taken relative to the workers' own directory: "not a patchcloud store", review J).
+"""
 
 import os
 import signal
@@ -62,9 +66,11 @@ def test_killed_worker_leaves_the_output_byte_identical(tmp_path, step):
                 env=wenv, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
             ))
         _wait_for_workers(address, 2)
-        out = tmp_path / "out.laz"
-        run = f"from patchcloud.stream import normals; normals({str(source)!r}, {str(out)!r}, scheduler={address!r}, quiet=True, **{options!r})"
-        p = subprocess.run([sys.executable, "-c", run], capture_output=True, text=True, timeout=600)
+        client = tmp_path / "client"  # the run's directory, not the workers': its relative paths are made absolute
+        client.mkdir()
+        out = client / "out.laz"
+        run = f"from patchcloud.stream import normals; normals({str(source)!r}, 'out.laz', scheduler={address!r}, quiet=True, **{options!r})"
+        p = subprocess.run([sys.executable, "-c", run], capture_output=True, text=True, timeout=600, cwd=client)
         assert p.returncode == 0, p.stderr[-3000:]
         assert mark.exists(), "the worker was not killed: the test did not test anything"
         assert procs[1].poll() is not None  # the killed worker's nanny is gone too

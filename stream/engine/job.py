@@ -517,7 +517,10 @@ def _store_url(run: RunOptions, catalog: Catalog, default_store: str) -> tuple[s
     """The run's store: (URL, in memory)."""
     if run.runs_in_memory(catalog.point_count):
         return f"{memory_group.PREFIX}{uuid.uuid4().hex}", True
-    return run.store or default_store, False
+    url = run.store or default_store
+    if "://" not in url:  # a local path: absolute, the same for the workers of a cluster, started in other directories
+        url = os.path.abspath(url)
+    return url, False
 
 
 def _complete(catalog: Catalog, outs: list[Path], url: str, selection: dict | None = None,
