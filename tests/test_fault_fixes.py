@@ -7,6 +7,7 @@ import os
 import re
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -189,7 +190,8 @@ def test_a_store_whose_root_metadata_is_gone_is_one_line_saying_remove_it(small_
         root.write_bytes(b"\x00garbage{")
     r = _normals(small_las, tmp_path / "out2.las", "--store", str(tmp_path / "out.las.store"))
     assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
-    assert "not a patchcloud store" in r.output and "remove the store to start over" in r.output
+    assert "a patchcloud store whose root metadata (zarr.json) is missing or damaged" in r.output
+    assert "remove the store to start over" in r.output
     assert (tmp_path / "out.las.store" / "tiles").exists()  # nothing of it removed
 
 
@@ -203,9 +205,24 @@ def test_tile_refuses_a_path_holding_something_else_and_touches_nothing(tmp_path
         (store / "notes.txt").write_text("mine")
     else:
         store.write_text("mine")
-    with pytest.raises(PatchcloudStoreError, match=r"s.zarr: exists and is not a patchcloud store .*remove the store to start over"):
+    # it is the user's: not "remove the store to start over" (review J: that told the user to remove their own files)
+    what_it_is = "a file" if what == "file" else "a directory that holds no patchcloud store"
+    with pytest.raises(PatchcloudStoreError, match=rf"s.zarr: exists and is not a patchcloud store \({what_it_is}\): give another "
+                                                   r"store \(nothing there is touched\)$"):
         tile(SAMPLE, str(store), tile_size=64, scheduler="synchronous", quiet=True)
     assert (store / "notes.txt" if what == "directory" else store).read_text() == "mine"
+
+
+def test_tile_refuses_its_input_as_its_store(tmp_path):
+    """``patchcloud tile IN IN``: the input is never a store (it said the input "is not a patchcloud store: remove the
+    store", review J), as every job refuses it."""
+    from patchcloud.core import PatchcloudIOError
+
+    src = tmp_path / "in.laz"
+    src.write_bytes(Path(SAMPLE).read_bytes())
+    with pytest.raises(PatchcloudIOError, match=r"in.laz: is the input .*in.laz; give another output \(an input is never replaced\)"):
+        tile(src, str(src), tile_size=64, scheduler="synchronous", quiet=True)
+    assert src.read_bytes() == Path(SAMPLE).read_bytes()
 
 
 @pytest.mark.parametrize("args, says", [

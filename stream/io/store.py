@@ -76,6 +76,8 @@ FORMAT = "patchcloud-store"
 VERSION = 5
 #: What a damaged store's error tells the user to do.
 START_OVER = "remove the store to start over"
+#: What a store's directory holds beside its root metadata: one of them there, zarr.json not, is a damaged store.
+STORE_PARTS = ("tiles", "index")
 #: The grid origin is a multiple of this (metres), so grids of every power-of-two tile size up to it align (core's
 #: ``root="grid"`` is the cube they are cells of).
 ANCHOR = GRID_ANCHOR
@@ -426,8 +428,13 @@ class Store:
             Naming ``url`` and saying to remove it; nothing there is touched.
         """
         if _occupied(url) and not cls.exists(url):
-            raise PatchcloudStoreError(f"{url}: exists and is not a patchcloud store (no readable root metadata, zarr.json): "
-                                       f"{START_OVER}, or give another store")
+            root = _local_dir(url)
+            if root is not None and root.is_dir() and any((root / part).exists() for part in STORE_PARTS):
+                raise PatchcloudStoreError(f"{url}: a patchcloud store whose root metadata (zarr.json) is missing or damaged: "
+                                           f"{START_OVER}, or give another store")
+            what = "a file" if root is not None and root.is_file() else "a directory that holds no patchcloud store"
+            raise PatchcloudStoreError(f"{url}: exists and is not a patchcloud store ({what}): give another store "
+                                       "(nothing there is touched)")
 
     @classmethod
     def exists(cls, url: str) -> bool:

@@ -9,7 +9,7 @@ from patchcloud.stream.engine.ingest import ensure_tiled
 from patchcloud.stream.engine.job import RunOptions
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io.crs import units_of
-from patchcloud.stream.io.las import open_source
+from patchcloud.stream.io.las import check_not_input, open_source
 from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.store import Store
 from patchcloud.stream.engine.background import stops_what_it_starts
@@ -44,6 +44,8 @@ def tile(
     src = open_source(input)
     units_of(src.crs, src.mins, src.maxs, run.units, where=src.path)  # degrees are not lengths: as every job refuses them
     local = "://" not in store
+    if local:
+        check_not_input(store, [src.path])  # as every job refuses its input as its store
     if local:
         Path(store).parent.mkdir(parents=True, exist_ok=True)  # as zarr makes it; the store's lock goes beside it
     with RunLock([store] if local else []):  # as a job on the store does (stream.io.lock): never two writers
