@@ -68,11 +68,12 @@ def check_positive(name: str, value, integer: bool = False):
     """
     if value is None:
         return None
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
     if integer:
-        if isinstance(value, bool) or int(value) != value or value < 1:
+        if not number or not np.isfinite(value) or int(value) != value or value < 1:
             raise PatchcloudValueError(f"{name} must be a positive integer, got {value!r}")
         return int(value)
-    if not np.isfinite(value) or value <= 0:
+    if not number or not np.isfinite(value) or value <= 0:
         raise PatchcloudValueError(f"{name} must be a positive finite number, got {value!r}")
     return float(value)
 
@@ -114,18 +115,23 @@ def check_viewpoint(viewpoint, name: str = "viewpoint") -> np.ndarray:
 MAX_COORDINATE = 1e12
 
 
-def check_rounding(rounding) -> float:
-    """``rounding`` (the step the coordinates are rounded to, metres) as a float >= 0, or a PatchcloudValueError.
+def check_rounding(rounding, name: str = "rounding") -> float:
+    """``rounding`` (the step the coordinates are rounded to, metres) as a float >= 0, or a PatchcloudValueError naming
+    ``name`` (the argument as the caller calls it).
 
     >>> check_rounding(0.01)
     0.01
+    >>> check_rounding(-1, "grid_step")
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: grid_step must be a finite length of at least 0 (the coordinates' step), got -1
     """
     try:
         value = float(rounding)
     except (TypeError, ValueError):
         value = float("nan")
     if not (np.isfinite(value) and value >= 0):
-        raise PatchcloudValueError(f"rounding must be a finite length of at least 0 (the coordinates' step), got {rounding!r}")
+        raise PatchcloudValueError(f"{name} must be a finite length of at least 0 (the coordinates' step), got {rounding!r}")
     return value
 
 

@@ -88,7 +88,11 @@ def don_magnitude(don: np.ndarray) -> np.ndarray:
 
 
 def _don_vectors(don) -> np.ndarray:
-    d = np.asarray(don, dtype=np.float64)
+    try:
+        d = np.asarray(don, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PatchcloudValueError(f"don must be an (N, 3) array of DoN vectors (numbers), got {type(don).__name__} "
+                                   f"{str(don)[:40]!r}") from None
     if d.ndim != 2 or d.shape[1] != 3:
         raise PatchcloudValueError(f"don must be an (N, 3) array of DoN vectors, got shape {d.shape}")
     return d

@@ -161,8 +161,9 @@ def estimate_normals(
     Raises
     ------
     PatchcloudValueError (a ValueError)
-        Wrong shape or dtype, NaN or infinite coordinates, fewer points than
-        ``n_min``, or an invalid parameter; the message says which.
+        Wrong shape or dtype, NaN or infinite coordinates, or an invalid
+        parameter; the message says which.  (A cloud of fewer than ``n_min``
+        points is taken: no patch then, every point a moment or k-NN normal.)
 
     Examples
     --------

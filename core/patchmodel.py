@@ -348,8 +348,10 @@ def fit_models(
     budget = check_budget(max_error)
     o = NormalsOptions(d_min=d_min, max_edge=max_edge, n_min=n_min, min_sigma2=min_sigma2)  # (checks them)
     d_min, max_edge, n_min, min_sigma2 = o.d_min, o.max_edge, o.n_min, o.min_sigma2
-    if not np.isfinite(outlier_factor) or outlier_factor < 1:
+    if isinstance(outlier_factor, (bool, str)) or not np.isfinite(outlier_factor) or outlier_factor < 1:
         raise PatchcloudValueError(f"outlier_factor must be at least 1, got {outlier_factor!r}")
+    if not isinstance(merge, (bool, np.bool_)):
+        raise PatchcloudValueError(f"merge must be True or False; got {merge!r}")
     n = pts.shape[0]
     if n < n_min:
         raise PatchcloudValueError(f"the cloud has {n} points, fewer than n_min={n_min}")

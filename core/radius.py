@@ -98,7 +98,7 @@ def check_grid_step(points, grid_step: float | None) -> float:
     >>> check_grid_step(np.zeros((2, 3)), None), check_grid_step(np.zeros((2, 3)), 0.01)
     (0.0, 0.01)
     """
-    return grid_step_of(points) if grid_step is None else check_rounding(grid_step)
+    return grid_step_of(points) if grid_step is None else check_rounding(grid_step, "grid_step")
 
 
 def tie_margin(grid_step: float) -> float:

@@ -1,6 +1,7 @@
 """Arguments the Python API and the CLI used to accept and then ignore or misread (a sweep of 2026-11-26)."""
 
 import struct
+from pathlib import Path
 
 import laspy
 import numpy as np
@@ -243,3 +244,41 @@ def test_huge_values_are_one_line_without_numpys_overflow_warnings(tmp_path):
         r = CliRunner().invoke(main, [*args, "-q"])
         assert r.exit_code == 2 and says in r.output and r.output.count("\n") == 1 and "inf" not in r.output, r.output
         assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las"]
+
+
+@pytest.mark.parametrize("call, says", [
+    # each one a bare numpy, dataclasses or AttributeError traceback before (review J of 2026-11-28)
+    (lambda p: __import__("patchcloud.core", fromlist=["x"]).estimate_normals(p, threshold="0.1"),
+     "threshold must be a positive finite number, got '0.1'"),
+    (lambda p: __import__("patchcloud.core", fromlist=["x"]).estimate_normals(p, n_min="12"), "n_min must be a positive integer, got '12'"),
+    (lambda p: __import__("patchcloud.core", fromlist=["x"]).don_magnitude("x"), "don must be an (N, 3) array of DoN vectors (numbers)"),
+    (lambda p: __import__("patchcloud.core", fromlist=["x"]).fit_models(p, 0.05, merge=1), "merge must be True or False; got 1"),
+    (lambda p: __import__("patchcloud.core", fromlist=["x"]).radius_normals(p, 1.0, grid_step=-1),
+     "grid_step must be a finite length of at least 0"),
+])
+def test_arguments_of_the_wrong_kind_are_one_clear_error(call, says):
+    p = np.random.default_rng(0).uniform(0, 10, (500, 3))
+    with pytest.raises(PatchcloudValueError) as e:
+        call(p)
+    assert says in str(e.value)
+
+
+def test_stream_arguments_of_the_wrong_kind_are_one_clear_error(tmp_path):
+    from patchcloud.stream import decompress, map_tiles, normals, tile
+
+    sample = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
+    with pytest.raises(PatchcloudValueError, match="run must be a RunOptions .*got dict"):
+        normals(sample, tmp_path / "o.laz", run={"workers": 1})
+    with pytest.raises(PatchcloudValueError, match="seed must be a whole number from 0 to 2\\*\\*62 - 1; got 'a'"):
+        decompress(tmp_path / "x.pcz", tmp_path / "o.laz", seed="a")
+    with pytest.raises(PatchcloudValueError, match="store must be a Store or a store's path or URL, got int"):
+        map_tiles(len, 3)
+    store = tile(sample, str(tmp_path / "s.zarr"), tile_size=64, quiet=True)
+    by_path = map_tiles(_tile_points, str(tmp_path / "s.zarr"))  # a store's path is opened
+    assert by_path == map_tiles(_tile_points, store) and sum(by_path.values()) == 60653
+
+
+def _tile_points(url, ijk):
+    from patchcloud.stream import Store
+
+    return int(Store.open(url).tile_counts[Store.open(url).tiles.index(ijk)])

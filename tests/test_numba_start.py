@@ -57,8 +57,8 @@ LIGHT = textwrap.dedent("""
     pts = np.column_stack([xy, 0.3 * np.sin(xy[:, 0]) + 0.1 * xy[:, 1]])
     res = estimate_normals(pts)
     refreshed = any(m in sys.modules for m in REFRESH_ONLY)
-    from llvmlite.binding import ffi
-    events = sum("llvm_lock" in getattr(a, "__qualname__", "") for a, _ in ffi.lib._lock._cblist)  # numba's callbacks
+    from numba.core import base
+    events = sum("llvm_lock" in getattr(a, "__qualname__", "") for a, _ in base.ll.ffi.lib._lock._cblist)  # numba's callbacks
     sys.path.insert(0, sys.argv[2])
     import kernel_for_light_test as k  # a kernel of its own cache: cached for floats by the first run, ints compiled anew
     extra = (k.twice(1.5), k.twice(3)) if sys.argv[3] == "both" else (k.twice(1.5),)

@@ -251,6 +251,9 @@ def split_options(kwargs: dict, options, kind: type, run: RunOptions | None) -> 
         )
     own = options_with(kind, options, {k: v for k, v in kwargs.items() if k in mine})
     how = {k: v for k, v in kwargs.items() if k in theirs}
+    if run is not None and not isinstance(run, RunOptions):
+        raise PatchcloudValueError(f"run must be a RunOptions (or give its fields as keywords: workers=2, ...), "
+                                   f"got {type(run).__name__}")
     return own, dataclasses.replace(run or RunOptions(), **how)
 
 

@@ -125,9 +125,9 @@ def drop_llvm_lock_events() -> int:
     Other callbacks on the lock are left; where llvmlite keeps them
     otherwise than this expects, nothing is taken (0).
     """
-    import numba.core.base  # noqa: F401  registers the callbacks as it is imported
-    from llvmlite.binding import ffi
+    from numba.core import base  # registers the callbacks as it is imported; its llvmlite binding is the one numba uses
 
+    ffi = getattr(getattr(base, "ll", None), "ffi", None)
     lock = getattr(getattr(ffi, "lib", None), "_lock", None)
     pairs = getattr(lock, "_cblist", None)
     if not isinstance(pairs, list) or not hasattr(ffi, "unregister_lock_callback"):

@@ -10,6 +10,7 @@ when the tile later succeeds.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping, Sequence
 from itertools import product
 from typing import Any
@@ -58,7 +59,7 @@ def map_tiles(
     ----------
     func : callable
         A module-level function (it may run in another process).
-    store : Store
+    store : Store, or a store's path or URL (opened)
     tiles : sequence of (3,) int tuples, optional
         The tiles to run on (default: all of the store's).
     halo : int
@@ -99,6 +100,10 @@ def map_tiles(
     """
     if isinstance(halo, bool) or not isinstance(halo, (int, np.integer)) or halo < 0:
         raise PatchcloudValueError(f"halo must be a whole number of tiles, 0 or more; got {halo!r}")
+    if isinstance(store, (str, os.PathLike)):
+        store = Store.open(os.fspath(store))
+    elif not isinstance(store, Store):
+        raise PatchcloudValueError(f"store must be a Store or a store's path or URL, got {type(store).__name__}")
     runner = runner or Runner("synchronous", quiet=True)
     all_tiles = store.tiles
     present = set(all_tiles)

@@ -279,7 +279,10 @@ def decompress(
     """
     if density is not None and lod is not None:
         raise PatchcloudValueError(f"density={density!r} and lod={lod!r}: give one of them, not both")
-    if density is not None and (not np.isfinite(density) or density <= 0):
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= seed < 2**62:
+        raise PatchcloudValueError(f"seed must be a whole number from 0 to 2**62 - 1; got {seed!r}")
+    numeric = isinstance(density, (int, float, np.integer, np.floating)) and not isinstance(density, bool)
+    if density is not None and (not numeric or not np.isfinite(density) or density <= 0):
         raise PatchcloudValueError(f"density must be a positive number of points per square unit of the file's CRS, got {density!r}")
     if lod is not None and (not isinstance(lod, (int, np.integer)) or lod < 0):
         raise PatchcloudValueError(f"lod must be a whole number, at least 0; got {lod!r}")
