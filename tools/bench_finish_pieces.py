@@ -23,23 +23,15 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
 import sys
-import time
 from datetime import date
 from itertools import product
 from pathlib import Path
 
 import numpy as np
 
-
-def _median_time(func, repeats: int):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = func()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), out
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from timing import median_time  # noqa: E402  (tools/ shares it)
 
 
 def measure(url: str, pieces: list[int], repeats: int) -> tuple[dict, list[dict]]:
@@ -62,14 +54,14 @@ def measure(url: str, pieces: list[int], repeats: int) -> tuple[dict, list[dict]
     rows = []
     with single_threaded():
         finish_values(url, big, params, neighbours)  # compiled and cached before timing
-        whole_s, whole = _median_time(lambda: finish_values(url, big, params, neighbours), repeats)
+        whole_s, whole = median_time(lambda: finish_values(url, big, params, neighbours), repeats)
         for k in pieces:
             times, parts = [], []
             masks = []
             for j in range(k):
                 lo, hi = piece_rows(rank.size, j, k)  # a piece: rows of the tile's input order, as the finish step cuts it
                 only = (rank >= lo) & (rank < hi)
-                t, out = _median_time(lambda: finish_values(url, big, params, neighbours, only), repeats)
+                t, out = median_time(lambda: finish_values(url, big, params, neighbours, only), repeats)
                 times.append(t)
                 parts.append(out)
                 masks.append(only)

@@ -18,26 +18,16 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
 import sys
-import time
 from datetime import date
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from timing import median_time  # noqa: E402  (tools/ shares it)
 
 __all__ = ["main"]
-
-
-def _median_time(func, repeats: int):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = func()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), out
 
 
 def key_sets(points: int, seed: int = 0) -> list[tuple[str, np.ndarray]]:
@@ -85,8 +75,8 @@ def main(argv=None) -> int:
         for name, keys in key_sets(a.points):
             stable_argsort(keys[:5000])  # compiled and cached before timing
             runs = 1 + int(np.count_nonzero(keys[1:] != keys[:-1]))
-            ours, p = _median_time(lambda: stable_argsort(keys), a.repeats)
-            numpy_s, q = _median_time(lambda: np.argsort(keys, kind="stable"), a.repeats)
+            ours, p = median_time(lambda: stable_argsort(keys), a.repeats)
+            numpy_s, q = median_time(lambda: np.argsort(keys, kind="stable"), a.repeats)
             same = bool(np.array_equal(p, q))
             same_all &= same
             lines.append(f"{name:<28} {keys.size:>10,} {keys.size / runs:>9.1f} {ours:>17.4f} {numpy_s:>13.4f} "
