@@ -10,6 +10,7 @@ import pytest
 from click.testing import CliRunner
 from test_stream import write_scene
 
+from patchcloud.core import PatchcloudIOError
 from patchcloud.stream import normals
 from patchcloud.stream.cli import main
 from patchcloud.stream.io.store import VERSION, PatchcloudStoreError, Store, chunk_checksums
@@ -117,3 +118,13 @@ def test_a_rerun_on_a_damaged_kept_store_stops_with_one_line_naming_the_tile(kep
     assert f"{victim.name}, array 'normal': the store is damaged" in lines[0] and "remove the store to start over" in lines[0]
     assert "resumes from it" not in lines[0]  # resuming would meet the same damage
     assert not out.exists()
+
+
+def test_opening_a_file_as_a_store_says_so(tmp_path):
+    """Store.open of a file (an input given as the store, say): one error saying it is a file, not zarr's
+    "[Errno 17] File exists" (review J)."""
+    f = tmp_path / "x.laz"
+    f.write_bytes(b"LASF")
+    with pytest.raises(PatchcloudIOError, match=r"x.laz: not a patchcloud store \(a file; a store is a directory\)$"):
+        Store.open(str(f))
+    assert f.read_bytes() == b"LASF"

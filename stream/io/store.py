@@ -393,6 +393,8 @@ class Store:
         """An existing store; a clear error when ``url`` is not one or is of another version."""
         root = _local_dir(url)
         meta = None
+        if root is not None and root.is_file():  # (zarr said "[Errno 17] File exists")
+            raise PatchcloudIOError(f"{url}: not a patchcloud store (a file; a store is a directory)")
         if root is not None:  # a local store: its root metadata read directly, zarr's group opened only if needed
             try:
                 meta = LocalZarr(root).meta("")
