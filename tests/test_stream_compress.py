@@ -1,5 +1,7 @@
 """``patchcloud compress`` / ``decompress``: LAS -> .pcz -> LAS, out of core."""
 
+from pathlib import Path
+
 import laspy
 import numpy as np
 import pytest
@@ -143,6 +145,8 @@ def test_cli_and_bad_input(las_file, tmp_path):
                                   "--scheduler", "synchronous", "--tile-size", "8"])
     assert r.exit_code == 0, r.output
     assert "bits/point" in r.output
+    tiles = [line for line in r.output.splitlines() if line.strip().startswith("tiles ")]  # as normals' summary says it
+    assert len(tiles) == 1 and tiles[0].split()[1:] == [str(len(compress_store_tiles(las_file))), "of", "8", "m"], tiles
     r = CliRunner().invoke(main, ["decompress", str(tmp_path / "c.pcz"), str(tmp_path / "c.laz"), "--lod", "1", "-q"])
     assert r.exit_code == 0 and (tmp_path / "c.laz").exists()
     r = CliRunner().invoke(main, ["decompress", str(las_file), str(tmp_path / "x.las")])
@@ -335,3 +339,10 @@ def test_a_pcz_renamed_into_place_before_its_store_was_removed_is_the_same_comma
     assert out.read_bytes() == first and sorted(p.name for p in tmp_path.iterdir()) == ["c.pcz"]
     with pytest.raises(PatchcloudExistsError):  # a .pcz the store does not record is still not replaced
         compress(las_file, out, **kw)
+
+
+def compress_store_tiles(path) -> list:
+    """The tiles of ``path`` cut in 8 m tiles (what compress's summary counts)."""
+    from patchcloud.stream import tile
+
+    return tile(path, str(Path(path).with_suffix(".tiles.zarr")), tile_size=8, scheduler="synchronous", quiet=True, overwrite=True).tiles

@@ -87,6 +87,8 @@ class CompressSummary:
     steps: list = field(default_factory=lambda: [1, 1, 1])  # the multiples of the input's integers kept (stream.io.point_coding)
     dropped: list = field(default_factory=list)  # dimensions written as zeros (of the residual points, in model mode)
     scales: list = field(default_factory=lambda: [1.0, 1.0, 1.0])  # the input's scales (a step's length is steps x scales)
+    tiles: int = 0  # the store's tiles, of tile_size (model mode; 0: none, points mode)
+    tile_size: float = 0.0
 
     def _position_line(self, who: str) -> str:
         u = self.units["symbol"]
@@ -113,6 +115,7 @@ class CompressSummary:
             f"{self.input} -> {self.output}",
             f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches ({self.cells:,} octree cells) "
             f"({(self.points - self.residual) / n:.1%}), {self.residual:,} residual ({self.residual / n:.1%})",
+            *([f"  tiles           {self.tiles:,} of {self.tile_size:g} {u}"] if self.tiles else []),
             f"  error           budget {self.max_error:g} {u}; mean distance of the modelled points to their surface "
             f"{self.mean_error:.4f} {u} (before quantisation, which adds at most half the budget)",
             self._position_line("residual points"),
@@ -290,6 +293,7 @@ class CompressJob(Job):
             left_out=dict(zip(REASONS, np.sum([i.get("left_out", [0] * len(REASONS)) for i in v], axis=0).astype(int).tolist()))
             if v else {}, selection=ctx.run.selection.to_json(), steps=list(self.params["steps"]),
             dropped=list(self.params["dropped"]), scales=list(ctx.store.grid.scale),
+            tiles=len(ctx.store.tiles), tile_size=float(ctx.store.grid.tile_size),
         )
 
 
