@@ -259,3 +259,32 @@ def test_a_kept_store_holds_no_fragments_nor_trash_after_a_run(small_las, tmp_pa
     assert res.exit_code == 0, res.output
     assert (store / "tiles").is_dir()
     assert not (store / "parts").exists() and not (store / "export").exists() and not (store / TRASH).exists()
+
+
+@pytest.mark.parametrize("where", ["store", "memory"])
+def test_a_fragment_written_as_an_interrupted_export_ends_is_removed_with_the_rest(tmp_path, monkeypatch, where):
+    """Ctrl-C during the export: a task still running may write a LAZ fragment into OUT.partial.parts while the export
+    removes it, which left the directory and the fragment (review J, once); the run removes what is left of its partial
+    outputs once its workers are gone."""
+    from patchcloud.stream import normals
+    from patchcloud.stream.engine.runner import Runner
+    from patchcloud.stream.io import las_output
+
+    out = tmp_path / "out.laz"
+    close = Runner.close
+
+    def late_fragment_then_close(self):
+        d = las_output.fragments_dir(las_output.partial_path(out))
+        d.mkdir(exist_ok=True)
+        (d / "000003.tmp").write_bytes(b"a task's late part")
+        close(self)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt("stopped")
+
+    monkeypatch.setattr(Runner, "close", late_fragment_then_close)
+    monkeypatch.setattr(las_output, "finish", interrupted)
+    run = {"store": str(tmp_path / "s.zarr"), "scheduler": "synchronous"} if where == "store" else {}  # else in memory
+    with pytest.raises(KeyboardInterrupt):
+        normals(SAMPLE, out, quiet=True, **run)
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["s.zarr"] if where == "store" else [])

@@ -364,7 +364,7 @@ def export_columns(
     parts = catalog_parts(cat, int(store.attrs["part_points"]))
     first_part = np.searchsorted([f for f, _, _ in parts], np.arange(len(cat.sources) + 1))  # a file's parts are consecutive
     laz_parallel = runner.laz_parallel  # tasks in this process: lazrs may use the cores
-    tmps = [os.path.abspath(o.with_name(o.name + ".partial")) for o in outs]  # absolute: the workers write into them
+    tmps = [os.path.abspath(las_output.partial_path(o)) for o in outs]  # absolute: the workers write into them
     try:
         renumbered = [col for col in columns if col.renumber]
         if renumbered:

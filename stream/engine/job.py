@@ -69,7 +69,7 @@ from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import CorruptPointsError, LasSource, atomic_output, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source, same_file
 from patchcloud.stream.io.las_output import LAZ_CHUNK
-from patchcloud.stream.io import memory_group
+from patchcloud.stream.io import las_output, memory_group
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.lock import RunLock
 from patchcloud.stream.io.renamed import file_state, renamed_here
@@ -681,7 +681,7 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     if in_memory:
         before = [file_state(o) for o in outs]
         try:
-            return _run(job, catalog, outs, out, url, False, dataclasses.replace(run, scheduler="synchronous"))
+            return _run_cleaned(job, catalog, outs, out, url, False, dataclasses.replace(run, scheduler="synchronous"))
         except KeyboardInterrupt:
             raise KeyboardInterrupt(f"interrupted{_remove_written(outs, before)}") from None
         except PatchcloudError as exc:
@@ -696,7 +696,7 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
             Store.discard(url)
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
     try:
-        summary = _run(job, catalog, outs, out, url, keep, run)
+        summary = _run_cleaned(job, catalog, outs, out, url, keep, run)
     except PatchcloudStoreError:
         raise
     except (NothingToResumeError, CorruptPointsError):  # the same command would fail again, or read the file anew: nothing
@@ -714,6 +714,24 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     if not keep:
         Store.discard(url)
     return summary
+
+
+def _run_cleaned(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep: bool, run: RunOptions) -> Any:
+    """:func:`_run`; when it fails or is stopped, what is left of its outputs' partial files once its workers are gone.
+
+    The export removes them as it stops, but a task still running then (a
+    worker finishes the task it is in) may write a LAZ fragment into the
+    fragments' directory while it is being removed, which leaves the
+    directory and that fragment (seen once by review J after a Ctrl-C): by
+    the time :func:`_run` returns, its cluster is closed and nothing writes
+    any more.
+    """
+    try:
+        return _run(job, catalog, outs, out, url, keep, run)
+    except BaseException:
+        for o in outs:
+            las_output.remove_partial(las_output.partial_path(o))
+        raise
 
 
 def _remove_written(outs: list[Path], before: list) -> str:
