@@ -59,6 +59,16 @@ def test_a_dimension_too_narrow_for_the_values_is_refused_before_anything_is_wri
     with pytest.raises(PatchcloudValueError, match="NormalX of type uint8, which cannot hold"):
         normals(src, tmp_path / "out.las", quiet=True)
     assert not (tmp_path / "out.las").exists()
+    # before anything runs (review K: after the whole computation, and on disk with a store kept "to resume from",
+    # where the same command failed the same way), for every job and catalogs too
+    from patchcloud.stream import don, segment
+
+    for job, dim in ((normals, "NormalX"), (don, "DoN"), (segment, "ClusterID")):
+        with_dims(scene, src, [(dim, np.uint8)])
+        args = {} if job is normals else dict(r_small=0.5, r_large=2.0)
+        with pytest.raises(PatchcloudValueError, match=f"{dim} of type uint8, which cannot hold"):
+            job(src, tmp_path / "out.las", quiet=True, scheduler="synchronous", **args)  # on disk: the store is made first
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["narrow.las"]
 
 
 

@@ -67,7 +67,10 @@ from patchcloud.stream.io.crs import UNITS, Units, units_of
 from patchcloud.stream.io.las_records import provenance_vlr
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
-from patchcloud.stream.io.las import CorruptPointsError, LasSource, atomic_output, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source, same_file
+from patchcloud.stream.io.las import (
+    CorruptPointsError, LasSource, atomic_output, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source,
+    output_header, same_file,
+)
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import las_output, memory_group
 from patchcloud.stream.io.budget import check_memory
@@ -467,6 +470,11 @@ class Job:
         """Refuse, before anything runs, parameters the input makes meaningless (a radius wider than the cloud, say):
         a PatchcloudValueError.  Nothing by default."""
 
+    def dims(self) -> Sequence[tuple]:
+        """The dimensions the output adds to the input's (name, type, description[, no-data]), known before the run:
+        an input's dimension of one of these names must hold its type (checked before anything runs).  None by default."""
+        return ()
+
     def columns(self, ctx: JobContext) -> tuple[list[Column], Sequence[tuple]]:
         """The per-tile arrays written as new dimensions, and those dimensions (name, type, description[, no-data])."""
         raise NotImplementedError(f"{type(self).__name__} writes its output with its own write()")
@@ -633,6 +641,7 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     """run_job, within :func:`~patchcloud.stream.engine.background.stops_what_it_starts`."""
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
     job.check(catalog)
+    check_dims_fit(catalog, job.dims())
     made = run.out_dir is not None and not out.exists()  # a catalog's output directory, made for this run
     if made:
         out.mkdir()
@@ -714,6 +723,15 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     if not keep:
         Store.discard(url)
     return summary
+
+
+def check_dims_fit(catalog: Catalog, dims: Sequence[tuple]) -> None:
+    """Refuse, before anything runs, an input whose dimension of the name of one of ``dims`` cannot hold its values
+    (an 8-bit ``NormalX``): the PatchcloudValueError each output's header (:func:`~patchcloud.stream.io.las.output_header`)
+    gives, which came after the whole run (found by review K)."""
+    if dims:
+        for src in catalog.sources:
+            output_header(src, dims)
 
 
 def _run_cleaned(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep: bool, run: RunOptions) -> Any:

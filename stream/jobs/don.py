@@ -216,8 +216,11 @@ class DonJob(Job):
     def don(self, ctx: JobContext) -> None:
         self.infos = ctx.map_tiles(don_tiles.don_tile, halo=self.halo, label="DoN", params=self.params)
 
+    def dims(self):
+        return DON_DIMS
+
     def columns(self, ctx: JobContext):
-        return [Column("don", ("DoN", "DoNX", "DoNY", "DoNZ"), np.float32, per_tile=magnitude_and_vector)], DON_DIMS
+        return [Column("don", ("DoN", "DoNX", "DoNY", "DoNZ"), np.float32, per_tile=magnitude_and_vector)], self.dims()
 
     def summarise(self, ctx: JobContext) -> DonSummary:
         v = list(self.infos.values())

@@ -205,6 +205,9 @@ class NormalsJob(Job):
         for t, k in pieces.items():  # every piece is written: the tile is done (a few small reads and one write each)
             normals_tiles.mark_finished_pieces(st, t, self.params, k)
 
+    def dims(self):
+        return NORMALS_DIMS + PRINCIPAL_DIMS if self.principal_curvatures else NORMALS_DIMS
+
     def columns(self, ctx: JobContext):
         columns = [
             Column("normal", ("NormalX", "NormalY", "NormalZ"), np.float32),
@@ -212,11 +215,10 @@ class NormalsJob(Job):
             Column("method", ("NormalMethod",), np.uint8),
             Column("patch", ("PatchId",), np.uint32, per_tile=global_patch_ids, empty=NO_PATCH),
         ]
-        if not self.principal_curvatures:
-            return columns, NORMALS_DIMS
-        columns += [Column("principal", tuple(d[0] for d in PRINCIPAL_DIMS[:2]), np.float32),
-                    Column("direction", tuple(d[0] for d in PRINCIPAL_DIMS[2:]), np.float32)]
-        return columns, NORMALS_DIMS + PRINCIPAL_DIMS
+        if self.principal_curvatures:
+            columns += [Column("principal", tuple(d[0] for d in PRINCIPAL_DIMS[:2]), np.float32),
+                        Column("direction", tuple(d[0] for d in PRINCIPAL_DIMS[2:]), np.float32)]
+        return columns, self.dims()
 
     def summarise(self, ctx: JobContext) -> NormalsSummary:
         st = ctx.store

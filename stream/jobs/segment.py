@@ -66,10 +66,13 @@ class SegmentJob(DonJob):
         ctx.map_tiles(don_tiles.cluster_tile, halo=self.halo, label="cluster", params=self.params)
         self.segments = don_tiles.merge_components(ctx.store, self.options.min_cluster, self.options.max_cluster)
 
+    def dims(self):
+        return SEGMENT_DIMS
+
     def columns(self, ctx: JobContext):
         columns, _ = super().columns(ctx)
         columns.append(Column("comp", ("ClusterID",), np.uint64, per_tile=segment_of, renumber=True))
-        return columns, SEGMENT_DIMS
+        return columns, self.dims()
 
     def summarise(self, ctx: JobContext) -> DonSummary:
         s = super().summarise(ctx)
