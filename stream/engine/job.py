@@ -641,7 +641,7 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     """run_job, within :func:`~patchcloud.stream.engine.background.stops_what_it_starts`."""
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
     job.check(catalog)
-    check_dims_fit(catalog, job.dims())
+    _check_dims_fit(catalog, job.dims())
     made = run.out_dir is not None and not out.exists()  # a catalog's output directory, made for this run
     if made:
         out.mkdir()
@@ -725,7 +725,7 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     return summary
 
 
-def check_dims_fit(catalog: Catalog, dims: Sequence[tuple]) -> None:
+def _check_dims_fit(catalog: Catalog, dims: Sequence[tuple]) -> None:
     """Refuse, before anything runs, an input whose dimension of the name of one of ``dims`` cannot hold its values
     (an 8-bit ``NormalX``): the PatchcloudValueError each output's header (:func:`~patchcloud.stream.io.las.output_header`)
     gives, which came after the whole run (found by review K)."""
