@@ -269,12 +269,13 @@ def test_a_fragment_written_as_an_interrupted_export_ends_is_removed_with_the_re
     from patchcloud.stream import normals
     from patchcloud.stream.engine.runner import Runner
     from patchcloud.stream.io import las_output
+    from patchcloud.stream.io.renamed import partial_path
 
     out = tmp_path / "out.laz"
     close = Runner.close
 
     def late_fragment_then_close(self):
-        d = las_output.fragments_dir(las_output.partial_path(out))
+        d = las_output.fragments_dir(partial_path(out))
         d.mkdir(exist_ok=True)
         (d / "000003.tmp").write_bytes(b"a task's late part")
         close(self)

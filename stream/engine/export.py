@@ -49,7 +49,7 @@ from patchcloud.stream.io import las_output, memory_group
 from patchcloud.stream.io.las import POSITION_AND_CLASS, check_writable, is_laz_name, output_header
 from patchcloud.stream.io.catalog import Catalog
 from patchcloud.stream.io.store import Store
-from patchcloud.stream.io.renamed import rename_into_place
+from patchcloud.stream.io.renamed import partial_path, rename_into_place
 
 __all__ = ["Column", "export_columns", "export_part", "first_seen_part", "FirstSeenIds", "output_key", "complete_outputs", "file_record",
            "output_record_name", "record_output", "same_request"]
@@ -364,7 +364,7 @@ def export_columns(
     parts = catalog_parts(cat, int(store.attrs["part_points"]))
     first_part = np.searchsorted([f for f, _, _ in parts], np.arange(len(cat.sources) + 1))  # a file's parts are consecutive
     laz_parallel = runner.laz_parallel  # tasks in this process: lazrs may use the cores
-    tmps = [os.path.abspath(las_output.partial_path(o)) for o in outs]  # absolute: the workers write into them
+    tmps = [os.path.abspath(partial_path(o)) for o in outs]  # absolute: the workers write into them
     try:
         renumbered = [col for col in columns if col.renumber]
         if renumbered:

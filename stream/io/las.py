@@ -29,7 +29,7 @@ from patchcloud.core import PatchcloudExistsError, PatchcloudIOError, Patchcloud
 
 from .crs import is_crs_record, with_crs
 from .crs_cache import header_crs
-from .renamed import rename_into_place
+from .renamed import partial_path, rename_into_place
 from .write_errors import naming_failed_writes
 from .las_records import (
     EVLR_BYTES, VLR_BYTES, RawRecord, as_vlr, ascii_text, file_records, header_record_fields, is_extra_bytes, kept, software_version,
@@ -39,7 +39,7 @@ __all__ = [
     "LasSource", "CorruptPointsError", "open_source", "read_chunks", "read_range", "output_header", "assemble_header", "OUTPUT_VERSION", "check_writable", "check_directory_writable", "check_not_input", "same_file", "atomic_output", "is_laz_name", "laz_backend", "WAVE_PACKET_FIELDS", "has_wave_packets", "wave_packets_break_laz", "check_laz_keeps",
     "is_copc_name", "without_copc", "check_las_output", "laz_point_range", "writable_version", "check_header_sizes",
     "check_record_sizes", "check_header_values", "header_record_fields", "VLR_BYTES", "EVLR_BYTES", "NEWEST_FORMAT", "MAX_SCALE", "MAX_OFFSET", "undescribed_last", "check_chunk_table", "chunk_table", "POINTWISE_COMPRESSOR", "raw_header", "waves_of_las13", "split_evlrs", "is_waveform_evlr",
-    "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS", "content_fingerprint", "FINGERPRINT_BLOCKS", "FINGERPRINT_BLOCK", "holds",
+    "POSITION_AND_CLASS", "check_last_chunk", "INTERRUPTS", "content_fingerprint", "FINGERPRINT_BLOCKS", "FINGERPRINT_BLOCK", "holds", "check_dims_fit",
 ]
 
 #: What a ``except BaseException`` around lazrs lets through: lazrs' Rust panics come as pyo3's PanicException, which
@@ -809,6 +809,25 @@ def output_header(src: LasSource, dims, provenance: laspy.VLR | None = None, crs
     return assemble_header(header, vlrs, evlrs, dims, provenance, where=src.path, crs=crs if src.crs is None else None)
 
 
+def check_dims_fit(src: LasSource, dims) -> None:
+    """Refuse, from its header alone, a file with a dimension of the name of one of ``dims`` that cannot hold its values
+    (what :func:`assemble_header` refuses, for a check before a job runs): a PatchcloudValueError naming the file."""
+    with laspy.open(src.path) as reader:
+        _check_dims_hold(reader.header, dims, src.path)
+
+
+def _check_dims_hold(header: laspy.LasHeader, dims, where: str) -> None:
+    """A PatchcloudValueError for the first of ``dims`` whose name is a dimension of ``header`` that cannot hold its type."""
+    existing = {d.name: d.dtype for d in header.point_format.dimensions}
+    for name, dtype, *_ in dims:
+        if name in existing and not holds(existing[name], dtype):
+            raise PatchcloudValueError(
+                f"{where}: already has a dimension {name} of type {existing[name]}, which cannot hold this "
+                f"run's {np.dtype(dtype)} values: remove it first (e.g. pdal translate with "
+                f"--filters.ferry or writers.las.extra_dims listing the dimensions to keep)"
+            )
+
+
 def holds(existing, new) -> bool:
     """Whether an input's dimension of type ``existing`` can take a run's values of type ``new`` without loss: the same
     type, a wider float for a float, an integer at least as wide for an integer (signed for unsigned too: the values
@@ -846,18 +865,10 @@ def assemble_header(header: laspy.LasHeader, vlrs: list[RawRecord], evlrs: list[
     if crs is not None:  # (an input's unreadable CRS records among them)
         vlrs, evlrs = [r for r in vlrs if not is_crs_record(r)], [r for r in evlrs if not is_crs_record(r)]
     header.version = laspy.header.Version.from_str(OUTPUT_VERSION)
-    existing = {d.name: d for d in header.point_format.dimensions}
-    new = []
-    for name, dtype, desc, *no_data in dims:
-        if name in existing:
-            if not holds(existing[name].dtype, dtype):
-                raise PatchcloudValueError(
-                    f"{where}: already has a dimension {name} of type {existing[name].dtype}, which cannot hold this "
-                    f"run's {np.dtype(dtype)} values: remove it first (e.g. pdal translate with "
-                    f"--filters.ferry or writers.las.extra_dims listing the dimensions to keep)"
-                )
-            continue
-        new.append(laspy.ExtraBytesParams(name=name, type=dtype, description=desc, no_data=no_data or None))
+    _check_dims_hold(header, dims, where)
+    existing = {d.name for d in header.point_format.dimensions}
+    new = [laspy.ExtraBytesParams(name=name, type=dtype, description=desc, no_data=no_data or None)
+           for name, dtype, desc, *no_data in dims if name not in existing]
     if new:
         header.add_extra_dims(new)
     # laspy's setter rebuilds the ExtraBytes VLR from the point format (appended): it is set right after
@@ -1065,7 +1076,7 @@ def atomic_output(path: str | os.PathLike, overwrite: bool):
         ``path`` exists (at the start, or at the end without ``overwrite``).
     """
     p = check_writable(path, overwrite)
-    tmp = p.with_name(p.name + ".partial")
+    tmp = partial_path(p)
     fd = _locked_partial(p, tmp)
     try:
         ours = os.fstat(fd).st_ino

@@ -47,7 +47,7 @@ from .write_errors import naming_failed_writes
 from .las import UNDESCRIBED_NAME, chunk_table, laz_point_range
 
 __all__ = ["LAZ_CHUNK", "PointStats", "with_new_dims", "extra_bytes_structs", "LayeredSource", "layered_source", "LAYERED_SELECTION", "write_laz_part_layered", "copy_records", "prepare_header", "reset_statistics", "is_waveform_record", "point_stats", "begin", "write_las_part", "write_laz_part", "stitch", "finish",
-           "fragments_dir", "partial_path", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "keep_creation_date", "CREATION_AT", "rewrite_header", "restate"]
+           "fragments_dir", "remove_partial", "legacy_counts", "LEGACY_COUNT_AT", "keep_creation_date", "CREATION_AT", "rewrite_header", "restate"]
 
 #: Points per LAZ chunk of the files patchcloud writes (lazrs' default); parts are multiples of it.
 LAZ_CHUNK = 50_000
@@ -308,16 +308,6 @@ def restate(written: laspy.LasHeader, stats: list[PointStats], header: laspy.Las
     for name in ("offset_to_point_data", "start_of_first_evlr", "number_of_evlrs", "start_of_waveform_data_packet_record"):
         setattr(h, name, getattr(written, name))
     return h
-
-
-def partial_path(output: str | os.PathLike) -> Path:
-    """The temporary name an output is written under, renamed to ``output`` when complete: ``output`` + ``.partial``.
-
-    >>> partial_path("/data/out.laz").name
-    'out.laz.partial'
-    """
-    o = Path(output)
-    return o.with_name(o.name + ".partial")
 
 
 def fragments_dir(tmp: str | os.PathLike) -> Path:

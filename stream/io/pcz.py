@@ -104,7 +104,7 @@ from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIO
 
 from .budget import check_memory
 from .layered import LAYERED, from_layered, layered_size
-from .renamed import rename_into_place
+from .renamed import partial_path, rename_into_place
 from .las import check_header_sizes, check_header_values
 from .las_records import stated_point_count
 from .point_coding import refine
@@ -247,7 +247,7 @@ def _building(path: str | os.PathLike, overwrite: bool, before_rename: Callable[
     work = out.with_name(out.name + ".build")  # a fixed name (the run holds OUT's lock): a killed run's is removed here
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir()
-    tmp = out.with_name(out.name + ".partial")
+    tmp = partial_path(out)
     try:
         yield zarr.open_group(str(work / "store"), mode="w")
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as z:

@@ -17,7 +17,7 @@ import os
 import threading
 from pathlib import Path
 
-__all__ = ["rename_into_place", "renamed_here", "file_state"]
+__all__ = ["rename_into_place", "renamed_here", "file_state", "partial_path"]
 
 _renamed: dict[str, tuple] = {}
 _lock = threading.Lock()
@@ -34,6 +34,16 @@ def file_state(path: str | os.PathLike) -> tuple | None:
 
 def _key(path: str | os.PathLike) -> str:
     return str(Path(path).resolve())
+
+
+def partial_path(path: str | os.PathLike) -> Path:
+    """The temporary name a file is written under until it is complete and renamed to ``path``: ``path`` + ``.partial``.
+
+    >>> partial_path("/data/out.laz").name
+    'out.laz.partial'
+    """
+    p = Path(path)
+    return p.with_name(p.name + ".partial")
 
 
 def rename_into_place(tmp: str | os.PathLike, path: str | os.PathLike) -> None:

@@ -36,6 +36,7 @@ from patchcloud.stream.io.laz_block import records_laz
 from patchcloud.stream.jobs.compress import CompressSummary, pcz_source
 from patchcloud.stream.io.las import LasSource, raw_header, read_range
 from patchcloud.stream.io.point_coding import check_drop, coarse_records, coarse_steps, dropped_fields, refine
+from patchcloud.stream.io.renamed import partial_path
 
 __all__ = ["PointsJob", "encode_block", "blocks_folder"]
 
@@ -60,7 +61,7 @@ def encode_block(src: LasSource, first: int, count: int, steps, dropped, folder:
     s = np.asarray(src.scale, dtype=np.float64) * np.asarray(steps)
     raw = records_laz(rows, pf, src.version, s, src.offset, parallel=laz_parallel)
     path = Path(folder) / f"{b:06d}.laz"
-    tmp = path.with_name(path.name + ".partial")
+    tmp = partial_path(path)
     tmp.write_bytes(raw)
     tmp.replace(path)
     return dict(count=int(count), bytes=len(raw), bounds=[int(v) for v in bounds])
