@@ -12,7 +12,6 @@ import contextlib
 import json
 import logging
 import os
-import re
 import resource
 import socket
 import threading
@@ -27,7 +26,7 @@ from patchcloud.stream.engine.compiling import CompileClock
 from patchcloud.stream.engine.forkserver import forked_workers, hold_ctrl_c
 from patchcloud.stream.engine.placement import AUTO_PROCESSES_POINTS, resolve_scheduler
 from patchcloud.stream.engine.progress import Progress
-from patchcloud.stream.engine.scheduler_probe import probe_scheduler
+from patchcloud.stream.engine.scheduler_probe import ADDRESS, probe_scheduler
 from patchcloud.stream.io.budget import ENV as BUDGET_ENV
 
 __all__ = ["Runner", "SCHEDULERS", "AUTO_PROCESSES_POINTS", "ADDRESS_SCHEMES", "resolve_scheduler", "check_scheduler", "scheduler_from_file"]
@@ -37,7 +36,6 @@ SCHEDULERS = ("auto", "threads", "processes", "synchronous")
 #: The schemes of the dask.distributed scheduler addresses patchcloud takes (TLS: set dask's ``distributed.comm.tls``
 #: configuration, or ``DASK_DISTRIBUTED__COMM__TLS__*`` variables, as for any dask client).
 ADDRESS_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
-_ADDRESS = re.compile(r"^(?:(?P<scheme>[A-Za-z0-9]+)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+)(?::(?P<port>\d{1,5}))?$")
 
 
 def check_scheduler(scheduler) -> str:
@@ -53,7 +51,7 @@ def check_scheduler(scheduler) -> str:
     """
     if isinstance(scheduler, str) and scheduler in SCHEDULERS:
         return scheduler
-    m = _ADDRESS.match(scheduler) if isinstance(scheduler, str) else None
+    m = ADDRESS.match(scheduler) if isinstance(scheduler, str) else None
     ok = m is not None and (m["scheme"] in ADDRESS_SCHEMES if m["scheme"] else m["port"] is not None)
     if not ok or (m["port"] is not None and not 0 < int(m["port"]) < 65536):
         raise PatchcloudValueError(

@@ -13,13 +13,18 @@ those 8 bytes, and says what it found; addresses of the other schemes
 
 from __future__ import annotations
 
+import re
 import socket
 import struct
 import time
 
 from patchcloud.core import PatchcloudValueError
 
-__all__ = ["probe_scheduler", "PROBE_SECONDS", "RETRY_SECONDS", "DEFAULT_PORT"]
+__all__ = ["probe_scheduler", "ADDRESS", "PROBE_SECONDS", "RETRY_SECONDS", "DEFAULT_PORT"]
+
+#: A scheduler address: ``[SCHEME://]HOST[:PORT]``, HOST a name, an IPv4 address or an IPv6 one in brackets (groups
+#: ``scheme``, ``host``, ``port``; :func:`patchcloud.stream.engine.runner.check_scheduler` says which schemes are taken).
+ADDRESS = re.compile(r"^(?:(?P<scheme>[A-Za-z0-9]+)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+)(?::(?P<port>\d{1,5}))?$")
 
 #: How long (seconds) the scheduler is waited for: dask's own connect timeout here.
 PROBE_SECONDS = 20.0
@@ -54,11 +59,10 @@ def probe_scheduler(address: str, timeout: float | None = None) -> None:
     patchcloud.core.errors.PatchcloudValueError: tcp://127.0.0.1:...: something listens there but it is not a dask scheduler (it said nothing in 0.2 s; the dashboard's port, 8787 by default, is not the scheduler's, 8786)
     >>> server.close()
     """
-    scheme, _, rest = address.rpartition("://")
-    if scheme not in ("", "tcp"):
+    m = ADDRESS.match(address)
+    if m is None or m["scheme"] not in (None, "tcp"):  # (an address check_scheduler refused: dask says what is wrong)
         return
-    host, _, port = rest.rpartition(":") if rest.rsplit(":", 1)[-1].isdigit() else (rest, "", "")
-    host = host.strip("[]")
+    host, port = m["host"].strip("[]"), m["port"]
     wait = PROBE_SECONDS if timeout is None else float(timeout)
     deadline = time.monotonic() + wait
     while True:  # as dask's client: a scheduler still starting refuses connections for a while
