@@ -68,14 +68,14 @@ from patchcloud.stream.io.las_records import provenance_vlr
 from patchcloud.stream.io.classes import REASONS, Selection
 from patchcloud.stream.io.catalog import Catalog, check_out_dir, expand_inputs, open_catalog, output_paths
 from patchcloud.stream.io.las import (
-    CorruptPointsError, LasSource, atomic_output, check_las_output, check_laz_keeps, check_not_input, check_writable, open_source,
-    output_header, same_file,
+    CorruptPointsError, LasSource, atomic_output, check_dims_fit, check_las_output, check_laz_keeps, check_not_input, check_writable,
+    open_source, same_file,
 )
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.io import las_output, memory_group
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.lock import RunLock
-from patchcloud.stream.io.renamed import file_state, renamed_here
+from patchcloud.stream.io.renamed import file_state, partial_path, renamed_here
 from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store_dir, removing_path
 
 __all__ = [
@@ -641,7 +641,9 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     """run_job, within :func:`~patchcloud.stream.engine.background.stops_what_it_starts`."""
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
     job.check(catalog)
-    _check_dims_fit(catalog, job.dims())
+    if job.dims():  # an input dimension too narrow for them, before anything runs (it came after the whole run: review K)
+        for src in catalog.sources:
+            check_dims_fit(src, job.dims())
     made = run.out_dir is not None and not out.exists()  # a catalog's output directory, made for this run
     if made:
         out.mkdir()
@@ -725,15 +727,6 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
     return summary
 
 
-def _check_dims_fit(catalog: Catalog, dims: Sequence[tuple]) -> None:
-    """Refuse, before anything runs, an input whose dimension of the name of one of ``dims`` cannot hold its values
-    (an 8-bit ``NormalX``): the PatchcloudValueError each output's header (:func:`~patchcloud.stream.io.las.output_header`)
-    gives, which came after the whole run (found by review K)."""
-    if dims:
-        for src in catalog.sources:
-            output_header(src, dims)
-
-
 def _run_cleaned(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep: bool, run: RunOptions) -> Any:
     """:func:`_run`; when it fails or is stopped, what is left of its outputs' partial files once its workers are gone.
 
@@ -748,7 +741,7 @@ def _run_cleaned(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: s
         return _run(job, catalog, outs, out, url, keep, run)
     except BaseException:
         for o in outs:
-            las_output.remove_partial(las_output.partial_path(o))
+            las_output.remove_partial(partial_path(o))
         raise
 
 
