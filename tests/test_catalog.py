@@ -261,6 +261,7 @@ def test_render_cli_draws_a_catalog_in_one_picture_or_one_per_file(cut, tmp_path
                "needs the dimensions NormalX", tmp_path)
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_a_catalog_report_has_a_row_per_file_one_map_and_the_merged_run_histograms(cut, tmp_path):
     import re
 
@@ -438,6 +439,7 @@ def test_a_compressed_catalog_stopped_part_way_resumes_per_file(cut, tmp_path, m
         assert (out / f"tile_{k}.pcz").read_bytes() == (clean / f"tile_{k}.pcz").read_bytes()
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_a_compressed_catalog_killed_between_a_pcz_and_its_record_resumes(cut, tmp_path, monkeypatch):
     """A .pcz renamed into place whose completion the record does not hold yet (a kill -9 between the two) is this
     run's: the same command replaces it without --overwrite, and every .pcz is a clean run's (found by a sweep of
@@ -632,6 +634,7 @@ def _empty(path, crs="EPSG:2154", point_format=6):
     laspy.LasData(h).write(str(path))
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_empty_files_of_a_catalog_get_empty_outputs_and_change_nothing_else(cut, tmp_path):
     """Empty tiles (no points; their header bounds 0) among a survey's: each gets an output of its header with the new
     dimensions and no points, LAS and LAZ; the other outputs are those of the catalog without them, byte for byte

@@ -114,6 +114,7 @@ def test_any_range_of_a_copc_file_reads_its_records(copc_file):
         read_range(src, n - 10, 20)
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_a_copc_file_read_in_parts_gives_every_record(scene, tmp_path):
     """More points than one part (chunk=50,000: three parts, each from a node inside the file), in memory and on disk,
     with two worker processes too: the output's records are the COPC file's, every one."""

@@ -156,6 +156,7 @@ def test_geographic_units_refused_from_the_cache_as_without_it(cache):
             units_of("EPSG:4326", (0.0, 0.0), (1.0, 1.0), where="f.las")
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_a_second_run_on_the_same_crs_imports_no_pyproj_and_writes_the_same_file(cache, tmp_path):
     """The console script on the embedded tile: the first run asks pyproj and keeps its answers, the second imports no
     pyproj; both outputs byte for byte the same as a run without the cache (its CRS records and summary included)."""

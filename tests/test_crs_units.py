@@ -128,6 +128,7 @@ def test_a_wkt_is_described_once_and_each_caller_gets_its_own_copy(monkeypatch, 
     assert again["label"] == "EPSG:2154 (RGF93 v1 / Lambert-93 (this test))"
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_reports_and_pcz_info_state_lengths_in_the_files_unit(tmp_path):
     """A feet file's report says ft where its summary does (tiles, budget, mean error; it said m), and info of its .pcz
     states the budget and the tile size in ft."""

@@ -71,6 +71,7 @@ def test_decompress_does_not_replace_its_pcz(laz, tmp_path):
     assert r.exit_code == 2 and "is the input" in r.output and pcz.read_bytes() == before
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_the_report_of_a_catalog_of_one_file_shows_its_output(laz, tmp_path):
     """A directory or glob that names one file is a catalog of one: its summary's output is the directory, and its
     report reads the file written in it (it tried to read the directory)."""
@@ -175,6 +176,7 @@ def test_a_json_or_report_never_takes_the_place_of_an_output_not_yet_written_nor
         assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == files, args  # nothing written
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_a_json_or_report_may_go_into_the_output_directory_the_catalog_run_makes(laz, tmp_path):
     """--summary-json and --report inside an --out-dir that does not exist yet (the run makes it) are taken, whichever
     comes first on the command line (they were refused: "the directory ... does not exist"); a JSON in another missing

@@ -4,6 +4,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 RUN = textwrap.dedent("""
     import sys
     from patchcloud.stream.engine.laspy_start import skip_laspy_http
@@ -121,6 +123,7 @@ def test_dask_imports_without_its_html_templates():
     assert out.stdout.split() == ["True", "True", "False", "ImportError", "jinja2"]
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_forked_workers_and_a_client_without_a_crs_import_neither_pyproj_nor_jinja2(tmp_path):
     """The fork server's imports (the path to every worker's start) and the console script on a file without a CRS
     leave both out; the console script on a file with one imports pyproj to read it (the first time: see

@@ -145,6 +145,7 @@ def test_a_damaged_chunk_read_directly_is_a_store_error(tmp_path):
         Store.open(url).read((0, 0, 0), "xyz")
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_a_run_on_a_local_store_imports_zarr_in_no_process(tmp_path):
     """The client and its workers read and write a local store without zarr (0.2-0.6 s of each process's start)."""
     import subprocess

@@ -54,6 +54,7 @@ def test_bunny_reconstruction_against_mesh_normals():
     assert np.mean(np.einsum("ij,ij->i", res.normals, ref) > 0) > 0.95
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_the_six_real_ign_tiles_as_a_catalog_are_the_merged_file(tmp_path):
     """The real 6-tile IGN LiDAR HD catalog of ../shared/data: per point, the normals of a run on the merged file."""
     laspy = pytest.importorskip("laspy")

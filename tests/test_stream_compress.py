@@ -304,6 +304,7 @@ def test_sampled_points_outside_their_tile_or_not_finite_are_a_damaged_file():
             check_in_tile("x.pcz", np.vstack([inside, [bad, bad]]), ijk, t)
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_a_budget_up_to_the_tile_size_round_trips_and_a_larger_one_is_refused_before_any_work(tmp_path):
     """--max-error as large as the tiles writes a .pcz that decompresses, every point within the budget of the
     surfaces (decompress took a budget of half the tile size for damage); larger, the reader would refuse the file:
