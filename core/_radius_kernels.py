@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import CHUNK, eigh3_into
+from ._kernels import CHUNK, eigh3_into, lower_bound, upper_bound
 from .forest import find_root
 from .threads import parallel_kernel
 
@@ -22,7 +22,7 @@ __all__ = ["ball_moments", "build_row_table", "voxel_moments", "voxel_stats", "p
 @njit(cache=True, nogil=True)
 def _lookup(keys, key):
     """Index of ``key`` in the sorted array ``keys``, or -1."""
-    i = np.searchsorted(keys, key)
+    i = lower_bound(keys, key)
     if i < keys.size and keys[i] == key:
         return i
     return -1
@@ -224,8 +224,8 @@ def ball_moments(
             s, e = row_start[r], row_start[r + 1]
             klo = qblock[g, 2] + rows[t, 2]
             khi = qblock[g, 2] + rows[t, 3]
-            a = s + np.searchsorted(cell_k[s:e], klo)
-            b = s + np.searchsorted(cell_k[s:e], khi, side="right")
+            a = s + lower_bound(cell_k[s:e], klo)
+            b = s + upper_bound(cell_k[s:e], khi)
             if a < b:
                 lo_cell[nr] = a
                 hi_cell[nr] = b

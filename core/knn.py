@@ -34,6 +34,10 @@ from .morton import MAX_DEPTH, encode
 from .octree import level_occupancy
 from .threads import parallel_kernel
 
+#: ``np.iinfo(np.int64).min`` as a plain int: a kernel that calls ``np.iinfo`` makes numba import
+#: numba.np.arraymath (0.3 s) whenever its cached code is loaded.
+_INT64_MIN = -(2**63)
+
 __all__ = ["PointGrid", "point_grid", "sorted_point_grid", "nearest_neighbours", "near_queries"]
 
 
@@ -420,7 +424,7 @@ def _search(points, ids, cells, starts, corner, edge, scale, levels, queries, li
     for chunk in prange((M + _kernels.CHUNK - 1) // _kernels.CHUNK):  # a memo of cell ranges per chunk of queries
         memo = np.empty((125, 2), dtype=np.int64)
         memo_of = np.full(4, -1, dtype=np.int64)
-        near_of = np.array([np.iinfo(np.int64).min, 0, 0, 0], dtype=np.int64)  # the coarse cell last tested, and the answer
+        near_of = np.array([_INT64_MIN, 0, 0, 0], dtype=np.int64)  # the coarse cell last tested, and the answer
         for m in range(chunk * _kernels.CHUNK, min(M, (chunk + 1) * _kernels.CHUNK)):
             bd = dist[m]
             bi = idx[m]

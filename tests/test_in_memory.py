@@ -102,6 +102,27 @@ def test_the_cli_on_a_small_file_imports_neither_dask_zarr_nor_matplotlib(tmp_pa
     np.testing.assert_equal(sorted(p.name for p in tmp_path.iterdir()), ["n.laz"])
 
 
+@pytest.mark.slow  # three jobs in two processes
+def test_small_runs_on_cached_kernels_import_no_numba_arraymath(tmp_path):
+    """numba.np.arraymath (0.3 s, BLAS probe and all) is imported by numba's compiler, and by a cached kernel whose
+    code calls one of its functions (np.searchsorted, np.iinfo, ...) as soon as it loads: the kernels of normals, don
+    and segment call none, so once they are cached a small run of the console script (which loads them without
+    numba's compiler set-up) does not import it."""
+    code = (
+        "import sys\n"
+        "from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly\n"
+        "load_cached_kernels_lightly()\n"
+        "from patchcloud.stream.cli import main\n"
+        f"for job in ('normals', 'don', 'segment'):\n"
+        f"    try:\n        main([job, {str(SAMPLE)!r}, {str(tmp_path)!r} + '/' + job + '.laz', '-q', '--overwrite'])\n"
+        "    except SystemExit as e:\n        assert not e.code, e.code\n"
+        "print('numba.np.arraymath' in sys.modules)\n"
+    )
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600) for _ in range(2)]
+    assert all(r.returncode == 0 for r in runs), runs[-1].stderr[-2000:]
+    assert runs[1].stdout.split() == ["False"]  # the first run may have compiled kernels (and imported it)
+
+
 def _meet(barrier, k):
     barrier.wait(timeout=20)  # both tasks must be running at once to get past this
     return k * k
