@@ -61,14 +61,18 @@ LIGHT = textwrap.dedent("""
     events = sum("llvm_lock" in getattr(a, "__qualname__", "") for a, _ in base.ll.ffi.lib._lock._cblist)  # numba's callbacks
     sys.path.insert(0, sys.argv[2])
     import kernel_for_light_test as k  # a kernel of its own cache: cached for floats by the first run, ints compiled anew
-    extra = (k.twice(1.5), k.twice(3)) if sys.argv[3] == "both" else (k.twice(1.5),)
-    sys.stdout.buffer.write(repr((refreshed, events, extra)).encode() + b"\\n" + res.normals.tobytes() + res.curvature.tobytes())
+    once = k.twice(1.5)
+    deferred = "_bitcode_for_linking" in k.twice.overloads[k.twice.signatures[0]].library.__dict__  # no bitcode parsed yet
+    # quad, not cached, calls twice: compiling it links twice's library loaded from the cache, whose bitcode it needs
+    extra = (once, k.twice(3), k.quad(1.5)) if sys.argv[3] == "both" else (once,)
+    sys.stdout.buffer.write(repr((refreshed, events, extra, deferred)).encode() + b"\\n" + res.normals.tobytes() + res.curvature.tobytes())
 """)
 
 
 def test_cached_kernels_load_without_the_refresh_and_give_the_same_bits(tmp_path):
     (tmp_path / "kernel_for_light_test.py").write_text(
-        "import numba\n\n@numba.njit(cache=True)\ndef twice(x):\n    return 2 * x\n")
+        "import numba\n\n@numba.njit(cache=True)\ndef twice(x):\n    return 2 * x\n\n\n"
+        "@numba.njit\ndef quad(x):\n    return twice(twice(x))\n")
 
     def run(mode, calls):
         out = subprocess.run([sys.executable, "-c", LIGHT, mode, str(tmp_path), calls], capture_output=True, timeout=600)
@@ -76,14 +80,49 @@ def test_cached_kernels_load_without_the_refresh_and_give_the_same_bits(tmp_path
         head, _, data = out.stdout.partition(b"\n")
         return eval(head.decode()), data
 
-    (refreshed, events, extra), plain = run("plain", "floats")  # also fills the caches
-    assert refreshed and events == 1 and extra == (3.0,)
-    (refreshed, events, extra), light = run("light", "floats")
+    (refreshed, events, extra, deferred), plain = run("plain", "floats")  # also fills the caches
+    assert refreshed and events == 1 and extra == (3.0,) and not deferred
+    (refreshed, events, extra, deferred), light = run("light", "floats")
     assert not refreshed  # every kernel came from the cache, without numba's compiler set-up
     assert events == 0  # nor numba's events on llvmlite's lock
+    assert deferred  # nor its bitcode parsed
     assert extra == (3.0,) and light == plain and len(plain) > 0
-    (refreshed, events, extra), light = run("light", "both")  # a signature not in the cache compiles, with the full set-up
-    assert extra == (3.0, 6) and light == plain
+    (refreshed, events, extra, deferred), light = run("light", "both")  # a signature not in the cache compiles in full
+    assert extra == (3.0, 6, 6.0) and light == plain  # and quad links with twice's lazily parsed bitcode
+
+
+SYMBOLS = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from patchcloud.stream.engine.numba_start import load_cached_kernels_lightly
+    if sys.argv[1] == "light":
+        assert load_cached_kernels_lightly()
+    from patchcloud.core import estimate_normals
+    xy = np.random.default_rng(0).uniform(0, 10, (20000, 2))
+    estimate_normals(np.column_stack([xy, 0.3 * np.sin(xy[:, 0]) + 0.1 * xy[:, 1]]))
+    kernels = {id(d): d for name, m in list(sys.modules.items()) if name.startswith("patchcloud.core")
+               for d in vars(m).values() if hasattr(d, "overloads") and hasattr(d, "signatures")}
+    libraries = [d.overloads[s].library for d in kernels.values() for s in d.signatures]
+    lazy = sum("_bitcode_for_linking" in lib.__dict__ for lib in libraries)
+    from numba.core.registry import cpu_target
+    print(len(libraries), lazy, sorted(cpu_target.target_context.codegen()._engine._defined_symbols))
+""")
+
+
+def test_kernels_loaded_without_their_bitcode_define_the_symbols_numba_reads_from_it():
+    """stream.engine.numba_start.defined_symbols: numba's JIT engine knows the same symbols after a run whose kernels'
+    names came from their object code (bitcode not parsed) as after one where numba parsed their bitcode."""
+    def run(mode):
+        out = subprocess.run([sys.executable, "-c", SYMBOLS, mode], capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stderr[-2000:]
+        loaded, lazy, names = out.stdout.split(" ", 2)
+        return int(loaded), int(lazy), names
+
+    run("plain")  # the first run may compile (and cache) kernels
+    loaded, lazy, plain = run("plain")
+    assert loaded > 5 and lazy == 0
+    loaded, lazy, light = run("light")
+    assert lazy == loaded > 5 and light == plain and plain.count("'") > 200
 
 
 def test_a_module_imported_meanwhile_is_there_once_its_thread_ends_and_a_bad_name_is_left_to_the_caller():

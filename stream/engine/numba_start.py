@@ -35,17 +35,28 @@ numba hangs a start and an end event ("numba:llvm_lock", for its
 compile-time statistics): 4.5 microseconds a call, 0.035 s of a small
 file's run.  The same processes take those two callbacks off the lock
 (:func:`drop_llvm_lock_events`; the lock itself stays).
+
+A cached kernel holds its machine code (an object file) and the LLVM
+bitcode of its module, which numba parses as it loads the kernel (3.4 ms a
+kernel, 0.1 s of the 29 a small run loads) for two uses: the names of the
+symbols the kernel defines, which numba's JIT engine must know before it
+looks one up, and linking the kernel into another one compiled later that
+calls it.  The same processes take the names from the object file's symbol
+table (the same set: checked for every kernel of a run) and parse the
+bitcode only if something links with the kernel
+(:func:`defined_symbols`).
 """
 
 from __future__ import annotations
 
 import os
+import struct
 import sys
 
 from patchcloud.stream.engine.import_hooks import after_importing, hide_while_importing
 
 __all__ = ["skip_numba_blas_probe", "skip_numba_yaml", "load_cached_kernels_lightly", "drop_llvm_lock_events", "PROBED",
-           "PROBING", "CONFIGURING", "NUMBA_CONFIG_FILE", "CACHING"]
+           "PROBING", "CONFIGURING", "NUMBA_CONFIG_FILE", "CACHING", "defined_symbols"]
 
 #: The module numba imports to find a BLAS.
 PROBED = "scipy.linalg.cython_blas"
@@ -115,7 +126,76 @@ def _lighten(caching) -> bool:
     load_overload.lightly = True
     load_overload.__doc__ = cache.load_overload.__doc__
     cache.load_overload = load_overload
+    _parse_bitcode_when_linked()
     return True
+
+
+def _parse_bitcode_when_linked() -> bool:
+    """Have numba load a cached kernel's library without parsing its bitcode until it is linked (module notes).
+
+    Returns False, changing nothing, where numba's code library is not as this expects.
+    """
+    from numba.core import codegen
+
+    library = getattr(codegen, "CPUCodeLibrary", None)
+    unserialize = getattr(library, "_unserialize", None)
+    for_linking = getattr(library, "_get_module_for_linking", None)
+    if unserialize is None or for_linking is None or not hasattr(codegen, "JitEngine") \
+            or not hasattr(codegen.JitEngine, "_defined_symbols") and not hasattr(codegen.JitEngine, "_load_defined_symbols"):
+        return False
+    if getattr(for_linking, "lightly", False):
+        return True
+    plain = unserialize.__func__
+
+    def _unserialize(cls, codegen_, state):
+        name, kind, data = state
+        names = defined_symbols(data[0]) if kind == "object" else None
+        engine = getattr(codegen_, "_engine", None)
+        if names is None or not isinstance(getattr(engine, "_defined_symbols", None), set):
+            return plain(cls, codegen_, state)
+        self = codegen_.create_library(name)
+        self.enable_object_caching()
+        self._set_compiled_object(data[0])
+        self._bitcode_for_linking = data[1]
+        self._finalize_final_module()
+        engine._defined_symbols |= names  # what numba's engine._load_defined_symbols(parsed bitcode) would add
+        return self
+
+    def _get_module_for_linking(self):
+        bitcode = self.__dict__.pop("_bitcode_for_linking", None)
+        if bitcode is not None and self._shared_module is None:
+            self._shared_module = codegen.ll.parse_bitcode(bitcode)
+        return for_linking(self)
+
+    _get_module_for_linking.lightly = True
+    library._unserialize = classmethod(_unserialize)
+    library._get_module_for_linking = _get_module_for_linking
+    return True
+
+
+def defined_symbols(code: bytes) -> set[str] | None:
+    """The names of the symbols an ELF64 little-endian object file defines (functions and data), or None for another
+    format (numba then parses the kernel's bitcode as usual).
+
+    >>> defined_symbols(b"MZ not an ELF file") is None
+    True
+    """
+    if len(code) < 64 or code[:4] != b"\x7fELF" or code[4] != 2 or code[5] != 1:
+        return None
+    shoff = struct.unpack_from("<Q", code, 0x28)[0]
+    entsize, count = struct.unpack_from("<HH", code, 0x3A)
+    sections = [struct.unpack_from("<IIQQQQIIQQ", code, shoff + i * entsize) for i in range(count)]
+    names = set()
+    for _, kind, _, _, offset, size, link, _, _, each in sections:
+        if kind != 2 or each == 0:  # SHT_SYMTAB
+            continue
+        strings = sections[link][4]
+        for k in range(size // each):
+            at, info, _, section = struct.unpack_from("<IBBH", code, offset + k * each)
+            if section == 0 or at == 0 or info & 0xF in (3, 4):  # undefined, unnamed, STT_SECTION, STT_FILE
+                continue
+            names.add(code[strings + at:code.index(b"\0", strings + at)].decode())
+    return names
 
 
 def drop_llvm_lock_events() -> int:
