@@ -184,3 +184,22 @@ def test_point_data_that_cannot_be_decoded_leaves_no_store_and_offers_no_resume(
         assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
         assert "bad.laz: corrupt or truncated point data in points 0 to " in r.output, r.output
         assert "store" not in r.output and sorted(p.name for p in tmp_path.iterdir()) == ["bad.laz", "good.laz", "scene.las"]
+
+
+def test_a_file_too_sparse_for_the_largest_tiles_runs_in_them(tmp_path):
+    """5,000 points over 100 km hold 8 points per occupied tile of 4,096 m, the largest: no larger size to ask for, so
+    the file runs in those tiles (it was refused with "give a larger --tile-size, or leave it out", the size left out)."""
+    rng = np.random.default_rng(5)
+    las = tmp_path / "sparse.las"
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = np.array([0.01] * 3), np.array([600000.0, 6000000.0, 0.0])
+    data = laspy.LasData(header)
+    xy = rng.uniform(0, 100_000, (5_000, 2))
+    data.x, data.y, data.z = 600000 + xy[:, 0], 6000000 + xy[:, 1], 100 + 0.001 * xy[:, 0]
+    data.write(str(las))
+    for extra in ([], ["--on-disk", "--scheduler", "synchronous"]):
+        out = tmp_path / f"out{len(extra)}.las"
+        r = CliRunner().invoke(main, ["normals", str(las), str(out), "-q", *extra])
+        assert r.exit_code == 0, r.output
+        got = laspy.read(str(out))
+        assert len(got) == 5_000 and np.isfinite(got.NormalZ).all()

@@ -170,15 +170,17 @@ class TileSizeError(NothingToResumeError):
 def check_occupied_tiles(counts: np.ndarray, t: float, where: str) -> None:
     """Refuse tiles of edge ``t`` (metres) holding fewer than :data:`MIN_POINTS_PER_OCCUPIED_TILE` points on average
     (``counts``: the points of each occupied tile), once tiled: what :func:`check_points_per_tile` cannot see from the
-    footprint (a tall scene, a sparse one).
+    footprint (a tall scene, a sparse one).  Tiles of :data:`MAX_TILE` pass whatever they hold: no larger size is
+    there to ask for (a few thousand control points over 100 km run so, in tiles of 4,096 m).
 
     >>> check_occupied_tiles(np.array([40, 20]), 2.0, "small.laz")  # few tiles: whatever they hold
+    >>> check_occupied_tiles(np.full(100, 8), MAX_TILE, "sparse.laz")  # the largest tiles: whatever they hold
     >>> check_occupied_tiles(np.full(100, 30), 2.0, "house.laz")
     Traceback (most recent call last):
     ...
     patchcloud.stream.engine.ingest.TileSizeError: house.laz: a tile size of 2 (in the file's unit, a power of two) leaves 30 points per occupied tile on average (100 tiles; at least 50 needed); give a larger --tile-size, or leave it out
     """
-    if counts.size > FEW_TILES and counts.sum() < MIN_POINTS_PER_OCCUPIED_TILE * counts.size:
+    if t < MAX_TILE and counts.size > FEW_TILES and counts.sum() < MIN_POINTS_PER_OCCUPIED_TILE * counts.size:
         raise TileSizeError(
             f"{where}: a tile size of {t:g} (in the file's unit, a power of two) leaves {counts.sum() / counts.size:.3g} "
             f"points per occupied tile on average "
