@@ -319,3 +319,20 @@ def test_points_mode_stopped_while_encoding_leaves_no_blocks(tmp_path, monkeypat
     with pytest.raises(OSError, match="No space left"):
         compress(src, tmp_path / "a.pcz", max_error=0.05, keep_points=True, quiet=True, scheduler="synchronous")
     assert sorted(os.listdir(tmp_path)) == ["in"]
+
+
+def test_points_mode_refuses_the_run_options_it_would_not_use(tmp_path):
+    """--keep-points codes the records in input order with no store and no tiles: --tile-size, --store, --keep-store,
+    --classes and --keep-noise were taken and did nothing (an asked-for store not there afterwards); now one line names
+    them and nothing is written.  --workers and --scheduler run its blocks, and stay."""
+    src = ROOT / "data" / "test_data_77055_627760_LA93_IGN69.laz"
+    out = tmp_path / "kp.pcz"
+    r = CliRunner().invoke(main, ["compress", str(src), str(out), "--keep-points", "--tile-size", "16", "--store",
+                                  str(tmp_path / "st.zarr"), "--keep-store", "--classes", "2", "-q"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
+    assert "--tile-size, --store, --keep-store, --classes would do nothing; leave them out" in r.output
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(PatchcloudValueError, match=r"keep_noise \(--keep-noise\) would do nothing; leave it out"):
+        compress(src, out, keep_points=True, keep_noise=True, quiet=True)
+    r = CliRunner().invoke(main, ["compress", str(src), str(out), "--keep-points", "--workers", "2", "-q"])
+    assert r.exit_code == 0 and out.exists(), r.output

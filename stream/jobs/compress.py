@@ -46,7 +46,7 @@ from patchcloud.stream.io.residual_points import (
 )
 from patchcloud.stream.io.store import Store
 
-__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "check_budget_fits_tiles", "extra_dim", "point_format", "RESIDUAL_KEPT"]
+__all__ = ["compress", "compress_catalog", "CATALOG_RECORD", "CompressJob", "CompressSummary", "compress_tile", "pcz_source", "check_budget_fits_tiles", "check_points_mode_run", "POINTS_MODE_UNUSED", "extra_dim", "point_format", "RESIDUAL_KEPT"]
 
 #: n_min of the compression octree (as the normals' default).
 N_MIN = 12
@@ -374,11 +374,35 @@ def compress(
     (60653, True, True)
     """
     options, run = split_options(kwargs, options, CompressOptions, run)
+    if options.keep_points:
+        check_points_mode_run(run)
     if run.out_dir is not None:
         if output is not None:
             raise PatchcloudValueError(f"{output}: with out_dir (--out-dir) every argument is an input; the outputs go to {run.out_dir}")
         return compress_catalog(input, options, run, record_source)
     return run_job(_job(options, record_source, run.tile_size), input, output, run)
+
+
+#: What points mode does not use of a run's options (it codes every record of the file in input order, in blocks of
+#: records, with no store and no tiles): each option's name and flag, and the value that means "not given".
+POINTS_MODE_UNUSED = (("tile_size", "--tile-size", None), ("store", "--store", None), ("keep_store", "--keep-store", None),
+                      ("classes", "--classes", None), ("keep_noise", "--keep-noise", False))
+
+
+def check_points_mode_run(run: RunOptions) -> None:
+    """Refuse run options that points mode (``keep_points``, ``--keep-points``) would take and not use.
+
+    >>> check_points_mode_run(RunOptions(overwrite=True))
+    >>> check_points_mode_run(RunOptions(tile_size=16.0, keep_store=True))
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: keep_points (--keep-points) codes every point in input order, with no store and no tiles: tile_size (--tile-size), keep_store (--keep-store) would do nothing; leave them out
+    """
+    given = [f"{name} ({flag})" for name, flag, unset in POINTS_MODE_UNUSED if getattr(run, name) != unset]
+    if given:
+        raise PatchcloudValueError(
+            "keep_points (--keep-points) codes every point in input order, with no store and no tiles: "
+            f"{', '.join(given)} would do nothing; leave {'it' if len(given) == 1 else 'them'} out")
 
 
 def _job(options: CompressOptions, record_source: bool, tile_size: float | None = None) -> Job:
