@@ -63,12 +63,24 @@ class DonSummary:
     selection: dict | None = None  # the classes asked for and keep_noise (Selection.to_json)
 
     def median_magnitude(self) -> float:
-        """Median DoN magnitude of the points where it is defined (from the histogram: to 1/50)."""
+        """Median DoN magnitude of the points where it is defined (from the histogram: the middle of its bin of 1/50)."""
         h = np.asarray(self.histogram, dtype=np.int64)
         if h.sum() == 0:
             return float("nan")
         k = int(np.searchsorted(np.cumsum(h), (h.sum() + 1) // 2))
         return (k + 0.5) / h.size
+
+    def median_words(self) -> str:
+        """:meth:`median_magnitude` as the bin that holds it, for the summary and the report: ``"0.22-0.24"``, or
+        ``"below 0.02"`` for the first bin (a plane's 1e-18 is no "0.01").
+
+        >>> flat = DonSummary("in.las", "out.las", 6, 1, 8.0, {}, 6, histogram=[5, 1] + [0] * 48)
+        >>> flat.median_words(), DonSummary("in.las", "out.las", 3, 1, 8.0, {}, 3, histogram=[0] * 11 + [3] + [0] * 38).median_words()
+        ('below 0.02', '0.22-0.24')
+        """
+        h = np.asarray(self.histogram)
+        k = int(round(self.median_magnitude() * h.size - 0.5))
+        return f"below {1 / h.size:.2f}" if k == 0 else f"{k / h.size:.2f}-{(k + 1) / h.size:.2f}"
 
     def format(self) -> str:
         n = max(self.points, 1)
@@ -81,7 +93,7 @@ class DonSummary:
             units_line(self.units),
             f"  scales          r_s {p['r_small']:g} {u}, r_l {p['r_large']:g} {u}, mode {p['mode']}",
             f"  DoN defined     {self.defined:,} ({self.defined / n:.1%})"
-            + (f"; median magnitude {self.median_magnitude():.2f}" if self.defined else ""),
+            + (f"; median magnitude {self.median_words()}" if self.defined else ""),
             *left_out_lines(self.left_out, self.selection, self.points),
         ]
         if self.points and self.defined < FEW_DEFINED * self.points:

@@ -438,7 +438,7 @@ def don_rows(summary: "DonSummary") -> list[tuple[str, str]]:
     rows = [
         ("input", s.input), ("output", s.output), ("points", _n(s.points)), ("tiles", f"{s.tiles:,} of {s.tile_size:g} {_unit(s)}"),
         ("DoN defined", _share(s.defined, s.points)),
-        ("median DoN magnitude", f"{s.median_magnitude():.2f} (to 1/{len(s.histogram) or 50})" if s.defined else "none (no DoN defined)"),
+        ("median DoN magnitude", s.median_words() if s.defined else "none (no DoN defined)"),
     ]
     if s.kept is not None:
         rows.append(("kept (above the threshold)", _share(s.kept, s.points)))
