@@ -336,3 +336,30 @@ def test_points_mode_refuses_the_run_options_it_would_not_use(tmp_path):
         compress(src, out, keep_points=True, keep_noise=True, quiet=True)
     r = CliRunner().invoke(main, ["compress", str(src), str(out), "--keep-points", "--workers", "2", "-q"])
     assert r.exit_code == 0 and out.exists(), r.output
+
+
+@pytest.mark.parametrize("point_format, version", [(1, "1.2"), (6, "1.4")])
+def test_model_mode_keeps_the_withheld_flag_of_its_residual_points(tmp_path, point_format, version):
+    """Withheld points (the LAS specification: treat as deleted) are in no model and come back as residual points: they
+    came back with the flag zero, ordinary ground; now each keeps it, within the budget of where it was."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(9)
+    header = laspy.LasHeader(point_format=point_format, version=version)
+    header.scales, header.offsets = np.array([0.01] * 3), np.array([500000.0, 4000000.0, 0.0])
+    data = laspy.LasData(header)
+    xy = rng.uniform(0, 50, (5000, 2))
+    data.x, data.y, data.z = 500000 + xy[:, 0], 4000000 + xy[:, 1], 10 + 0.1 * xy[:, 0]
+    data.classification = np.full(5000, 2, np.uint8)
+    withheld = np.zeros(5000, bool)
+    withheld[::3] = True
+    data.withheld = withheld
+    data.write(str(tmp_path / "w.las"))
+    s = compress(tmp_path / "w.las", tmp_path / "w.pcz", max_error=0.05, quiet=True)
+    assert "withheld flag" in s.format() and s.residual >= withheld.sum()
+    decompress(tmp_path / "w.pcz", tmp_path / "back.las")
+    back = laspy.read(str(tmp_path / "back.las"))
+    got = np.asarray(back.withheld, bool)
+    assert len(back) == 5000 and got.sum() == withheld.sum()
+    dist, _ = cKDTree(np.column_stack([data.x, data.y, data.z])[withheld]).query(np.column_stack([back.x, back.y, back.z])[got])
+    assert dist.max() <= 0.05

@@ -13,8 +13,8 @@ from . import options
 @options.paths_argument
 @click.option("--max-error", type=float, default=CompressOptions.max_error, show_default=True, metavar="LENGTH",
               help="Error budget, in the file's horizontal unit (see --units): every point comes back within it, on its patch or "
-              "as a residual point (its position rounded within it; model mode keeps its class, its intensity on 64 levels "
-              "and one return).")
+              "as a residual point (its position rounded within it; model mode keeps its class, its withheld flag, its intensity "
+              "on 64 levels and one return).")
 @click.option("--keep-points", is_flag=True, default=False,
               help="Points mode: every point back in input order, each within --max-error of where it was, every attribute "
               "exact (default: model mode, the patch models).")
@@ -40,8 +40,9 @@ def compress_command(paths, max_error, keep_points, drop, record_source, report,
     Model mode (the default): smooth surfaces become quantised quadric
     patches (octree cell, point count, frame, quadric, extent); the points
     of edges, vegetation and other rough parts are kept one by one, each
-    within --max-error of where it was, with its class, its intensity on 64
-    levels and one return (their other dimensions zero).  Memory depends on
+    within --max-error of where it was, with its class, its withheld flag,
+    its intensity on 64 levels and one return (their other dimensions
+    zero).  Memory depends on
     --tile-size, not on the file.
 
     Points mode (--keep-points): every point, in input order, within
@@ -94,8 +95,8 @@ def decompress_command(input, output, density, lod, bbox, seed, overwrite, quiet
     OUTPUT has the original file's header and VLRs.  Of a model-mode .pcz,
     with a Reconstructed dimension: 1, sampled from a patch, with the
     patch's majority class and mean intensity; 0, a residual point, within
-    the budget of where it was, with its class, its intensity on 64 levels
-    and one return.  Of a points-mode .pcz: the input's points in input
+    the budget of where it was, with its class, its withheld flag, its
+    intensity on 64 levels and one return.  Of a points-mode .pcz: the input's points in input
     order, each within the budget, every attribute as it was but those
     --drop named.
     """

@@ -54,13 +54,14 @@ __all__ = ["KEPT", "RETURNS", "residual_dropped", "kept_words", "INTENSITY_BITS"
            "residual_block", "octree_block", "morton_order", "column_order", "COLUMN_STEPS"]
 
 #: What a residual point keeps besides its position (its returns as return 1 of 1); every other dimension is zero.
-KEPT = ("intensity", "return_number", "number_of_returns", "classification")
+KEPT = ("intensity", "return_number", "number_of_returns", "classification", "withheld")
 #: The two return fields: one dropped drops both (return 1 of 0 is no point).
 RETURNS = ("return_number", "number_of_returns")
 #: Levels of a residual point's intensity, in bits: 64 levels below a tile's 99th percentile.
 INTENSITY_BITS = 6
 #: How residual points are coded (a compress run's parameters hold it: a store's tiles coded otherwise are redone).
-CODING = {"version": 5, "intensity_bits": INTENSITY_BITS, "returns": "single", "blocks": "LAZ (input, Morton, columns) or octree"}
+CODING = {"version": 5, "intensity_bits": INTENSITY_BITS, "returns": "single", "blocks": "LAZ (input, Morton, columns) or octree",
+          "flags": "withheld"}
 #: The width of :func:`column_order`'s columns, in coded steps (2 m at a 5 cm budget on a 1 cm grid): of 16, 32, 64 and
 #: 128, the best on the aerial files of ../shared/data but fusa (whose scan lines are better in input order).
 COLUMN_STEPS = 32
@@ -83,17 +84,17 @@ def kept_words(dropped, shifts: tuple[int, int] | None = None) -> str:
     """What residual points keep of their attributes, in words (the compress summary's and ``info``'s): ``dropped`` as
     :func:`residual_dropped` gives it; ``shifts``: the smallest and largest intensity shift of a file, said if given.
 
-    >>> kept_words(["gps_time"]), kept_words(["intensity", "return_number", "number_of_returns"], (0, 3))
-    ('class exact, intensity on 64 levels, return 1 of 1', 'class exact')
+    >>> kept_words(["gps_time"]), kept_words(["intensity", "return_number", "number_of_returns", "withheld"], (0, 3))
+    ('class exact, withheld flag, intensity on 64 levels, return 1 of 1', 'class exact')
     >>> kept_words([], (2, 5))
-    'class exact, intensity on 64 levels (divided by 2**2 to 2**5, rounded), return 1 of 1'
+    'class exact, withheld flag, intensity on 64 levels (divided by 2**2 to 2**5, rounded), return 1 of 1'
     """
     levels = f"intensity on {2**INTENSITY_BITS} levels"
     if shifts is not None:
         lo, hi = shifts
         levels += f" (divided by 2**{lo}{'' if lo == hi else f' to 2**{hi}'}, rounded)"
-    kept = [what for name, what in (("classification", "class exact"), ("intensity", levels), ("return_number", "return 1 of 1"))
-            if name not in dropped]
+    kept = [what for name, what in (("classification", "class exact"), ("withheld", "withheld flag"), ("intensity", levels),
+                                    ("return_number", "return 1 of 1")) if name not in dropped]
     return ", ".join(kept) or "no attribute"
 
 
@@ -132,7 +133,7 @@ def stored_records(records: np.ndarray, pf: laspy.PointFormat, steps, dropped, s
     steps : 3 ints
         X, Y, Z are stored divided by these (:func:`~.point_coding.coarse_records`).
     dropped : sequence of str
-        Dimensions stored as zeros (every one but intensity, returns and classification, and those ``--drop`` names).
+        Dimensions stored as zeros (every one but intensity, returns, classification and the withheld flag, and those ``--drop`` names).
     shift : int, optional
         The intensity shift; by default :func:`intensity_shift` of these points'.
 
