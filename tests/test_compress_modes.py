@@ -363,3 +363,13 @@ def test_model_mode_keeps_the_withheld_flag_of_its_residual_points(tmp_path, poi
     assert len(back) == 5000 and got.sum() == withheld.sum()
     dist, _ = cKDTree(np.column_stack([data.x, data.y, data.z])[withheld]).query(np.column_stack([back.x, back.y, back.z])[got])
     assert dist.max() <= 0.05
+
+
+def test_a_summary_with_no_point_modelled_gives_no_mean_distance(tmp_path):
+    """Every point noise (class 7): in no model, so the summary says so instead of "mean distance ... 0.0000"."""
+    data = flat_las(point_format=6)
+    data.classification = np.full(len(data), 7, np.uint8)
+    data.write(str(tmp_path / "noise.las"))
+    s = compress(tmp_path / "noise.las", tmp_path / "n.pcz", max_error=0.05, quiet=True)
+    assert s.residual == s.points == len(data)
+    assert "no point modelled" in s.format() and "mean distance" not in s.format()

@@ -116,8 +116,9 @@ class CompressSummary:
             f"  points          {self.points:,}: {self.points - self.residual:,} on {self.patches:,} patches ({self.cells:,} octree cells) "
             f"({(self.points - self.residual) / n:.1%}), {self.residual:,} residual ({self.residual / n:.1%})",
             *([f"  tiles           {self.tiles:,} of {self.tile_size:g} {u}"] if self.tiles else []),
-            f"  error           budget {self.max_error:g} {u}; mean distance of the modelled points to their surface "
-            f"{self.mean_error:.4f} {u} (before quantisation, which adds at most half the budget)",
+            f"  error           budget {self.max_error:g} {u}; "
+            + (f"mean distance of the modelled points to their surface {self.mean_error:.4f} {u} (before quantisation, which "
+               f"adds at most half the budget)" if self.points > self.residual else "no point modelled"),
             self._position_line("residual points"),
             f"  residual dims   {kept_words(self.dropped)}; zero: {dropped}",
             size,
