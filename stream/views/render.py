@@ -177,11 +177,11 @@ def choose_view(mins, maxs) -> str:
 
     Examples
     --------
-    >>> choose_view((0, 0, 0), (1000, 1000, 60)), choose_view((0, 0, 0), (30, 40, 25))
-    ('top', 'oblique')
+    >>> choose_view((0, 0, 0), (1000, 1000, 60)), choose_view((0, 0, 0), (30, 40, 25)), choose_view((5, 5, 5), (5, 5, 5))
+    ('top', 'oblique', 'top')
     """
     ext = np.asarray(maxs, float) - np.asarray(mins, float)
-    return "top" if ext[2] < FLAT_RATIO * max(ext[0], ext[1]) else "oblique"
+    return "top" if ext[2] < FLAT_RATIO * max(ext[0], ext[1]) or not ext.any() else "oblique"
 
 
 @dataclass(frozen=True)
@@ -223,6 +223,9 @@ def make_frame(R: np.ndarray, lo, hi, width: int) -> Frame:
     >>> f = make_frame(np.eye(3), (0, 0, 0), (100, 50, 10), 200)
     >>> f.width, f.height, f.pixel
     (200, 100, 0.5)
+    >>> f = make_frame(np.eye(3), (5, 5, 5), (5, 5, 5), 100)  # copies of one point: a unit square around it
+    >>> f.umin, f.vmax, f.width, f.height
+    (4.5, 5.5, 100, 100)
     """
     width = int(width)
     if not 1 <= width <= MAX_WIDTH:
@@ -231,14 +234,16 @@ def make_frame(R: np.ndarray, lo, hi, width: int) -> Frame:
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     u, v = corners @ R[0], corners @ R[1]
     du, dv = float(u.max() - u.min()), float(v.max() - v.min())
-    if du <= 0 and dv <= 0:
+    u_min, v_max = float(u.min()), float(v.max())
+    if du <= 0 and dv <= 0:  # one point (or copies of it): a unit square with it in the middle
         du = dv = 1.0
+        u_min, v_max = u_min - 0.5, v_max + 0.5
     pixel = max(du, 1e-9) / width
     if dv / pixel > MAX_ASPECT * width:
         pixel = dv / (MAX_ASPECT * width)
     W = max(1, int(np.ceil(du / pixel - 1e-9)))
     H = max(1, int(np.ceil(dv / pixel - 1e-9)))
-    return Frame(float(u.min()), float(v.max()), float(pixel), W, H)
+    return Frame(u_min, v_max, float(pixel), W, H)
 
 
 # ---------------------------------------------------------------------------
@@ -1211,7 +1216,7 @@ def render_figure(img: RenderImage):
 
     y = PAD
     title = (f"{Path(img.source).name}: {MODE_NAMES[img.color]}, {img.view} view{', shaded' if img.shaded else ''}\n"
-             f"{img.points_drawn:,} points drawn of {img.point_count:,}")
+             f"{img.points_drawn:,} point{'' if img.points_drawn == 1 else 's'} drawn of {img.point_count:,}")
     for line in wrap_text(title, inner, m["title_pt"]):
         texts.append((FW / 2, y, line, m["title_pt"], "center"))
         y += line_height(m["title_pt"])
