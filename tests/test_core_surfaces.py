@@ -120,3 +120,35 @@ def test_principal_curvatures_stay_ordered_for_every_method(rng):
     assert np.all(res.k1 >= res.k2)
     # dir1 is tangent: orthogonal to the normal
     assert np.max(np.abs(np.einsum("ij,ij->i", res.dir1, res.normals))) < 1e-3
+
+
+@pytest.mark.parametrize("bend, surface", [(0.2, True), (2.5, False)])
+def test_a_leaf_whose_quadric_folds_over_its_points_is_no_surface(rng, bend, surface):
+    """A leaf's quadric must stay within 60 degrees of its frame normal at its points (slope**2 <= 3): z = bend * x**2
+    over [-0.5, 0.5]**2 fits exactly, but with bend 2.5 its slope at the sides is 2.5 (68 degrees): an edge leaf, not a
+    surface whose normals fold."""
+    from patchcloud.core.octree import MAX_SLOPE2, build_octree
+
+    xy = rng.uniform(-0.5, 0.5, (400, 2))
+    pts = np.column_stack([xy, bend * xy[:, 0] ** 2]) + 1.0  # inside the root cube [0, 2]**3
+    tree = build_octree(pts, 2.0, criterion="rmse", threshold=0.05, d_min=2.0, n_min=12, min_sigma2=0.01, spacing=0.05)
+    assert tree.level.tolist() == [0] and tree.fit.rmse[0] < 0.05  # one leaf, within the threshold
+    assert (4 * bend * bend * 0.25 > MAX_SLOPE2) == (not surface)
+    assert tree.kind.tolist() == [PatchKind.SURFACE if surface else PatchKind.EDGE]
+
+
+def test_real_ground_and_roofs_get_no_folded_quadric_normals():
+    """house.laz with a threshold of 0.14 m: before the fold check 20 ground and roof points took a downward normal
+    (NormalZ < -0.5) from their own folded quadric (patches of 13-17 points whose frame normal was nearly horizontal)."""
+    import laspy
+
+    from conftest import shared_file
+
+    path = shared_file("lidar-lastools/house.laz")
+    las = laspy.read(str(path))
+    keep = (np.asarray(las.classification) != 7) & ~np.asarray(las.withheld, bool)
+    cls = np.asarray(las.classification)[keep]
+    res = estimate_normals(np.column_stack([las.x, las.y, las.z])[keep], threshold=0.14, root="grid")
+    own = res.method == Method.QUADRIC
+    assert own.sum() > 5000
+    assert not (own & np.isin(cls, [2, 6]) & (res.normals[:, 2] < -0.5)).any()
