@@ -228,15 +228,7 @@ def morton_key(i, j, k):
 
 @njit(cache=True, nogil=True)
 def _find_leaf(key, lo, hi):
-    # last leaf whose first key is <= key
-    a, b = 0, lo.shape[0]
-    while a < b:
-        m = (a + b) >> 1
-        if lo[m] <= key:
-            a = m + 1
-        else:
-            b = m
-    i = a - 1
+    i = upper_bound(lo, key) - 1  # the last leaf whose first key is <= key
     if i >= 0 and key < hi[i]:
         return i
     return -1
