@@ -330,7 +330,7 @@ def test_points_mode_refuses_the_run_options_it_would_not_use(tmp_path):
     r = CliRunner().invoke(main, ["compress", str(src), str(out), "--keep-points", "--tile-size", "16", "--store",
                                   str(tmp_path / "st.zarr"), "--keep-store", "--classes", "2", "-q"])
     assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
-    assert "--tile-size, --store, --keep-store, --classes would do nothing; leave them out" in r.output
+    assert "--tile-size, store (--store), --keep-store, classes (--classes) would do nothing; leave them out" in r.output
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(PatchcloudValueError, match=r"keep_noise \(--keep-noise\) would do nothing; leave it out"):
         compress(src, out, keep_points=True, keep_noise=True, quiet=True)

@@ -442,8 +442,6 @@ def in_option_words(message: str, command: click.Command | None) -> str:
     '--in-memory runs keep no store: leave out --store and --keep-store, or --in-memory'
     >>> in_option_words("in_memory runs inline, on no scheduler: leave out scheduler ('processes'), or in_memory", run)
     '--in-memory runs inline, on no scheduler: leave out --scheduler processes, or --in-memory'
-    >>> in_option_words("store (--store), in_memory (--in-memory) would do nothing", run)
-    '--store, --in-memory would do nothing'
     """
     options = {}
     for param in getattr(command, "params", ()):
@@ -475,9 +473,7 @@ def in_option_words(message: str, command: click.Command | None) -> str:
         return f"{option} "
 
     message = re.sub(r"\bor None\b", "or not given", pattern.sub(word, message))
-    # "give --out-dir OUT (out_dir)" named the option twice once out_dir became --out-dir; so does "store (--store)"
-    message = re.sub(r"(?<![\w-])(\w+) \((--[\w-]+)\)", lambda m: m.group(2) if options.get(m.group(1)) == m.group(2) else m.group(0),
-                     message)
+    # "give --out-dir OUT (out_dir)" named the option twice once out_dir became --out-dir
     return re.sub(r"(--[\w-]+)((?: [A-Z_]+)?) \(\1\)", r"\1\2", message)
 
 
