@@ -41,7 +41,7 @@ _SOURCES = {  # where each public name lives: imported on first use (PEP 562), s
     '.radius': ('check_grid_step', 'check_points', 'coordinate_step', 'default_viewpoint', 'grid_origin', 'grid_step_of', 'halo_width', 'radius_normals'),
     '.threads': ('single_threaded',),
     '.version': ('__version__',),
-    '.tiles': ('SKIN_HALO', 'Skin', 'finish_tile', 'fit_tile', 'patch_signs'),
+    '.tiles': ('SKIN_HALO', 'FOLD_MIN_COS', 'Skin', 'finish_tile', 'fit_tile', 'folded', 'patch_signs'),
 }
 
 __all__ = [
@@ -110,6 +110,8 @@ __all__ = [
     "link_agreements",
     # .tiles
     "SKIN_HALO",
+    "FOLD_MIN_COS",
+    "folded",
     "Skin",
     "fit_tile",
     "finish_tile",

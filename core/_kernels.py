@@ -21,7 +21,7 @@ from .threads import parallel_kernel
 
 from .codes import PatchKind
 
-__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "rows_where", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "upper_bound", "steepest_slopes", "face_neighbour_counts", "shift_moments"]
+__all__ = ["eval_surface_points", "blend_points", "cell_moments", "knn_pca", "bounds", "morton_keys", "unsort_outputs", "take_rows", "neighbour_signs", "shift_to_parents", "box_cell_keys", "run_starts", "rows_where", "box_cell_stats", "interpolated_pca", "eigh3", "eigh3_into", "morton_key", "cholesky_solve6", "face_votes", "CHUNK", "ROUNDING_SPREAD", "lower_bound", "upper_bound", "face_neighbour_counts", "shift_moments"]
 
 _KIND_SURFACE = int(PatchKind.SURFACE)  # a plain int for numba
 _MAX_DEPTH = 21
@@ -232,23 +232,6 @@ def _find_leaf(key, lo, hi):
     if i >= 0 and key < hi[i]:
         return i
     return -1
-
-
-@parallel_kernel
-def steepest_slopes(local, start, count, centroid, frames, coeffs, out):
-    """Largest squared slope ``su**2 + sv**2`` of each leaf's quadric at its points' ``(u, v)`` (``out[l]``).
-
-    A slope of s puts the quadric's normal ``atan(s)`` from the leaf's frame
-    normal: beyond 60 degrees (3.0 here) the height field folds over the points.
-    """
-    P = start.shape[0]
-    for l in prange(P):
-        top = 0.0
-        for i in range(start[l], start[l] + count[l]):
-            u, v, w = _frame_coords(local[i, 0], local[i, 1], local[i, 2], l, centroid, frames)
-            nx, ny, nz, su, sv = _normal_at(u, v, l, frames, coeffs)
-            top = max(top, su * su + sv * sv)
-        out[l] = top
 
 
 @parallel_kernel

@@ -304,7 +304,6 @@ def build_octree(
     spread = fit.eigenvalues.sum(axis=1) > _kernels.ROUNDING_SPREAD * (edge / np.exp2(level)) ** 2  # else copies of one point
     kind[~uniform | (fit.sigma2 < min_sigma2) | ~spread] = PatchKind.EDGE
     kind[count < n_min] = PatchKind.SPARSE
-    kind[(kind == PatchKind.SURFACE) & _folds(pts, start, count, level, cell, edge, fit)] = PatchKind.EDGE
     return Octree(
         edge=float(edge),
         max_level=max_level,
@@ -320,27 +319,3 @@ def build_octree(
         kind=kind,
         threshold=float(threshold),
     )
-
-
-#: The largest squared slope of a leaf's quadric at its points (over its frame's plane) for it to be a surface: 3.0,
-#: the quadric's normal within 60 degrees of the frame normal (the limit :func:`_kernels.face_votes` trusts too).
-MAX_SLOPE2 = 3.0
-
-
-def _folds(pts, start, count, level, cell, edge, fit) -> np.ndarray:
-    """Leaves whose quadric is steeper than :data:`MAX_SLOPE2` at one of their points (sorted ``pts``).
-
-    A few points in a blob (a bush, a thick wire, a ledge) can fit a sharply
-    bent quadric within the RMSE threshold: over its frame, which their
-    spread leaves almost arbitrary, the surface then folds, and the normals
-    it gives its points turn up to 90 degrees from the frame normal, the one
-    the orientation links and the rule see (on real aerial files, ground
-    and roofs pointing down).  Such a leaf is no smooth patch (an edge leaf:
-    its points get moment normals).
-    """
-    h = edge / np.exp2(level)
-    centroid = decode(cell) * h[:, None] + 0.5 * h[:, None] + fit.centroid
-    top = np.zeros(start.shape[0])
-    _kernels.steepest_slopes(pts, start, count, np.ascontiguousarray(centroid), np.ascontiguousarray(fit.frame),
-                             np.ascontiguousarray(fit.coeffs), top)
-    return top > MAX_SLOPE2

@@ -56,7 +56,7 @@ from .orient import (
 from .patches import PatchTable
 from .quadric import NodeFit, turn_over
 
-__all__ = ["SKIN_HALO", "SIGN_REACH", "TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile"]
+__all__ = ["SKIN_HALO", "SIGN_REACH", "FOLD_MIN_COS", "folded", "TileFit", "TileNormals", "Skin", "fit_tile", "patch_signs", "finish_tile"]
 
 #: Width of a tile's skin, in ``d_min``: the points of the neighbouring tiles
 #: within this distance of its faces.  A moment normal's cells reach less
@@ -73,6 +73,10 @@ SIGN_VOTERS = 16
 #: nearly perpendicular to them (a vertical normal in a bush above the ground), a small change of the
 #: patches (another tiling splits them at its faces) would turn it, so the next rule decides.
 SIGN_MIN_COS = 0.2
+#: A surface point whose quadric normal is within this cosine of its patch's frame normal (60 degrees: the limit the
+#: orientation's face samples trust too) has that quadric normal; beyond it, where the quadric folds over the points,
+#: a moment normal (:func:`folded`).
+FOLD_MIN_COS = 0.5
 
 
 @dataclass(frozen=True)
@@ -280,6 +284,24 @@ def _tree_of(local: np.ndarray, table: PatchTable, corner: np.ndarray, edge: flo
     )
 
 
+def folded(normals: np.ndarray, frame_normals: np.ndarray) -> np.ndarray:
+    """Points whose quadric normal (``normals``, (N, 3)) is farther than ``acos(FOLD_MIN_COS)`` from their patch's frame
+    normal (``frame_normals``, (N, 3); either side): there the patch's quadric folds over the points.
+
+    A few points in a blob (a bush, a ledge) can fit a sharply bent quadric
+    within the RMSE threshold over an almost arbitrary PCA plane; the
+    quadric then turns its points' normals up to 90 degrees from the
+    frame normal that the orientation sees (real ground and roofs pointing
+    down).  :func:`finish_tile` gives such points moment normals, and the
+    orientation of moment and k-NN normals takes no vote from them, in a
+    tile as in its neighbours' skins.
+
+    >>> folded(np.array([[0.0, 0.0, 1.0], [0.8, 0.0, 0.6], [0.9, 0.0, -0.436]]), np.array([[0.0, 0.0, -1.0]] * 3)).tolist()
+    [False, False, True]
+    """
+    return np.abs(np.einsum("ij,ij->i", normals, frame_normals)) < FOLD_MIN_COS
+
+
 def finish_tile(
     local: np.ndarray,
     patches: PatchTable,
@@ -363,6 +385,10 @@ def finish_tile(
         tree.local, tree.start, tree.count, surface, tree.centroid, frames, coeffs, tree.fit.sigma3, normals, scalars, dir1
     )
     method = np.repeat(np.where(surface, Method.QUADRIC, 0).astype(np.uint8), tree.count)
+    leaf = tree.point_leaf()
+    fold = np.flatnonzero(method != 0)
+    fold = fold[folded(normals[fold], frames[leaf[fold], :, 2])]  # their quadric folds: moment normals, below
+    method[fold] = 0
     voters = method != 0  # surface points: their patch normals (before blending) orient the others
     if skin is not None and skin.points.shape[0]:
         skin = Skin(skin.points - corner, skin.normals, skin.oriented)
@@ -370,7 +396,7 @@ def finish_tile(
         skin = None
     # the points the fallbacks see: the tile's, then the skin's; their votes, written once (no copy of the tile's first)
     if skin is None:
-        points, votes_all, voters_all = tree.local, (normals.copy() if not surface.all() else normals), voters
+        points, votes_all, voters_all = tree.local, (normals.copy() if fold.size or not surface.all() else normals), voters
     else:
         points = np.concatenate([tree.local, skin.points])
         votes_all = np.empty_like(points)
@@ -379,6 +405,8 @@ def finish_tile(
     if blend:
         was = blend_across_faces(tree, frames, coeffs, normals, scalars, dir1, outside=outside, corner=corner, only=only)
         method[was] = Method.BLENDED
+    method[fold] = 0
+    normals[fold], scalars[fold], dir1[fold] = 0.0, 0.0, 0.0  # (a point no fallback gives a normal has none)
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64) - corner
     ctr = None if centre is None else np.asarray(centre, dtype=np.float64) - corner
     orienting = _Orienting(points, votes_all, voters_all, SIGN_REACH * d_min, orient, tree.local, tree.keys, edge, vp, ctr)
@@ -389,8 +417,8 @@ def finish_tile(
         facing = np.einsum("ij,ij->i", normals[rows], vp - tree.local[rows])
         _turn(normals, scalars, dir1, rows, np.where(facing < 0, -1.0, 1.0))
     if only is None:
-        return TileNormals(normals, scalars, dir1, method, tree.point_leaf(), oriented)
-    return TileNormals(normals[only], scalars[only], dir1[only], method[only], tree.point_leaf()[only], oriented)
+        return TileNormals(normals, scalars, dir1, method, leaf, oriented)
+    return TileNormals(normals[only], scalars[only], dir1[only], method[only], leaf[only], oriented)
 
 
 @dataclass(frozen=True)

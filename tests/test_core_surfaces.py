@@ -122,33 +122,38 @@ def test_principal_curvatures_stay_ordered_for_every_method(rng):
     assert np.max(np.abs(np.einsum("ij,ij->i", res.dir1, res.normals))) < 1e-3
 
 
-@pytest.mark.parametrize("bend, surface", [(0.2, True), (2.5, False)])
-def test_a_leaf_whose_quadric_folds_over_its_points_is_no_surface(rng, bend, surface):
-    """A leaf's quadric must stay within 60 degrees of its frame normal at its points (slope**2 <= 3): z = bend * x**2
-    over [-0.5, 0.5]**2 fits exactly, but with bend 2.5 its slope at the sides is 2.5 (68 degrees): an edge leaf, not a
-    surface whose normals fold."""
-    from patchcloud.core.octree import MAX_SLOPE2, build_octree
+@pytest.mark.parametrize("bend", [0.2, 2.5])
+def test_points_where_the_quadric_folds_get_moment_normals(rng, bend):
+    """z = bend * x**2 over [-0.5, 0.5]**2 in one leaf, its quadric exact: its normal is within 60 degrees of the frame
+    normal (z) where |slope| = 2 bend |x| <= sqrt(3); beyond (bend 2.5: |x| > 0.346) the quadric folds over the points
+    and they get moment normals (or k-NN ones), the others keep the quadric's, exact."""
+    from patchcloud.core.tiles import FOLD_MIN_COS
 
-    xy = rng.uniform(-0.5, 0.5, (400, 2))
-    pts = np.column_stack([xy, bend * xy[:, 0] ** 2]) + 1.0  # inside the root cube [0, 2]**3
-    tree = build_octree(pts, 2.0, criterion="rmse", threshold=0.05, d_min=2.0, n_min=12, min_sigma2=0.01, spacing=0.05)
-    assert tree.level.tolist() == [0] and tree.fit.rmse[0] < 0.05  # one leaf, within the threshold
-    assert (4 * bend * bend * 0.25 > MAX_SLOPE2) == (not surface)
-    assert tree.kind.tolist() == [PatchKind.SURFACE if surface else PatchKind.EDGE]
+    xy = rng.uniform(-0.5, 0.5, (4000, 2))
+    pts = np.column_stack([xy, bend * xy[:, 0] ** 2])
+    res = estimate_normals(pts, d_min=4.0, threshold=0.05, blend=False, root=((-2.0, -2.0, -2.0), 4.0))
+    assert len(res.patches.count) == 1 and res.patches.kind[0] == PatchKind.SURFACE  # one leaf, a surface
+    slope, limit = 2 * bend * np.abs(xy[:, 0]), np.sqrt(1 / FOLD_MIN_COS**2 - 1)  # (the PCA frame is z to within a degree)
+    steep = slope > limit
+    assert steep.any() == (bend > 1)
+    sure = np.abs(slope - limit) > 0.05
+    np.testing.assert_array_equal((res.method == Method.QUADRIC)[sure], ~steep[sure])
+    if bend < 1:  # the gentle one: its quadric exact, every normal
+        exact = np.column_stack([-2 * bend * xy[:, 0], np.zeros(len(xy)), np.ones(len(xy))])
+        assert np.max(angles_deg(res.normals, exact / np.linalg.norm(exact, axis=1)[:, None])) < 0.05
 
 
-def test_real_ground_and_roofs_get_no_folded_quadric_normals():
-    """house.laz with a threshold of 0.14 m: before the fold check 20 ground and roof points took a downward normal
-    (NormalZ < -0.5) from their own folded quadric (patches of 13-17 points whose frame normal was nearly horizontal)."""
+def test_real_ground_gets_no_folded_quadric_normals():
+    """house.laz with a threshold of 0.14 m: 53 ground points took a downward normal (NormalZ < -0.5), 20 of them from
+    their own folded quadric (patches of 13-17 points whose frame normal was nearly horizontal), the others oriented by
+    those; now none."""
     import laspy
 
     from conftest import shared_file
 
-    path = shared_file("lidar-lastools/house.laz")
-    las = laspy.read(str(path))
+    las = laspy.read(str(shared_file("lidar-lastools/house.laz")))
     keep = (np.asarray(las.classification) != 7) & ~np.asarray(las.withheld, bool)
     cls = np.asarray(las.classification)[keep]
     res = estimate_normals(np.column_stack([las.x, las.y, las.z])[keep], threshold=0.14, root="grid")
-    own = res.method == Method.QUADRIC
-    assert own.sum() > 5000
-    assert not (own & np.isin(cls, [2, 6]) & (res.normals[:, 2] < -0.5)).any()
+    assert (res.method == Method.QUADRIC).sum() > 5000 and (cls == 2).sum() > 10000
+    assert not ((cls == 2) & (res.normals[:, 2] < -0.5)).any()

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from patchcloud.core import (
-    LeafSet, Method, PatchKind, Skin, cross_face_pairs, finish_tile, fit_tile, link_agreements, point_keys, rmse_histograms,
-    surface_normals,
+    LeafSet, Method, PatchKind, Skin, cross_face_pairs, finish_tile, fit_tile, folded, link_agreements, point_keys,
+    rmse_histograms, surface_normals,
 )
 
 from patchcloud.stream.engine.job import params_key
@@ -151,7 +151,7 @@ def finish_values(url: str, ijk: tuple, params: dict, neighbours: list[tuple], o
         outside.append(oriented_table(n) if n in present else None)
     halo = params["halo"]
     sk_pts, sk_nrm, sk_ok = [], [], []
-    needs_skin = bool(np.any(table.kind != PatchKind.SURFACE))  # only moment and k-NN normals look at the skin
+    needs_skin = True  # for moment and k-NN normals: of edge and sparse leaves, and of surface points where it folds
     for n in sorted(present) if needs_skin else []:
         sx = store.read(n, "skin")
         if sx.shape[0] == 0:
@@ -168,6 +168,7 @@ def finish_values(url: str, ijk: tuple, params: dict, neighbours: list[tuple], o
         if surf.any():
             r = rows[surf]
             nrm[surf] = surface_normals(p[surf], t.centroid[r], t.frame[r], t.coeffs[r])
+            surf[surf] = ~folded(nrm[surf], t.frame[r, :, 2])  # as finish_tile's own points: no vote where it folds
         sk_pts.append(p)
         sk_nrm.append(nrm)
         sk_ok.append(surf)
