@@ -151,8 +151,7 @@ def finish_values(url: str, ijk: tuple, params: dict, neighbours: list[tuple], o
         outside.append(oriented_table(n) if n in present else None)
     halo = params["halo"]
     sk_pts, sk_nrm, sk_ok = [], [], []
-    needs_skin = True  # for moment and k-NN normals: of edge and sparse leaves, and of surface points where it folds
-    for n in sorted(present) if needs_skin else []:
+    for n in sorted(present):  # the skin, for moment and k-NN normals: of edge and sparse leaves, of folded surface points
         sx = store.read(n, "skin")
         if sx.shape[0] == 0:
             continue
