@@ -606,6 +606,7 @@ def test_assumed_crs_is_written_into_the_outputs_of_files_without_one(cut, tmp_p
         assert r.exit_code == 2 and says in r.stderr, r.stderr
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_files_far_apart_get_the_tile_size_of_their_density(cut, tmp_path):
     """Two tiles of a survey 300 km apart: the default tile size and the --tile-size check see the files' boxes, not
     the catalog's box (mostly empty), so the catalog gets the tiles its files would get alone (the box made the default

@@ -142,6 +142,7 @@ def test_points_mode_on_the_files_grid_is_no_larger_than_the_input_laz(tmp_path,
     assert (tmp_path / "a.pcz").stat().st_size <= src.stat().st_size
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_points_mode_is_the_same_bytes_whatever_the_workers_and_the_scheduler(tmp_path):
     # 900,000 points: eight parts for one worker would be 150,000 points each, for two 100,000; the blocks must not follow
     rng = np.random.default_rng(4)

@@ -60,6 +60,7 @@ def slow_run():
     return _by_kind(fz.run_fuzz(fz.TARGETS, **SLOW))
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 @pytest.mark.parametrize("target, kind", _kinds(KNOWN_FAST))
 def test_mutated_files_end_in_a_consistent_output_or_one_error_line(fast_run, target, kind):
     _check_kind(fast_run, target, kind)

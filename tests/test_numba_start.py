@@ -5,6 +5,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 RUN = textwrap.dedent("""
     import sys
@@ -34,6 +35,7 @@ def _run(mode):
     return eval(head.decode()), data
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_the_probe_is_skipped_and_the_kernels_give_the_same_bits():
     (heavy, blas, again), skipped = _run("skip")
     assert (heavy, blas, again) == (False, False, False)  # scipy.linalg not imported by numba; numba found no BLAS
@@ -69,6 +71,7 @@ LIGHT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_cached_kernels_load_without_the_refresh_and_give_the_same_bits(tmp_path):
     (tmp_path / "kernel_for_light_test.py").write_text(
         "import numba\n\n@numba.njit(cache=True)\ndef twice(x):\n    return 2 * x\n\n\n"
@@ -109,6 +112,7 @@ SYMBOLS = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_kernels_loaded_without_their_bitcode_define_the_symbols_numba_reads_from_it():
     """stream.engine.numba_start.defined_symbols: numba's JIT engine knows the same symbols after a run whose kernels'
     names came from their object code (bitcode not parsed) as after one where numba parsed their bitcode."""

@@ -107,6 +107,7 @@ def report(tmp_path_factory):
     return report_normals(s, tmp / "r.html")  # with its views: normals, curvature, patches
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_the_report_in_a_headless_browser_shows_every_view_and_table_and_its_pictures(report, tmp_path):
     page = report.read_text()
     pngs = embedded(page)
@@ -137,6 +138,7 @@ def test_the_report_in_a_headless_browser_shows_every_view_and_table_and_its_pic
         assert screen[y:y + h, x:x + w].std() > 0.05
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_a_broken_picture_is_caught(report, tmp_path):
     # the same page with one view's PNG replaced by bytes that are no picture: the browser cannot decode it, and
     # the check says so

@@ -258,6 +258,7 @@ def test_cli_bad_files(tmp_path, scene):
         don(path, tmp_path / "o3.las", mode="approximate", quiet=True)
 
 
+@pytest.mark.slow  # over 4 s: the slow suite keeps the default one under 10 minutes
 def test_worker_processes_give_identical_files(scene, tmp_path):
     path, _, _ = scene
     kw = dict(r_small=0.3, r_large=1.5, threshold=0.2, tolerance=0.15, min_cluster=30, tile_size=4.0, quiet=True)
