@@ -62,13 +62,17 @@ class DonSummary:
     left_out: dict = field(default_factory=dict)  # points left out of every neighbourhood, by reason (stream.io.classes.REASONS)
     selection: dict | None = None  # the classes asked for and keep_noise (Selection.to_json)
 
-    def median_magnitude(self) -> float:
-        """Median DoN magnitude of the points where it is defined (from the histogram: the middle of its bin of 1/50)."""
+    def median_bin(self) -> int | None:
+        """The histogram bin (of 1/50) that holds the median DoN magnitude of the points where it is defined; None for none."""
         h = np.asarray(self.histogram, dtype=np.int64)
         if h.sum() == 0:
-            return float("nan")
-        k = int(np.searchsorted(np.cumsum(h), (h.sum() + 1) // 2))
-        return (k + 0.5) / h.size
+            return None
+        return int(np.searchsorted(np.cumsum(h), (h.sum() + 1) // 2))
+
+    def median_magnitude(self) -> float:
+        """Median DoN magnitude of the points where it is defined (from the histogram: the middle of its bin of 1/50)."""
+        k = self.median_bin()
+        return float("nan") if k is None else (k + 0.5) / len(self.histogram)
 
     def median_words(self) -> str:
         """:meth:`median_magnitude` as the bin that holds it, for the summary and the report: ``"0.22-0.24"``, or
@@ -78,9 +82,8 @@ class DonSummary:
         >>> flat.median_words(), DonSummary("in.las", "out.las", 3, 1, 8.0, {}, 3, histogram=[0] * 11 + [3] + [0] * 38).median_words()
         ('below 0.02', '0.22-0.24')
         """
-        h = np.asarray(self.histogram)
-        k = int(round(self.median_magnitude() * h.size - 0.5))
-        return f"below {1 / h.size:.2f}" if k == 0 else f"{k / h.size:.2f}-{(k + 1) / h.size:.2f}"
+        k, size = self.median_bin(), len(self.histogram)
+        return f"below {1 / size:.2f}" if k == 0 else f"{k / size:.2f}-{(k + 1) / size:.2f}"
 
     def format(self) -> str:
         n = max(self.points, 1)
