@@ -140,8 +140,7 @@ def _parse_bitcode_when_linked() -> bool:
     library = getattr(codegen, "CPUCodeLibrary", None)
     unserialize = getattr(library, "_unserialize", None)
     for_linking = getattr(library, "_get_module_for_linking", None)
-    if unserialize is None or for_linking is None or not hasattr(codegen, "JitEngine") \
-            or not hasattr(codegen.JitEngine, "_defined_symbols") and not hasattr(codegen.JitEngine, "_load_defined_symbols"):
+    if unserialize is None or for_linking is None:  # (an engine without its set of names: checked at each load)
         return False
     if getattr(for_linking, "lightly", False):
         return True
