@@ -445,3 +445,25 @@ def test_a_line_stored_to_1_cm_has_no_don_and_no_segment(tmp_path):
     assert "note            most points have no DoN: their r_s ball holds fewer than 3 points, or points of one line" in text
     segment(tmp_path / "line.las", tmp_path / "seg.las", r_small=0.2, r_large=2.0, threshold=0.25, min_points=5, quiet=True)
     assert not np.asarray(laspy.read(tmp_path / "seg.las").ClusterID).any()
+
+
+def test_summaries_and_provenance_state_positions_in_file_coordinates(scene, tmp_path):
+    """The viewpoint and centre a user reads (summary, provenance VLR) are in the file's coordinates, not the store's
+    local frame; no internal keys."""
+    import json
+
+    from patchcloud.stream import normals
+
+    path, _, _ = scene
+    vp = (770500.0, 6277505.0, 60.0)
+    s = don(path, tmp_path / "d.las", r_small=0.3, r_large=1.5, viewpoint=vp, quiet=True)
+    assert s.parameters["viewpoint"] == pytest.approx(vp, abs=1e-9)
+    assert not [k for k in s.parameters if k.endswith(("_local", "_key"))]
+    vlr = next(v for v in laspy.read(tmp_path / "d.las").header.vlrs if v.user_id == "patchcloud")
+    stated = json.loads(vlr.record_data)["parameters"]
+    assert stated["viewpoint"] == pytest.approx(vp, abs=1e-9) and "viewpoint_local" not in stated
+    up = normals(path, tmp_path / "n.las", quiet=True)
+    assert "centre" not in up.parameters and "centre_local" not in up.parameters  # the up rule has no centre
+    out = normals(path, tmp_path / "o.las", orient="outward", quiet=True)
+    xyz = np.column_stack([laspy.read(path).x, laspy.read(path).y, laspy.read(path).z])
+    assert out.parameters["centre"] == pytest.approx(xyz.mean(axis=0), abs=1e-6)

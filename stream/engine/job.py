@@ -79,7 +79,7 @@ from patchcloud.stream.io.renamed import file_state, partial_path, renamed_here
 from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store_dir, removing_path
 
 __all__ = [
-    "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "MAX_WORKERS", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "default_store_path", "write_profile",
+    "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "MAX_WORKERS", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "in_file_frame", "default_store_path", "write_profile",
     "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines", "left_out_text",
 ]
 
@@ -384,6 +384,26 @@ def file_lines(files: list[tuple[str, str, int]]) -> list[str]:
     ]
 
 
+def in_file_frame(params: dict, origin) -> dict:
+    """``params`` as a user reads them: ``NAME_local`` positions (the store's frame) as ``NAME`` in file coordinates
+    (``origin`` added; None stays None; without an ``origin`` they keep their names), and no ``*_key`` entries
+    (hashes that tell a store's steps apart).
+
+    >>> in_file_frame({"viewpoint_local": [1.0, 2.0, 3.0], "r_small": 0.5, "don_key": "ab12"}, (1000.0, 0.0, 0.0))
+    {'viewpoint': [1001.0, 2.0, 3.0], 'r_small': 0.5}
+    """
+    out = {}
+    for name, value in params.items():
+        if name.endswith("_key"):
+            continue
+        if name.endswith("_local") and origin is not None:
+            name = name[: -len("_local")]
+            if value is not None:
+                value = [float(o) + float(v) for o, v in zip(origin, value)]
+        out[name] = value
+    return out
+
+
 @dataclass
 class JobContext:
     """What a job's steps work with: the input, the tiled store (None for a job that is not ``tiled``), the scheduler, the run's options.
@@ -487,8 +507,10 @@ class Job:
                        request=run_request(self, ctx.run))
 
     def parameters(self) -> dict:
-        """The parameters the outputs' provenance VLR states: the job's resolved ``params`` (none by default)."""
-        return dict(getattr(self, "params", None) or {})
+        """The parameters the outputs' provenance VLR and the summary state: the job's resolved ``params`` (none by
+        default) as a user reads them, positions in file coordinates (:func:`in_file_frame`, with the job's
+        ``origin``, the store grid's, once known)."""
+        return in_file_frame(dict(getattr(self, "params", None) or {}), getattr(self, "origin", None))
 
     def asked_parameters(self) -> dict:
         """The job's options as given (``options``, a dataclass, when the job has one): with the run's own options,

@@ -170,6 +170,7 @@ class DonJob(Job):
     def __init__(self, options: DonOptions) -> None:
         self.options = options
         self.params: dict = {}
+        self.origin = None  # the store grid's origin, once resolved
         self.width = 0.0
         self.halo = 1
         self.infos: dict = {}
@@ -203,7 +204,7 @@ class DonJob(Job):
     def resolve(self, ctx: JobContext) -> None:
         """The resolved parameters (viewpoint in the store's frame, densities, halo) and their key."""
         o, st = self.options, ctx.store
-        origin = np.asarray(st.grid.origin)
+        origin = self.origin = np.asarray(st.grid.origin)
         vp = default_viewpoint_of(ctx.catalog) if o.viewpoint is None else np.asarray(o.viewpoint, dtype=np.float64)
         self.params = dict(
             r_small=o.r_small, r_large=o.r_large, mode=o.mode, resolution=o.resolution, min_points=o.min_points,
@@ -241,7 +242,7 @@ class DonJob(Job):
         v = list(self.infos.values())
         return DonSummary(
             input=ctx.input_name, output=str(ctx.output), points=ctx.catalog.point_count, tiles=len(ctx.store.tiles),
-            tile_size=ctx.store.grid.tile_size, parameters={k: self.params[k] for k in self.params if not k.endswith("_key")},
+            tile_size=ctx.store.grid.tile_size, parameters=self.parameters(),
             defined=sum(i["defined"] for i in v), histogram=np.sum([i["hist"] for i in v], axis=0).astype(int).tolist() if v else [],
             seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler, store=ctx.kept_store, files=ctx.files,
             units=ctx.units.to_json(), left_out=dict(ctx.store.attrs.get("left_out", {})), selection=ctx.store.attrs.get("selection"),

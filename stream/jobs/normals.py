@@ -139,6 +139,7 @@ class NormalsJob(Job):
         self.principal_curvatures = bool(principal_curvatures)
         self.always_up = bool(always_up)
         self.params: dict = {}
+        self.origin = None  # the store grid's origin, once calibrated
         self.key = ""
         #: Whether no tile of the store can be marked fitted (finished): set by :meth:`calibrate`.
         self.none_fitted = self.none_finished = False
@@ -149,7 +150,7 @@ class NormalsJob(Job):
     def calibrate(self, ctx: JobContext) -> None:
         """Resolve the parameters; a change of them (or of the calibration) clears the steps that depend on them."""
         o, st = self.options, ctx.store
-        origin = np.asarray(st.grid.origin)
+        origin = self.origin = np.asarray(st.grid.origin)
         asked = dataclasses.asdict(o)
         del asked["viewpoint"]  # the tiles get it in the store's frame
         self.params = dict(
@@ -178,6 +179,13 @@ class NormalsJob(Job):
                 st.clear_tile_steps(["finish"])
             self.none_finished = True
             st.update(finish_key=finish_key)
+
+    def parameters(self) -> dict:
+        """As :meth:`Job.parameters`, the centre only where the orientation has one (``outward``)."""
+        p = super().parameters()
+        if p.get("orient") != "outward":
+            p.pop("centre", None)
+        return p
 
     def asked_parameters(self) -> dict:
         return dict(super().asked_parameters(), principal_curvatures=self.principal_curvatures, always_up=self.always_up)
@@ -233,7 +241,7 @@ class NormalsJob(Job):
             tile_size=st.grid.tile_size,
             patches_by_kind={k.name.lower(): int(kinds[k]) for k in PatchKind},
             normals_by_method={**{m.name.lower(): int(methods[m]) for m in Method}, "none": int(methods[0])},
-            parameters=self.params, seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler,
+            parameters=self.parameters(), seconds=ctx.seconds, peak_memory=ctx.peak_memory, compile_seconds=ctx.compile_seconds, scheduler=ctx.scheduler,
             store=ctx.kept_store, files=ctx.files, units=ctx.units.to_json(), left_out=dict(st.attrs.get("left_out", {})),
             selection=st.attrs.get("selection"),
         )
