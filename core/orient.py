@@ -23,8 +23,8 @@ from .codes import PatchKind
 from .octree import Octree
 
 __all__ = [
-    "DOT_MIN", "MIN_RELIABILITY", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
-    "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "rule_scores",
+    "DOT_MIN", "MIN_RELIABILITY", "CONCAVE_MIN_POINTS", "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
+    "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "concave_damping", "rule_scores",
     "component_rule_signs", "point_rule_signs",
 ]
 
@@ -32,6 +32,13 @@ __all__ = [
 DOT_MIN = 0.9
 #: Smallest |agreement| of a link for it to carry orientation.
 MIN_RELIABILITY = 0.5
+#: Under the ``up`` rule, a surface patch of at least this many times ``n_min`` points whose quadric sags more than
+#: :data:`CONCAVE_SAG` times its fit RMSE over half its leaf's edge, concave as seen from above, has a weaker prior
+#: (:func:`concave_damping`): the underside of a pipe or a vault.
+CONCAVE_MIN_POINTS = 3
+CONCAVE_SAG = 3.0
+#: How fast the prior of a concave patch weakens with its bend (the quadric's ``a + c`` times the leaf's edge).
+CONCAVE_DAMPING = 10.0
 
 _DIRS = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]], dtype=np.int64)
 
@@ -111,9 +118,12 @@ def link_agreements(
     Between two surface patches: :func:`face_agreement` (face sampling of the
     two quadrics, paper 2.3).  Between a surface and an edge or sparse leaf,
     or two of those: the dot product of their PCA normals when the two are
-    nearly parallel (``|cos| >= DOT_MIN``), else 0, so groups of patches
-    separated by a sharp feature or a sparse spot still propagate their
-    orientation through it.  Leaves with fewer than 3 points take no part.
+    nearly parallel (``|cos| >= DOT_MIN``) and lie on one surface (each
+    centroid within half the smaller leaf's edge of the other's PCA plane),
+    else 0, so groups of patches separated by a sharp feature or a sparse
+    spot still propagate their orientation through it, but two parallel
+    surfaces apart (the underside of a pipe over the ground, a roof over a
+    terrace) do not link.  Leaves with fewer than 3 points take no part.
 
     Returns
     -------
@@ -125,6 +135,10 @@ def link_agreements(
     agreement = np.einsum("ni,ni->n", A.frame[i, :, 2], B.frame[j, :, 2])
     # a PCA normal of a sharp or sparse spot is rough: trust only nearly parallel ones
     agreement[~both & (np.abs(agreement) < DOT_MIN)] = 0.0
+    gap = B.centroid[j] - A.centroid[i]
+    reach = 0.5 * np.minimum(A.edge[i], B.edge[j])
+    apart = (np.abs(np.einsum("ni,ni->n", gap, A.frame[i, :, 2])) > reach) | (np.abs(np.einsum("ni,ni->n", gap, B.frame[j, :, 2])) > reach)
+    agreement[~both & apart] = 0.0
     agreement[both] = face_agreement(A, i[both], B, j[both], d[both])
     return i, j, agreement
 
@@ -312,6 +326,33 @@ def rule_prior(rule: str, normals: np.ndarray, positions: np.ndarray, viewpoint=
     norm = np.linalg.norm(d, axis=1)
     cos = np.einsum("ni,ni->n", normals, d) / np.where(norm > 0, norm, 1.0)
     return cos if rule == "viewpoint" else 0.6 * cos
+
+
+def concave_damping(prior: np.ndarray, coeffs: np.ndarray, edge: np.ndarray, rmse: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """The ``up`` rule's ``prior`` weakened where a patch is clearly concave seen from the side the rule picks.
+
+    A horizontal patch on the underside of a pipe, a vault or a tank faces
+    up into the object under the rule alone, as strongly as the patch on
+    its top faces up out of it; when both are linked into one group, the
+    stronger prior decides for the whole group.  The top of such an object
+    is convex seen from above, its underside concave: so the prior of a
+    patch whose quadric (``coeffs`` (P, 6), ``w = a u^2 + b uv + c v^2 +
+    ...`` in its frame) curves towards the side the rule picks, with a sag
+    ``(a + c) (edge / 2)^2`` above :data:`CONCAVE_SAG` times its fit
+    ``rmse`` (not noise), is divided by ``1 + CONCAVE_DAMPING (a + c) edge``.
+    Only where ``usable`` (surface patches with enough points to show a
+    curvature).  Flat ground and roofs keep their priors.
+
+    >>> prior = np.array([1.0, 1.0, -1.0])  # e3 up, up, down
+    >>> coeffs = np.array([[0.5, 0, 0, 0, 0, 0], [-0.5, 0, 0, 0, 0, 0], [-0.5, 0, 0, 0, 0, 0]])  # bowl, dome, bowl seen from below
+    >>> concave_damping(prior, coeffs, np.full(3, 0.4), np.full(3, 0.001), np.ones(3, bool)).round(3).tolist()
+    [0.333, 1.0, -0.333]
+    """
+    side = np.where(prior < 0, -1.0, 1.0)
+    curving = (coeffs[:, 0] + coeffs[:, 2]) * side  # > 0: the surface bends towards the rule's side (concave from there)
+    sag = curving * (0.5 * edge) ** 2
+    bend = np.where(usable & (sag > CONCAVE_SAG * rmse), curving * edge, 0.0)
+    return prior / (1.0 + CONCAVE_DAMPING * bend)
 
 
 def rule_scores(rule: str, normals: np.ndarray, positions: np.ndarray, weights: np.ndarray, viewpoint=None, centre=None) -> np.ndarray:

@@ -50,6 +50,8 @@ from .orient import (
     link_agreements,
     point_rule_signs,
     rule_prior,
+    concave_damping,
+    CONCAVE_MIN_POINTS,
     rule_scores,
     spanning_forest,
 )
@@ -214,6 +216,11 @@ def fit_tile(
     ctr = None if centre is None else np.asarray(centre, dtype=np.float64) - corner
     e3 = frames[:, :, 2] * usable[:, None]
     prior = rule_prior(orient, e3, tree.centroid, vp, ctr)
+    surface = tree.kind == PatchKind.SURFACE
+    if prior is not None:  # the rule sees surface patches only: an edge or sparse leaf's PCA normal is rough
+        prior = np.where(surface, prior, 0.0)
+    if orient == "up":
+        prior = concave_damping(prior, coeffs, tree.leaf_edge, tree.fit.rmse, surface & (tree.count >= CONCAVE_MIN_POINTS * n_min))
     if prior is not None:
         i = np.concatenate([i, np.arange(P)])
         j = np.concatenate([j, np.full(P, P)])

@@ -73,3 +73,34 @@ def test_the_kernel_gives_the_numpy_values_bit_for_bit():
     got = face_agreement(A, i, A, j, d)
     assert np.array_equal(got, numpy_agreement(A, i, A, j, d))
     assert np.count_nonzero(got) > 1000 and np.count_nonzero(got < 0) > 10  # many pairs vote, some of them against
+
+
+def sparse_pair(offset):
+    """A sparse leaf (kind 2) at the unit cube and one across its +x face, both with e3 = +z, their centroids
+    ``offset`` apart along z."""
+    def one(lower, z):
+        return LeafSet(np.asarray([lower], float), np.ones(1), np.asarray([[lower[0] + 0.5, 0.5, z]]), np.asarray([UP]),
+                       np.zeros((1, 6)), np.full(1, 0.001), np.full(1, 2, np.uint8), np.full(1, 10))
+    return one([0, 0, 0], 0.3), one([1, 0, 0], 0.3 + offset)
+
+
+@pytest.mark.parametrize("offset, expected", [(0.0, 1.0), (0.45, 1.0), (0.55, 0.0), (2.0, 0.0)])
+def test_rough_leaves_link_only_where_they_lie_on_one_surface(offset, expected):
+    # two sparse leaves with parallel PCA normals link by their dot product only where each centroid lies within half
+    # the smaller edge (0.5) of the other's plane: a pipe's underside does not link to the ground 2 m below it
+    from patchcloud.core.orient import link_agreements
+
+    A, B = sparse_pair(offset)
+    _, _, a = link_agreements(A, np.array([0]), B, np.array([0]), np.array([1]))
+    assert a.tolist() == [expected]
+
+
+def test_a_concave_patch_has_a_weaker_up_prior_than_a_convex_one():
+    from patchcloud.core.orient import concave_damping
+
+    prior = np.array([0.99, 0.99, 0.99, 0.99])
+    coeffs = np.zeros((4, 6))
+    coeffs[:, 0] = [0.5, -0.5, 0.5, 0.001]  # a bowl, a dome, a bowl too few points show, an all but flat patch
+    usable = np.array([True, True, False, True])
+    out = concave_damping(prior, coeffs, np.full(4, 0.4), np.full(4, 0.002), usable)
+    assert out[0] == pytest.approx(0.99 / 3.0) and out[1:].tolist() == [0.99, 0.99, 0.99]
