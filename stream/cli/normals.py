@@ -16,7 +16,7 @@ from . import options
 @click.option("--threshold", type=float, default=None, help="Threshold of the criterion. Default: from the scanner noise (rmse), 0.005 (sigma3).")
 @click.option("--orient", type=click.Choice(["up", "viewpoint", "outward", "none"]), default=NormalsOptions.orient, show_default=True,
               help="Which side normals point to: up (+Z, aerial and mobile LiDAR), towards --viewpoint, away from the centre, or no rule. "
-              "up, outward and none orient whole groups of linked patches, so a wall or an overhang keeps the side its neighbours "
+              "up, outward and none orient whole groups of linked patches, so a wall or a curved surface keeps the side its neighbours "
               "give it; viewpoint turns every normal to face the viewpoint, point by point, as PDAL does.")
 @click.option("--always-up", is_flag=True,
               help="PDAL's always_up (filters.normal): after orientation, flip every normal with NormalZ < 0, point by point, "

@@ -284,7 +284,7 @@ def normals(
         NormalZ >= 0 everywhere (with it the principal curvatures and
         direction, which depend on the side: (k1, k2) becomes (-k2, -k1)).
         Unlike ``orient="up"`` (the default), which turns whole groups of
-        linked patches towards +Z, so a wall or an overhang keeps the side
+        linked patches towards +Z, so a wall or a curved surface keeps the side
         its neighbours give it.  Default False (PDAL's default is True).
     **kwargs
         Any field of either, by name (``criterion="sigma3"``, ``workers=2``),
