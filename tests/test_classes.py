@@ -177,6 +177,28 @@ def test_a_store_is_reused_only_with_the_same_selection(scenes, tmp_path):
     assert (tmp_path / "b.las").read_bytes() == (tmp_path / "c.las").read_bytes()
 
 
+def test_a_store_of_another_kind_of_job_is_refused_not_tiled_again(scenes, tmp_path):
+    # compress tiles every point, normals leaves noise out: compress given normals' store (or the reverse) would tile it
+    # again, taking normals' tiles and records with it, though nothing new was asked (review M): one line, nothing touched
+    from patchcloud.core import PatchcloudValueError
+    from patchcloud.stream import Store, compress
+
+    d, _, _ = scenes
+    store = str(tmp_path / "s.zarr")
+    normals(d / "noisy.las", tmp_path / "a.las", tile_size=16, quiet=True, store=store)
+    before = Store.open(store).attrs["selection"]
+    with pytest.raises(PatchcloudValueError, match=r"s.zarr: its tiles hold every class; noise .* left out .*compress tiles "
+                                                   r"every point: one store holds one tiling"):
+        compress(d / "noisy.las", tmp_path / "c.pcz", max_error=0.05, quiet=True, store=store)
+    assert not (tmp_path / "c.pcz").exists() and Store.open(store).attrs["selection"] == before
+    normals(d / "noisy.las", tmp_path / "a.las", tile_size=16, quiet=True, store=store)  # still its own: no --overwrite
+    other = str(tmp_path / "t.zarr")
+    compress(d / "noisy.las", tmp_path / "c.pcz", max_error=0.05, quiet=True, store=other, keep_store=True)
+    with pytest.raises(PatchcloudValueError, match="normals tiles every class; noise"):
+        normals(d / "noisy.las", tmp_path / "b.las", tile_size=16, quiet=True, store=other)
+    normals(d / "noisy.las", tmp_path / "b.las", tile_size=16, quiet=True, store=other, keep_noise=True)  # the same tiles
+
+
 def test_in_memory_and_on_disk_give_the_same_bytes_with_a_selection(scenes, tmp_path):
     d, _, _ = scenes
     for mode in (True, False):

@@ -142,6 +142,36 @@ def test_resume_after_an_interrupted_run(scene_las, tmp_path, monkeypatch):
     assert np.array_equal(laspy.read(str(out)).points.array, laspy.read(str(full)).points.array)
 
 
+@pytest.mark.slow  # about 30 s (2 cores): two runs at 4 m tiles
+def test_a_store_stopped_while_tiling_keeps_its_tile_size_when_resumed_without_one(scene_las, tmp_path, monkeypatch):
+    # `tile --tile-size 4` (or `normals --tile-size 4 --store S`) stopped while sorting its tiles, then `normals --store
+    # S` without a tile size: the store's 4 m tiles are resumed, not replaced by tiles of the default size (review M)
+    from patchcloud.stream.engine import ingest
+
+    path, _, _ = scene_las
+    full = tmp_path / "full.las"
+    normals(path, full, tile_size=4, scheduler="synchronous", quiet=True)
+    store = str(tmp_path / "tiles.zarr")
+    real, calls = ingest.sort_tile, {"n": 0}
+
+    def dies_after_three(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] > 3:
+            raise KeyboardInterrupt("killed")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ingest, "sort_tile", dies_after_three)
+    with pytest.raises(KeyboardInterrupt, match=r"^interrupted \(the store .*tiles.zarr, .* is kept: the same command resumes"):
+        tile(path, store, tile_size=4, scheduler="synchronous", quiet=True)
+    st = Store.open(store)
+    assert st.grid.tile_size == 4 and not st.step_done("tile") and len(st.tiles) > ingest.FEW_TILES  # (the default would
+    monkeypatch.setattr(ingest, "sort_tile", real)                                              # find 4 m too small)
+    out = tmp_path / "out.las"
+    normals(path, out, scheduler="synchronous", quiet=True, store=store)
+    assert Store.open(store).grid.tile_size == 4
+    assert np.array_equal(laspy.read(str(out)).points.array, laspy.read(str(full)).points.array)
+
+
 @pytest.mark.parametrize("fmt", [0, 1, 2, 3, 6, 7, 8])
 def test_every_dimension_round_trips(fmt, tmp_path):
     rng = np.random.default_rng(fmt)

@@ -40,7 +40,7 @@ from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
 __all__ = [
     "ensure_tiled", "auto_tile_size", "check_tile_size", "make_grid", "check_points_per_tile", "MIN_POINTS_PER_TILE", "check_occupied_tiles", "MIN_POINTS_PER_OCCUPIED_TILE", "FEW_TILES", "TILE_POINT_BYTES", "NothingToResumeError", "TileSizeError", "tile_size_for", "tile_size_in", "footprint_area", "tile_size_of_tiles", "part_size", "part_ranges", "catalog_parts", "part_path",
-    "scatter_part", "read_part", "route_path", "routes_pay", "part_selection", "store_selection",
+    "scatter_part", "read_part", "route_path", "routes_pay", "part_selection", "store_selection", "check_store_selection",
     "sort_tile", "tile_pieces", "bucket_records", "gather_records", "occupancy_spacing", "tile_keys", "pack_tile_keys",
     "unpack_tile_keys", "TARGET_TILE_POINTS",
 ]
@@ -302,6 +302,33 @@ def store_selection(store: Store) -> Selection:
     """The points the store's tiles hold (:class:`~patchcloud.stream.io.classes.Selection`; a store that records none:
     every point)."""
     return Selection.from_json(store.attrs.get("selection"))
+
+
+def check_store_selection(url: str, cat: Catalog, tiles: Selection, asked: Selection, job: str) -> None:
+    """Refuse a named store whose tiles hold another selection of these files only because another kind of job made it.
+
+    ``tiles`` is what this job tiles (``compress`` tiles every point and
+    models its selection; the other jobs tile the points they select),
+    ``asked`` the run's own selection.  A store made from the same files with
+    ``asked`` (by a selecting job) or with every point (by ``compress``) but
+    holding other tiles than ``tiles`` would be tiled again here, taking its
+    tiles and the other job's records with it, though the user asked for
+    nothing new: one PatchcloudValueError instead, nothing touched.  A store
+    made with a selection this run asks to change (``--classes``,
+    ``--keep-noise``) is tiled again, as asked.
+    """
+    if not Store.exists(url):
+        return
+    a = Store.open(url).attrs
+    if not (a.get("catalog") and cat.same_files(a["catalog"]) and "selection" in a):
+        return
+    held = Selection.from_json(a["selection"])
+    if held == tiles or not (held == asked or held.everything):
+        return
+    raise PatchcloudValueError(
+        f"{url}: its tiles hold {held.describe()} (an earlier run made it), and {job} tiles {tiles.describe()}: one store "
+        f"holds one tiling, so give this run another --store (or remove {url} to tile it again)"
+    )
 
 
 def part_selection(selection: Selection, records: np.ndarray) -> tuple[np.ndarray, list[int], list[int]]:
@@ -593,6 +620,7 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
     grid = make_grid(cat, tile_size)
     selection = Selection() if selection is None else selection
     t0 = time.perf_counter()
+    asked = tile_size is not None  # a tile size someone asked for is kept; the default one may be found too small below
     if Store.exists(url):
         store = Store.open(url)
         a = store.attrs
@@ -600,6 +628,7 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
             kept = Grid.from_json(a["grid"])  # no tile size asked for: a store of these files keeps its own (`tile --tile-size`)
             if (kept.origin, kept.scale, kept.offset) == (grid.origin, grid.scale, grid.offset):
                 grid = kept
+                asked = bool(a.get("tile_size_asked", True))  # (a store of before this record: asked, as its grid is kept)
         same = (a.get("catalog") and cat.same_files(a["catalog"]) and a.get("grid") == grid.to_json() and "part_points" in a
                 and a.get("selection") == selection.to_json())
         if same and store.step_done("tile"):
@@ -611,14 +640,14 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
     for attempt in range(2):
         if "part_points" not in store.attrs:
             store.update(source=cat.holding[0].to_json(), catalog=cat.to_json(), grid=grid.to_json(), selection=selection.to_json(),
-                         part_points=part_size(cat.point_count, runner.slots, chunk))
+                         part_points=part_size(cat.point_count, runner.slots, chunk), tile_size_asked=asked)
         if not store.step_done("bucket"):
             if not store.in_memory:  # the index the client writes next is blosc-coded: numcodecs, imported during the step
                 import_meanwhile("numcodecs")
             _scatter(store, runner, "xyz", "tile: read")
             _index_parts(store)
             store.mark_step("bucket", {"part_points": int(store.attrs["part_points"])})
-        bigger = tile_size_of_tiles(store.tiles, store.tile_counts, grid.tile_size) if tile_size is None and attempt == 0 else None
+        bigger = tile_size_of_tiles(store.tiles, store.tile_counts, grid.tile_size) if not asked and attempt == 0 else None
         if bigger is None:
             break
         # the headers' bounds understated the cloud (the default tile size comes from them): tiled again at the size its

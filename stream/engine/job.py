@@ -58,7 +58,7 @@ from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIO
 from patchcloud.stream.engine.background import stops_what_it_starts
 from patchcloud.stream.engine.compiling import CompileClock, announce_on_stderr, compiling_line, merge_intervals, seconds_within
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
-from patchcloud.stream.engine.ingest import NothingToResumeError, check_tile_size, ensure_tiled
+from patchcloud.stream.engine.ingest import NothingToResumeError, check_store_selection, check_tile_size, ensure_tiled
 from patchcloud.stream.engine.placement import (FEW_CORES, IN_MEMORY_BASE, IN_MEMORY_POINT_BYTES, IN_MEMORY_POINTS,
                                                 IN_MEMORY_POINTS_FEW_CORES, in_memory_by_default, in_memory_points)
 from patchcloud.stream.engine.runner import Runner, check_scheduler
@@ -675,6 +675,9 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
         locked.append(url)
     try:
         with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
+            if run.store is not None and not in_memory and job.tiled:
+                check_store_selection(url, catalog, _tiles_selection(job, run), run.selection,
+                                      job.name or type(job).__name__.removesuffix("Job").lower())
             ours = _left_complete(catalog, outs, url, in_memory)
             outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours, _tiles_selection(job, run).to_json(),
                              run_request(job, run))

@@ -270,7 +270,10 @@ def format_info(d: dict) -> str:
     lines = [
         f"{d['url']}: patchcloud store",
         f"  source       {where} ({total:,} points)",
-        f"  points       {d['points']:,} in {d['tiles']:,} tiles of {g.get('tile_size', 0):g} {d.get('unit', 'm')} (min/median/max per tile {d['points_per_tile']})",
+        (f"  points       {d['points']:,} in {d['tiles']:,} tiles of {g.get('tile_size', 0):g} {d.get('unit', 'm')} (min/median/max per tile {d['points_per_tile']})"
+         if "bucket" in d["steps"] else
+         f"  points       not yet in tiles of {g.get('tile_size', 0):g} {d.get('unit', 'm')}: the tiling was stopped while reading the "
+         "file (the command that made the store resumes it)"),
         f"  origin       {g.get('origin')}",
         f"  CRS          {crs_line(d.get('crs_info'))}",
         f"  steps done   {steps}",
