@@ -12,7 +12,7 @@ from .errors import PatchcloudValueError
 
 __all__ = [
     "coordinates", "CRITERIA", "ORIENT_RULES", "MODES", "check_positive", "check_radius", "check_viewpoint", "check_mode",
-    "check_cluster_sizes", "check_budget", "check_indices", "check_rounding", "is_lasdata", "MAX_COORDINATE",
+    "check_cluster_sizes", "check_budget", "check_indices", "check_rounding", "is_lasdata", "MAX_COORDINATE", "check_flag",
 ]
 
 #: Octree split criteria: quadric fit RMSE (metres) or surface variation.
@@ -192,3 +192,22 @@ def check_indices(at, n: int, name: str = "at") -> np.ndarray:
         bad = a[(a < 0) | (a >= n)][0]
         raise PatchcloudValueError(f"{name} must hold {valid}; got {bad}")
     return a
+
+
+def check_flag(name: str, value, allow_none: bool = False) -> bool | None:
+    """``value`` as a bool when it is one (numpy's included; None too where ``allow_none``); a PatchcloudValueError
+    naming ``name`` otherwise, so that ``overwrite="no"`` is not taken as true.
+
+    >>> check_flag("overwrite", np.True_), check_flag("keep_store", None, allow_none=True)
+    (True, None)
+    >>> check_flag("overwrite", "no")
+    Traceback (most recent call last):
+    ...
+    patchcloud.core.errors.PatchcloudValueError: overwrite must be True or False, got 'no'
+    """
+    if value is None and allow_none:
+        return None
+    if not isinstance(value, (bool, np.bool_)):
+        valid = "True, False or None" if allow_none else "True or False"
+        raise PatchcloudValueError(f"{name} must be {valid}, got {value!r}")
+    return bool(value)

@@ -20,8 +20,11 @@ from patchcloud.core import (
     radius_normals,
     sample_models,
 )
+import patchcloud
 from patchcloud.stream import normals
 from patchcloud.stream.cli import main
+
+SAMPLE = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
 
 
 @pytest.fixture(scope="module")
@@ -282,3 +285,20 @@ def _tile_points(url, ijk):
     from patchcloud.stream import Store
 
     return int(Store.open(url).tile_counts[Store.open(url).tiles.index(ijk)])
+
+
+@pytest.mark.parametrize("call, says", [
+    (lambda tmp: patchcloud.normals(SAMPLE, tmp / "victim.las", overwrite="no", quiet=True), "overwrite must be True or False, got 'no'"),
+    (lambda tmp: patchcloud.normals(SAMPLE, tmp / "o.las", principal_curvatures="no", quiet=True), "principal_curvatures must be"),
+    (lambda tmp: patchcloud.normals(SAMPLE, tmp / "o.las", always_up="no", quiet=True), "always_up must be"),
+    (lambda tmp: patchcloud.normals(SAMPLE, tmp / "o.las", keep_store="no", quiet=True), "keep_store must be True, False or None"),
+    (lambda tmp: patchcloud.normals(SAMPLE, tmp / "o.las", quiet="no"), "quiet must be True or False"),
+    (lambda tmp: patchcloud.render(SAMPLE, tmp / "o.png", color="elevation", shade="no"), "shade must be True, False or None"),
+])
+def test_flags_take_booleans_only(call, says, tmp_path):
+    # a truthy string was taken as True: overwrite="no" replaced the file it named (review N)
+    victim = tmp_path / "victim.las"
+    victim.write_bytes(b"keep me")
+    with pytest.raises(PatchcloudValueError, match=says):
+        call(tmp_path)
+    assert victim.read_bytes() == b"keep me" and not (tmp_path / "o.las").exists() and not (tmp_path / "o.png").exists()

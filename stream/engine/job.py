@@ -54,7 +54,7 @@ from pathlib import Path
 from typing import Any
 
 
-from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with, os_error_line
+from patchcloud.core import PatchcloudError, PatchcloudExistsError, check_flag, PatchcloudIOError, PatchcloudNotImplementedError, PatchcloudValueError, options_with, os_error_line
 from patchcloud.stream.engine.background import stops_what_it_starts
 from patchcloud.stream.engine.compiling import CompileClock, announce_on_stderr, compiling_line, merge_intervals, seconds_within
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
@@ -186,6 +186,9 @@ class RunOptions:
     keep_noise: bool = False
 
     def __post_init__(self) -> None:
+        for flag in ("overwrite", "quiet"):  # overwrite="no" must not replace a file
+            object.__setattr__(self, flag, check_flag(flag, getattr(self, flag)))
+        object.__setattr__(self, "keep_store", check_flag("keep_store", self.keep_store, allow_none=True))
         check_tile_size(self.tile_size)
         object.__setattr__(self, "classes", self.selection.classes)  # checked, as a sorted tuple
         if isinstance(self.store, os.PathLike):  # a pathlib.Path as well as a str

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchcloudValueError, PatchKind, threshold_from_histograms
+from patchcloud.core import MAX_DEPTH, SKIN_HALO, Method, NormalsOptions, PatchcloudValueError, PatchKind, check_flag, threshold_from_histograms
 from patchcloud.stream.engine.export import Column
 from patchcloud.stream.engine.job import (
     Job, JobContext, RunOptions, file_lines, left_out_lines, params_key, run_job, split_options, time_and_memory_lines, units_line,
@@ -132,12 +132,14 @@ class NormalsJob(Job):
     name = "normals"
 
     def __init__(self, options: NormalsOptions, principal_curvatures: bool = False, always_up: bool = False) -> None:
+        principal_curvatures = check_flag("principal_curvatures", principal_curvatures)
+        always_up = check_flag("always_up", always_up)
         if always_up and options.orient == "viewpoint":  # each would turn every normal its own way
             raise PatchcloudValueError("always_up turns every normal up and a viewpoint turns it towards the viewpoint: give one "
                                        "(PDAL's viewpoint overrides its always up)")
         self.options = options
-        self.principal_curvatures = bool(principal_curvatures)
-        self.always_up = bool(always_up)
+        self.principal_curvatures = principal_curvatures
+        self.always_up = always_up
         self.params: dict = {}
         self.origin = None  # the store grid's origin, once calibrated
         self.key = ""

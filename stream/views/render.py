@@ -54,7 +54,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import PatchcloudIOError, PatchcloudValueError
+from patchcloud.core import PatchcloudIOError, PatchcloudValueError, check_flag
 
 from patchcloud.stream.io.budget import check_memory
 from patchcloud.stream.io.catalog import open_catalog
@@ -909,6 +909,7 @@ def input_sources(input, assume_crs: str | None = None) -> tuple[list[LasSource]
 def check_modes(sources: Sequence[LasSource], colors: Sequence[str], shade: bool | None) -> bool:
     """Check every file has the dimensions of the colour modes (and the normals, to ``shade``); return whether to shade
     (``shade`` None: when every file has the normals)."""
+    shade = check_flag("shade", shade, allow_none=True)
     has_normals = True
     for src in sources:
         dims = file_dimensions(src.path)
