@@ -203,3 +203,22 @@ def test_a_tile_too_large_for_the_budget_is_refused_once_tiled(tmp_path, monkeyp
     with pytest.raises(PatchcloudMemoryError, match=r"scene.las: a tile of 64 \(in its unit\) holding [\d,]+ points would need .* give a smaller --tile-size"):
         normals(src, tmp_path / "out.las", tile_size=64, in_memory=False, scheduler="synchronous", quiet=True)
     assert not (tmp_path / "out.las").exists()
+
+
+def test_the_tile_check_counts_what_the_job_holds_and_the_tasks_at_once(tmp_path, monkeypatch):
+    """compress holds about 900 bytes a point of its tile (normals 300), and threads or worker processes hold a tile
+    each: a tile that fits normals on one thread is refused to compress, and to normals on two threads (review N: a
+    compress accepted under 100 MiB peaked at 476 MiB)."""
+    from patchcloud.stream import compress, normals
+    from patchcloud.stream.jobs.compress import CompressJob
+
+    src = tmp_path / "scene.las"
+    write_scene(src, n=150_000, seed=3, extra=False)
+    monkeypatch.setenv(budget.ENV, "64MiB")
+    assert 300 * 150_000 < 64 << 20 < min(CompressJob.tile_point_bytes, 2 * 300) * 150_000
+    normals(src, tmp_path / "out.las", tile_size=64, in_memory=False, scheduler="synchronous", quiet=True)
+    with pytest.raises(PatchcloudMemoryError, match=r"scene.las: a tile of 64 \(in its unit\) holding [\d,]+ points would need"):
+        compress(src, tmp_path / "out.pcz", tile_size=64, max_error=0.05, scheduler="synchronous", quiet=True)
+    with pytest.raises(PatchcloudMemoryError, match=r"holding [\d,]+ points, 2 tasks at once would need"):
+        normals(src, tmp_path / "out2.las", tile_size=64, in_memory=False, scheduler="threads", workers=2, quiet=True)
+    assert not (tmp_path / "out.pcz").exists() and not (tmp_path / "out2.las").exists()

@@ -34,7 +34,7 @@ from patchcloud.stream.io.las import POSITION_AND_CLASS, LasSource, output_heade
 from patchcloud.stream.io import las_output
 from patchcloud.stream.io.las_output import LAZ_CHUNK
 from patchcloud.stream.engine.import_hooks import import_meanwhile
-from patchcloud.stream.engine.runner import Runner
+from patchcloud.stream.engine.runner import SCHEDULERS, Runner
 from patchcloud.stream.engine.tasks import map_tiles
 from patchcloud.stream.io.store import ANCHOR, MAX_TILE, Grid, Store
 
@@ -117,7 +117,8 @@ MIN_POINTS_PER_OCCUPIED_TILE = 50
 FEW_TILES = 64
 #: Bytes a worker holds per point of the tile it works on, beyond its own start (about 300 measured: a tile of 2 million
 #: points of the synthetic city took a worker to 811 MiB, one of its default tiles to about 490 MiB): what the memory
-#: budget (``--max-memory``) is checked against once the tiles are known.
+#: budget (``--max-memory``) is checked against once the tiles are known, for each task that runs at once
+#: (``Job.tile_point_bytes``: ``compress`` holds more).
 TILE_POINT_BYTES = 300
 
 
@@ -601,7 +602,8 @@ def occupancy_spacing(occupancy: dict[int, int], n: int, target: float = 16.0) -
 
 
 def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, runner: Runner, quiet: bool,
-                 chunk: int | None = None, selection: Selection | None = None) -> tuple[Store, float]:
+                 chunk: int | None = None, selection: Selection | None = None,
+                 point_bytes: int = TILE_POINT_BYTES) -> tuple[Store, float]:
     """The store at ``url`` holding ``src`` (a file or a catalog) tiled at ``tile_size``, and the seconds this took.
 
     ``selection``: the points the tiles hold (default ``Selection()``: noise
@@ -614,7 +616,11 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
     :func:`part_size`), then one :func:`sort_tile` per tile, which gathers
     the tile's fragments; the client only adds up the parts' tables
     (:func:`_index_parts`).  The store then records the cloud's occupancy
-    per cell size.
+    per cell size.  Once the tiles are known, the largest tile times
+    ``point_bytes`` (a task's bytes per point of its tile) times the tasks
+    that run at once on this machine (the runner's slots; one per worker of
+    a cluster reached by its address, whose workers have budgets of their
+    own) is checked against the memory budget.
     """
     cat = src if isinstance(src, Catalog) else Catalog.of(src)
     grid = make_grid(cat, tile_size)
@@ -655,10 +661,11 @@ def ensure_tiled(src: LasSource | Catalog, url: str, tile_size: float | None, ru
         grid = Grid(origin=grid.origin, tile_size=bigger, scale=grid.scale, offset=grid.offset)
         store = Store.create(url, overwrite=True)
     check_occupied_tiles(store.tile_counts, grid.tile_size, cat.path)
-    if store.tile_counts.size:  # a tile's steps hold all its points at once, in one process
+    if store.tile_counts.size:  # a tile's steps hold all its points at once, in one process, as many as run at once
         most = int(store.tile_counts.max())
-        check_memory(TILE_POINT_BYTES * most, f"{cat.path}: a tile of {grid.tile_size:g} (in its unit) holding {most:,} points",
-                     hint="give a smaller --tile-size")
+        at_once = max(1, runner.slots) if runner.scheduler in SCHEDULERS else 1  # (a cluster's workers: budgets of their own)
+        check_memory(point_bytes * most * at_once, f"{cat.path}: a tile of {grid.tile_size:g} (in its unit) holding {most:,} points"
+                     + (f", {at_once} tasks at once" if at_once > 1 else ""), hint="give a smaller --tile-size, or fewer --workers")
     occ = map_tiles(sort_tile, store, runner=runner, label="tile: sort")
     store.remove("parts", wait=False)  # on a thread: the next step need not wait for 0.1-0.3 s of unlinking
     log_t = int(round(np.log2(grid.tile_size)))

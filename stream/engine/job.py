@@ -58,7 +58,7 @@ from patchcloud.core import PatchcloudError, PatchcloudExistsError, check_flag, 
 from patchcloud.stream.engine.background import stops_what_it_starts
 from patchcloud.stream.engine.compiling import CompileClock, announce_on_stderr, compiling_line, merge_intervals, seconds_within
 from patchcloud.stream.engine.export import Column, complete_outputs, export_columns
-from patchcloud.stream.engine.ingest import NothingToResumeError, check_store_selection, check_tile_size, ensure_tiled
+from patchcloud.stream.engine.ingest import TILE_POINT_BYTES, NothingToResumeError, check_store_selection, check_tile_size, ensure_tiled
 from patchcloud.stream.engine.placement import (FEW_CORES, IN_MEMORY_BASE, IN_MEMORY_POINT_BYTES, IN_MEMORY_POINTS,
                                                 IN_MEMORY_POINTS_FEW_CORES, in_memory_by_default, in_memory_points)
 from patchcloud.stream.engine.runner import Runner, check_scheduler
@@ -484,6 +484,8 @@ class Job:
     #: Whether the job works on the tiled store (else the context's ``store`` is None: the job reads the input itself,
     #: as ``compress --keep-points`` does, part by part in input order).
     tiled = True
+    #: Bytes a task holds per point of its tile, beyond its process's start: the memory budget's check once tiled.
+    tile_point_bytes = TILE_POINT_BYTES
 
     def steps(self) -> Sequence[tuple[str, Callable[[JobContext], None]]]:
         """The job's steps after ``tile``, in order: (name in the summary's times, function of the context)."""
@@ -816,7 +818,8 @@ def _run(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep
         w0 = time.time()
         store, tile_seconds = None, None
         if job.tiled:
-            store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk, _tiles_selection(job, run))
+            store, tile_seconds = ensure_tiled(catalog, url, run.tile_size, runner, run.quiet, run.chunk, _tiles_selection(job, run),
+                                               job.tile_point_bytes)
             windows["tile"] = [(w0, time.time())]
         ctx = JobContext(source=catalog.holding[0], output=out, store=store, runner=runner, run=run, catalog=catalog, outputs=outs,
                          kept_store=url if keep else "")
