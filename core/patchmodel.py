@@ -626,6 +626,8 @@ def quantise_models(models: PatchModels, max_error: float) -> QuantisedModels:
     >>> float(np.abs(back.coeffs - fit.models.coeffs).max()) < 0.005
     True
     """
+    if not isinstance(models, PatchModels):
+        raise PatchcloudValueError(f"models must be a PatchModels (fit_models(...).models), got a {type(models).__name__}")
     from scipy.spatial.transform import Rotation
 
     budget = check_budget(max_error)
@@ -662,12 +664,26 @@ def patch_distances(models: PatchModels, points: np.ndarray, patch: np.ndarray) 
     >>> float(patch_distances(fit.models, np.array([[4.0, 4.0, 0.003]]), fit.patch[:1]).round(6)[0])
     0.003
     """
-    p = np.asarray(patch, dtype=np.int64)
-    return np.abs(implicit_value(np.asarray(points, dtype=np.float64), models.centroid[p], models.frame[p], models.coeffs[p]))
+    if not isinstance(models, PatchModels):
+        raise PatchcloudValueError(f"models must be a PatchModels (fit_models(...).models), got a {type(models).__name__}")
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise PatchcloudValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
+    p = np.asarray(patch)
+    if p.shape != (pts.shape[0],) or (p.size and not np.issubdtype(p.dtype, np.integer)):
+        raise PatchcloudValueError(f"patch must be ({pts.shape[0]},) whole numbers, one per point, got shape {p.shape} and type {p.dtype}")
+    p = p.astype(np.int64)
+    if p.size and (p.min() < 0 or p.max() >= len(models.count)):
+        bad = p[(p < 0) | (p >= len(models.count))][0]
+        raise PatchcloudValueError(f"patch must hold rows of the {len(models.count)} models (0 to {len(models.count) - 1}); got {bad} "
+                                   "(fit_models gives -1 to residual points, which have no patch: leave them out)")
+    return np.abs(implicit_value(pts, models.centroid[p], models.frame[p], models.coeffs[p]))
 
 
 def dequantise_models(q: QuantisedModels) -> PatchModels:
     """The patch models a :class:`QuantisedModels` stands for."""
+    if not isinstance(q, QuantisedModels):
+        raise PatchcloudValueError(f"q must be a QuantisedModels (quantise_models(...)), got a {type(q).__name__}")
     from scipy.spatial.transform import Rotation
 
     st = _steps(q.root_edge, q.scale, q.max_error)

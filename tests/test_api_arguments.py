@@ -302,3 +302,18 @@ def test_flags_take_booleans_only(call, says, tmp_path):
     with pytest.raises(PatchcloudValueError, match=says):
         call(tmp_path)
     assert victim.read_bytes() == b"keep me" and not (tmp_path / "o.las").exists() and not (tmp_path / "o.png").exists()
+
+
+def test_patch_model_functions_check_their_arguments(plane):
+    # a residual point's patch -1 indexed the last model silently; wrong lengths and types were numpy's or Python's errors
+    from patchcloud.core import dequantise_models, patch_distances, quantise_models
+
+    fit = fit_models(plane, 0.01)
+    with pytest.raises(PatchcloudValueError, match=r"patch must hold rows of the \d+ models .*got -1 \(fit_models gives -1"):
+        patch_distances(fit.models, plane, np.full(len(plane), -1))
+    with pytest.raises(PatchcloudValueError, match=r"patch must be \(2000,\) whole numbers"):
+        patch_distances(fit.models, plane, fit.patch[:5])
+    with pytest.raises(PatchcloudValueError, match="models must be a PatchModels"):
+        quantise_models("models", 0.01)
+    with pytest.raises(PatchcloudValueError, match="q must be a QuantisedModels"):
+        dequantise_models(fit.models)

@@ -178,6 +178,7 @@ def test_without_reference_normals_the_report_says_so(scene_las, tmp_path):
     assert st.angles is None and st.reference is None and st.curvature.total == n
     page = report_normals(s, tmp_path / "r.html", views=False).read_text()
     assert "no reference normals" in page and f"{n:,}" in page and page.count(IMG) == 2  # curvature, methods
+    assert "<th>units</th><td>m (metre, 1 m; assumed: no CRS): every length here" in page  # (review N: no unit said)
 
 
 def test_zero_reference_normals_are_not_compared(plane_xyz, tmp_path):
@@ -211,7 +212,7 @@ def test_don_and_compress_reports(scene_las, tmp_path):
                 scheduler="synchronous", quiet=True)
     page = report_don(s, tmp_path / "seg.html", views=False).read_text()
     assert f"<td>{n:,}</td>" in page and f"<td>{s.segments:,}</td>" in page and page.count(IMG) == 2  # DoN, sizes
-    assert f"{s.defined:,} ({s.defined / n:.1%})" in page
+    assert f"{s.defined:,} ({s.defined / n:.1%})" in page and "<th>units</th><td>m (" in page
     assert_self_contained(page)
     assert segment_sizes(s.output).size == s.segments
 

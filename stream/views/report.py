@@ -48,7 +48,7 @@ from matplotlib.figure import Figure
 
 from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.job import left_out_text, memory_scope
+from patchcloud.stream.engine.job import left_out_text, memory_scope, units_line
 from patchcloud.stream.io.las import atomic_output, open_source, read_chunks, same_file
 from patchcloud.stream.views.plots import CMAP, STYLE, new_figure, style_axes
 
@@ -59,7 +59,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "ReportFigure", "ReportTable", "Histogram", "NormalStatistics", "write_report", "check_report_path", "figure_png",
-    "report_normals", "report_don", "report_compress", "report_compress_catalog", "normals_rows", "don_rows", "compress_rows",
+    "report_normals", "report_don", "report_compress", "report_compress_catalog", "normals_rows", "don_rows", "compress_rows", "units_rows",
     "normal_statistics", "don_histogram", "segment_sizes", "segment_size_histogram", "pcz_parts", "pcz_tiles",
     "histogram_figure", "render_html", "REFERENCE_DIMS",
 ]
@@ -375,6 +375,18 @@ def _unit(summary) -> str:
     return (getattr(summary, "units", None) or {}).get("symbol", "m")
 
 
+def units_rows(summary) -> list[tuple[str, str]]:
+    """The report's row naming the unit every length in it is in (the summary's ``units`` line); none without one.
+
+    >>> from patchcloud.stream import NormalsSummary
+    >>> s = NormalsSummary("in.las", "out.las", 1, 1, 64.0, {}, {}, {}, units={"symbol": "ft", "name": "foot", "metres": 0.3048, "source": "CRS"})
+    >>> units_rows(s)
+    [('units', 'ft (foot, 0.3048 m; from the CRS): every length here and every distance option')]
+    """
+    units = getattr(summary, "units", None)
+    return [("units", units_line(units).split("units", 1)[1].strip())] if units else []
+
+
 def left_out_rows(summary, fate: str = "no value, in no neighbourhood") -> list[tuple[str, str]]:
     """The summary's row on the points left out (by ``--classes``, noise, withheld: by reason, and what became of them)
     and the selection asked for; none where no point was left out.
@@ -424,7 +436,7 @@ def normals_rows(summary: "NormalsSummary") -> list[tuple[str, str]]:
     k, m = s.patches_by_kind, s.normals_by_method
     rows = [
         ("input", s.input), ("output", s.output), ("points", _n(s.points)), ("tiles", f"{s.tiles:,} of {s.tile_size:g} {_unit(s)}"),
-        ("patches", f"{sum(k.values()):,}: " + ", ".join(f"{name} {v:,}" for name, v in k.items())),
+        *units_rows(s), ("patches", f"{sum(k.values()):,}: " + ", ".join(f"{name} {v:,}" for name, v in k.items())),
     ]
     rows += [(f"normals: {name}", _share(v, s.points)) for name, v in m.items()]
     rows += left_out_rows(s)
@@ -437,7 +449,7 @@ def don_rows(summary: "DonSummary") -> list[tuple[str, str]]:
     s = summary
     rows = [
         ("input", s.input), ("output", s.output), ("points", _n(s.points)), ("tiles", f"{s.tiles:,} of {s.tile_size:g} {_unit(s)}"),
-        ("DoN defined", _share(s.defined, s.points)),
+        *units_rows(s), ("DoN defined", _share(s.defined, s.points)),
         ("median DoN magnitude", s.median_words() if s.defined else "none (no DoN defined)"),
     ]
     if s.kept is not None:
