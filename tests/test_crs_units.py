@@ -85,6 +85,20 @@ def test_tile_refuses_a_geographic_crs_as_the_jobs_do_and_takes_units(tmp_path):
     assert r.exit_code == 0 and store.exists(), r.output
 
 
+def test_a_store_tiled_with_units_keeps_them_for_the_jobs_on_it(tmp_path):
+    """``tile --units ft`` said "tiles of 64 m" and recorded nothing: a job on the store without --units took metres
+    (review N)."""
+    path = _scene(tmp_path / "nocrs.las")
+    store = tmp_path / "s.zarr"
+    r = CliRunner().invoke(main, ["tile", str(path), str(store), "--tile-size", "16", "--units", "ft"])
+    assert r.exit_code == 0 and "tiles of 16 ft" in r.output, r.output
+    assert info(str(store))["unit"] == "ft"
+    s = normals(path, tmp_path / "o.las", store=str(store), quiet=True)
+    assert s.units["symbol"] == "ft" and s.units["source"] == "--units" and s.tile_size == 16
+    s = normals(path, tmp_path / "m.las", store=str(store), units="m", quiet=True, overwrite=True)  # asked: taken
+    assert s.units["symbol"] == "m"
+
+
 def test_degrees_in_a_projected_crs_are_refused():
     with pytest.raises(PatchcloudValueError, match=r"look like degrees, not lengths of its projected CRS EPSG:2154.*--units"):
         units_of("EPSG:2154", (2.30, 48.80), (2.31, 48.81), where="x.las")

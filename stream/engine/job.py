@@ -667,6 +667,7 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
 def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     """run_job, within :func:`~patchcloud.stream.engine.background.stops_what_it_starts`."""
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
+    run = _store_units(run, catalog, url, in_memory)
     job.check(catalog)
     if job.dims():  # an input dimension too narrow for them, before anything runs (it came after the whole run: review K)
         for src in catalog.sources:
@@ -696,6 +697,17 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
             except OSError:  # not empty: an output or a kept store is in it
                 pass
         raise
+
+
+def _store_units(run: RunOptions, catalog: Catalog, url: str, in_memory: bool) -> RunOptions:
+    """``run`` with the ``--units`` that ``tile --units`` recorded in its store, for a run on that store that gives none
+    (the same files): its tile size and every length are in that unit, as the tiling's were."""
+    if run.units is not None or run.store is None or in_memory or not Store.exists(url):
+        return run
+    a = Store.open(url).attrs
+    if a.get("units_asked") and a.get("catalog") and catalog.same_files(a["catalog"]):
+        return dataclasses.replace(run, units=a["units_asked"])
+    return run
 
 
 def _tiles_selection(job: Job, run: RunOptions) -> Selection:

@@ -150,8 +150,8 @@ def _store_unit(attrs: dict) -> str:
     where that cannot be said: a CRS refused without --units)."""
     src = attrs.get("source") or {}
     crs = (attrs.get("catalog") or {}).get("crs") or src.get("crs")
-    try:
-        return units_of(crs, src.get("mins", (0.0, 0.0)), src.get("maxs", (0.0, 0.0))).symbol
+    try:  # (`tile --units`: the unit asked for, as the jobs on the store take it)
+        return units_of(crs, src.get("mins", (0.0, 0.0)), src.get("maxs", (0.0, 0.0)), attrs.get("units_asked")).symbol
     except PatchcloudError:
         return "(the file's unit)"
 
