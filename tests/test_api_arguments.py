@@ -317,3 +317,18 @@ def test_patch_model_functions_check_their_arguments(plane):
         quantise_models("models", 0.01)
     with pytest.raises(PatchcloudValueError, match="q must be a QuantisedModels"):
         dequantise_models(fit.models)
+
+
+def test_map_tiles_and_render_arrays_check_their_arguments(tmp_path):
+    # pieces={tile: 0} dropped the tile from the result; runner="threads" was an AttributeError; colors="elevation" was
+    # read letter by letter (review N)
+    from patchcloud.stream import map_tiles, tile
+    from patchcloud.stream.views.render import render_arrays
+
+    store = tile(SAMPLE, str(tmp_path / "s.zarr"), tile_size=64, quiet=True)
+    with pytest.raises(PatchcloudValueError, match=r"pieces: tile \(\d+, \d+, \d+\) would be cut into 0 pieces"):
+        map_tiles(lambda url, ijk: 1, store, pieces={store.tiles[0]: 0})
+    with pytest.raises(PatchcloudValueError, match="runner must be a Runner"):
+        map_tiles(lambda url, ijk: 1, store, runner="threads")
+    with pytest.raises(PatchcloudValueError, match=r"colors must be a list of colour modes, e.g. \['elevation'\]"):
+        render_arrays(SAMPLE, colors="elevation")

@@ -104,6 +104,9 @@ def map_tiles(
         store = Store.open(os.fspath(store))
     elif not isinstance(store, Store):
         raise PatchcloudValueError(f"store must be a Store or a store's path or URL, got {type(store).__name__}")
+    if runner is not None and not isinstance(runner, Runner):
+        raise PatchcloudValueError(f"runner must be a Runner (patchcloud.stream.engine.runner.Runner(\"threads\", 4), say) or "
+                                   f"None (synchronous), got {runner!r}")
     runner = runner or Runner("synchronous", quiet=True)
     all_tiles = store.tiles
     present = set(all_tiles)
@@ -113,7 +116,11 @@ def map_tiles(
     if absent:  # a task on it would write into the store (its failure) and find it "damaged"
         raise PatchcloudValueError(f"tiles: {absent[0]} is not a tile of the store {store.url} "
                                    f"({len(all_tiles):,} tiles, e.g. {all_tiles[0] if all_tiles else 'none'})")
-    pieces = dict(pieces or {})
+    pieces = {tuple(int(v) for v in t): k for t, k in dict(pieces or {}).items()}
+    bad = [(t, k) for t, k in pieces.items() if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1]
+    if bad:  # 0 pieces ran no task for the tile, and left it out of the result
+        raise PatchcloudValueError(f"pieces: tile {bad[0][0]} would be cut into {bad[0][1]!r} pieces; give a whole number of "
+                                   "at least 1 per tile")
     counts = dict(zip(all_tiles, store.tile_counts.tolist()))
     calls, owner, size = [], [], []
     grid = np.asarray(all_tiles, dtype=np.int64).reshape(-1, 3)

@@ -970,6 +970,8 @@ def render_arrays(
     True
     """
     t0 = time.perf_counter()
+    if isinstance(colors, str):  # one mode's name, not its letters
+        raise PatchcloudValueError(f"colors must be a list of colour modes, e.g. [{colors!r}]; got the string {colors!r}")
     colors = list(colors)
     if not colors:
         raise PatchcloudValueError(f"give at least one colour mode: {', '.join(COLOR_MODES)}")
