@@ -99,6 +99,19 @@ def test_a_store_tiled_with_units_keeps_them_for_the_jobs_on_it(tmp_path):
     assert s.units["symbol"] == "m"
 
 
+def test_heights_in_another_unit_than_x_and_y_are_refused_unless_units_says(tmp_path):
+    """UTM metres over NAVD88 heights in US feet ran as one unit: slopes 3.28 times too steep (review N)."""
+    path = _scene(tmp_path / "mixed.las", crs="EPSG:6346+6360", offset=(500000.0, 4000000.0, 40.0))
+    with pytest.raises(PatchcloudValueError, match=r"mixed.las: its CRS .* has heights in US survey foot \(0.304801 m\) and "
+                                                   r"x, y in metre .*Z = Z \* 0.3048006096.*or give --units m"):
+        normals(path, tmp_path / "o.las", quiet=True)
+    assert not (tmp_path / "o.las").exists()
+    r = CliRunner().invoke(main, ["tile", str(path), str(tmp_path / "s.zarr"), "-q"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "heights in US survey foot" in r.output, r.output
+    s = normals(path, tmp_path / "o.las", units="m", quiet=True)  # every axis taken as it is, as asked
+    assert s.units["symbol"] == "m" and s.units["source"] == "--units"
+
+
 def test_degrees_in_a_projected_crs_are_refused():
     with pytest.raises(PatchcloudValueError, match=r"look like degrees, not lengths of its projected CRS EPSG:2154.*--units"):
         units_of("EPSG:2154", (2.30, 48.80), (2.31, 48.81), where="x.las")

@@ -124,7 +124,9 @@ def units_of(crs, mins, maxs, override: str | None = None, where: str = "") -> U
     mins, maxs : (2,) or (3,) sequences
         The coordinates' bounds (x, y first), to catch degrees in a projected CRS.
     override : {"m", "ft", "us-ft"}, optional
-        ``--units``: taken as it is, whatever the CRS says.
+        ``--units``: taken as it is, whatever the CRS says (on every axis: a
+        CRS whose heights are in another unit than its x, y is refused
+        without it).
     where : str
         The file, to name in an error.
 
@@ -155,6 +157,13 @@ def units_of(crs, mins, maxs, override: str | None = None, where: str = "") -> U
     if symbol is None:
         raise PatchcloudValueError(f"{where}: its CRS {d['label']} is in {name} ({factor:g} m), not metres or feet: give --units "
                                    f"{'|'.join(UNITS)}")
+    vname, vfactor = d.get("vertical_unit") or (name, factor)
+    if abs(float(vfactor) - float(factor)) > 1e-9 * float(factor):  # heights in feet over metres, say: slopes 3.28 x off
+        raise PatchcloudValueError(
+            f"{where}: its CRS {d['label']} has heights in {vname} ({float(vfactor):g} m) and x, y in {name} ({float(factor):g} m), "
+            f"but normals, radii and errors need one unit on every axis: convert the heights to {name} (PDAL: filters.assign "
+            f"with value \"Z = Z * {float(vfactor) / float(factor):.10g}\"), or give --units {symbol} to take every axis as it is"
+        )
     return Units(symbol, UNITS[symbol][0], UNITS[symbol][1], "CRS")
 
 
