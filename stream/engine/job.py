@@ -94,8 +94,9 @@ class RunOptions:
     Parameters
     ----------
     tile_size : float, optional
-        Tile edge (metres), rounded down to a power of two; default: about a
-        million points per tile over the file's footprint.
+        Tile edge in the file's unit (its CRS's, or ``units``: metres, feet),
+        rounded down to a power of two; default: about a million points per
+        tile over the file's footprint.
     scheduler : str
         "auto" (default: worker processes for files of 2 million points or
         more; below that in memory (``in_memory``), or threads when
