@@ -79,7 +79,14 @@ def check_positive(name: str, value, integer: bool = False):
 
 
 def check_radius(name: str, value) -> float:
-    """A finite, positive radius (metres), or a PatchcloudValueError."""
+    """A finite, positive radius (metres), or a PatchcloudValueError (a string too: numbers are numbers here, as
+    :func:`check_positive` takes them).
+
+    >>> check_radius("r", 2), check_radius("r", np.float32(0.5))
+    (2.0, 0.5)
+    """
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise PatchcloudValueError(f"{name} must be a positive length in the coordinates' unit, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -158,7 +165,9 @@ def check_cluster_sizes(min_points, max_points) -> tuple[int, int | None]:
 
 
 def check_budget(max_error) -> float:
-    """The error budget as a positive float (metres), or a PatchcloudValueError."""
+    """The error budget as a positive float (metres), or a PatchcloudValueError (a string too, as for the radii)."""
+    if isinstance(max_error, (str, bytes, bool, np.bool_)):
+        raise PatchcloudValueError(f"max_error must be a positive length in the coordinates' unit, got {max_error!r}")
     try:
         budget = float(max_error)
     except (TypeError, ValueError):

@@ -332,3 +332,14 @@ def test_map_tiles_and_render_arrays_check_their_arguments(tmp_path):
         map_tiles(lambda url, ijk: 1, store, runner="threads")
     with pytest.raises(PatchcloudValueError, match=r"colors must be a list of colour modes, e.g. \['elevation'\]"):
         render_arrays(SAMPLE, colors="elevation")
+
+
+@pytest.mark.parametrize("call", [
+    lambda p: radius_normals(p, "1"),
+    lambda p: fit_models(p, "0.1"),
+    lambda p: difference_of_normals(p, "0.2", 1.0),
+])
+def test_lengths_given_as_strings_are_refused_as_elsewhere(plane, call):
+    # radius_normals(P, "1") and fit_models(P, "0.1") were taken, check_positive refused "1" elsewhere (review N)
+    with pytest.raises(PatchcloudValueError, match=r"must be a positive length in the coordinates' unit, got '"):
+        call(plane)
