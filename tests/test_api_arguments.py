@@ -328,6 +328,10 @@ def test_map_tiles_and_render_arrays_check_their_arguments(tmp_path):
     store = tile(SAMPLE, str(tmp_path / "s.zarr"), tile_size=64, quiet=True)
     with pytest.raises(PatchcloudValueError, match=r"pieces: tile \(\d+, \d+, \d+\) would be cut into 0 pieces"):
         map_tiles(lambda url, ijk: 1, store, pieces={store.tiles[0]: 0})
+    with pytest.raises(PatchcloudValueError, match=r"pieces: \(99, 99, 99\) is not a tile of the store"):
+        map_tiles(lambda url, ijk: 1, store, pieces={(99, 99, 99): 2})
+    with pytest.raises(PatchcloudValueError, match="tiles must be a list of tile indices"):
+        map_tiles(lambda url, ijk: 1, store, tiles=5)
     with pytest.raises(PatchcloudValueError, match="runner must be a Runner"):
         map_tiles(lambda url, ijk: 1, store, runner="threads")
     with pytest.raises(PatchcloudValueError, match=r"colors must be a list of colour modes, e.g. \['elevation'\]"):

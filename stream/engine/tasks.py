@@ -110,13 +110,19 @@ def map_tiles(
     runner = runner or Runner("synchronous", quiet=True)
     all_tiles = store.tiles
     present = set(all_tiles)
-    todo = list(tiles) if tiles is not None else all_tiles
-    todo = [tuple(int(v) for v in t) for t in todo]
+    try:
+        todo = [tuple(int(v) for v in t) for t in (tiles if tiles is not None else all_tiles)]
+    except (TypeError, ValueError):
+        raise PatchcloudValueError(f"tiles must be a list of tile indices (i, j, k) of the store, e.g. {all_tiles[:1]}; got "
+                                   f"{tiles!r}") from None
     absent = [t for t in todo if t not in present]
     if absent:  # a task on it would write into the store (its failure) and find it "damaged"
         raise PatchcloudValueError(f"tiles: {absent[0]} is not a tile of the store {store.url} "
                                    f"({len(all_tiles):,} tiles, e.g. {all_tiles[0] if all_tiles else 'none'})")
     pieces = {tuple(int(v) for v in t): k for t, k in dict(pieces or {}).items()}
+    stray = [t for t in pieces if t not in present]
+    if stray:
+        raise PatchcloudValueError(f"pieces: {stray[0]} is not a tile of the store {store.url}")
     bad = [(t, k) for t, k in pieces.items() if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1]
     if bad:  # 0 pieces ran no task for the tile, and left it out of the result
         raise PatchcloudValueError(f"pieces: tile {bad[0][0]} would be cut into {bad[0][1]!r} pieces; give a whole number of "
