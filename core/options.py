@@ -296,6 +296,9 @@ def options_with(kind: type, options=None, overrides: dict | None = None):
     ...
     patchcloud.core.errors.PatchcloudValueError: unknown option radius; valid: min_points, mode, r_large, r_small, resolution, viewpoint
     """
+    kinds = (NormalsOptions, DonOptions, SegmentOptions, CompressOptions)
+    if kind not in kinds:
+        raise PatchcloudValueError(f"kind must be one of {', '.join(k.__name__ for k in kinds)}, got {kind!r}")
     if options is not None and not isinstance(options, kind):
         raise PatchcloudValueError(f"options must be a {kind.__name__}, got {type(options).__name__}")
     overrides = dict(overrides or {})

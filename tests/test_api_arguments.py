@@ -347,3 +347,25 @@ def test_lengths_given_as_strings_are_refused_as_elsewhere(plane, call):
     # radius_normals(P, "1") and fit_models(P, "0.1") were taken, check_positive refused "1" elsewhere (review N)
     with pytest.raises(PatchcloudValueError, match=r"must be a positive length in the coordinates' unit, got '"):
         call(plane)
+
+
+def test_report_info_and_options_helpers_refuse_wrong_arguments_in_one_line(tmp_path):
+    # each raised a raw KeyError, AttributeError or TypeError from deep inside (review N)
+    from patchcloud.core import options_with
+    from patchcloud.stream import format_info
+    from patchcloud.stream.views.render import render_figure
+    from patchcloud.stream.views.report import report_compress, report_don, report_normals, write_report
+
+    cases = [
+        (lambda: format_info({"path": "x"}), "format_info takes the dictionary info"),
+        (lambda: write_report(tmp_path / "r.html", title=None, summary_rows=[]), "title must be a str, got None"),
+        (lambda: report_normals("x", tmp_path / "r.html"), "summary must be a NormalsSummary .*got a str"),
+        (lambda: report_don("x", tmp_path / "r.html"), "summary must be a DonSummary"),
+        (lambda: report_compress("x", tmp_path / "r.html"), "summary must be a CompressSummary"),
+        (lambda: render_figure("x"), "img must be a RenderImage"),
+        (lambda: options_with(int, None, {}), "kind must be one of NormalsOptions, DonOptions, SegmentOptions, CompressOptions"),
+    ]
+    for call, says in cases:
+        with pytest.raises(PatchcloudValueError, match=says):
+            call()
+    assert not (tmp_path / "r.html").exists()

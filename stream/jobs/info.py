@@ -9,7 +9,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from patchcloud.core import PatchcloudError, PatchcloudIOError
+from patchcloud.core import PatchcloudError, PatchcloudIOError, PatchcloudValueError
 
 from patchcloud.stream.io.classes import MAX_CLASS, REASONS, Selection, classification_and_withheld
 from patchcloud.stream.io.crs import crs_description, units_of
@@ -222,6 +222,9 @@ def format_info(d: dict) -> str:
       points       60,653
     ...
     """
+    if not isinstance(d, dict) or "kind" not in d:
+        raise PatchcloudValueError(f"format_info takes the dictionary info() returns, got {type(d).__name__} "
+                                   f"{sorted(d)[:3] if isinstance(d, dict) else ''}".rstrip())
     if d["kind"] == "pcz":
         c = d["counts"]
         n = max(c["points"], 1)

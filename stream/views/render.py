@@ -1200,6 +1200,8 @@ def render_figure(img: RenderImage):
     >>> fig.canvas.get_width_height()[0], img.axis_labels
     (600, ('Easting (m)', 'Northing (m)'))
     """
+    if not isinstance(img, RenderImage):
+        raise PatchcloudValueError(f"img must be a RenderImage (what render_array returns), got a {type(img).__name__}")
     from matplotlib import colormaps
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import Normalize

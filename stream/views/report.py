@@ -291,6 +291,8 @@ def write_report(
     ...     "<td>1,000</td>" in p.read_text()
     True
     """
+    if not isinstance(title, str):
+        raise PatchcloudValueError(f"title must be a str, got {title!r}")
     page = render_html(title=title, summary_rows=summary_rows, figures=figures, notes=notes, tables=tables)
     p = Path(path)
     if p.is_dir():
@@ -368,6 +370,12 @@ def file_rows(summary) -> list[tuple[str, str]]:
     if len(files) < 2:
         return []
     return [("files", _n(len(files)))] + [(f"file: {Path(i).name}", f"{_n(n)} points -> {o}") for i, o, n in files]
+
+
+def _check_summary(summary, kind: str, field: str) -> None:
+    """Refuse, in one line, a ``summary`` that is not the job's summary (a :class:`{kind}`, which has ``field``)."""
+    if not hasattr(summary, field) or not hasattr(summary, "format"):
+        raise PatchcloudValueError(f"summary must be a {kind} (what the job returns), got a {type(summary).__name__}")
 
 
 def _unit(summary) -> str:
@@ -842,6 +850,7 @@ def report_normals(
     -------
     Path
     """
+    _check_summary(summary, "NormalsSummary", "normals_by_method")
     inputs, outputs = run_files(summary)
     stats = merge_statistics([normal_statistics(o, i, chunk=chunk) for i, o in zip(inputs, outputs)])
     rows = normals_rows(summary)
@@ -896,6 +905,7 @@ def report_don(
     histogram of the summary; for segment, the segment sizes (the output's
     ClusterID read in chunks).  Parameters as :func:`report_normals`.
     """
+    _check_summary(summary, "DonSummary", "histogram")
     segmenting = summary.segments is not None
     rows = don_rows(summary)
     notes: list[str] = []
@@ -945,6 +955,7 @@ def report_compress(
     """
     if isinstance(summary, (list, tuple)):
         return report_compress_catalog(summary, path, views=views, view_width=view_width)
+    _check_summary(summary, "CompressSummary", "residual")
     s = summary
     rows = compress_rows(s)
     notes: list[str] = []
