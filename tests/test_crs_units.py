@@ -97,6 +97,8 @@ def test_a_store_tiled_with_units_keeps_them_for_the_jobs_on_it(tmp_path):
     assert s.units["symbol"] == "ft" and s.units["source"] == "--units" and s.tile_size == 16
     s = normals(path, tmp_path / "m.las", store=str(store), units="m", quiet=True, overwrite=True)  # asked: taken
     assert s.units["symbol"] == "m"
+    r = CliRunner().invoke(main, ["tile", str(path), str(store), "--tile-size", "16", "-q"])  # tiled again without: the CRS's
+    assert r.exit_code == 0 and info(str(store))["unit"] == "m", r.output
 
 
 def test_heights_in_another_unit_than_x_and_y_are_refused_unless_units_says(tmp_path):

@@ -57,8 +57,7 @@ def tile(
         try:
             with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
                 s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk, run.selection)
-            if run.units is not None:  # the unit the tile size was given in: a job on the store without --units takes it
-                s.update(units_asked=run.units)
+            s.update(units_asked=run.units)  # the unit the tile size was given in (None: the CRS's): the jobs on the store take it
         except KeyboardInterrupt:  # as a job says it: the store is kept, the same command resumes from it
             raise KeyboardInterrupt(f"interrupted{kept_store_note(store)}") from None
         except (NothingToResumeError, CorruptPointsError, PatchcloudStoreError):  # nothing to resume from: as a job says it
