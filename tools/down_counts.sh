@@ -5,8 +5,8 @@
 #     bash tools/down_counts.sh BEFORE > tools/results/NAME.txt
 # (tools/results/fold_check-2026-11-29.sh and orient_down-2026-11-29.sh are its runs of that day.)
 set -euo pipefail
-ROOT=$(pwd); D=$ROOT/../shared/data; W=$(mktemp -d)
 BEFORE=${1:?give the revision to compare with}
+ROOT=$(pwd); D=$ROOT/../shared/data; W=$(mktemp -d)
 git worktree add -q "$W/before" "$BEFORE"
 mkdir -p "$W/pkg/patchcloud" && cp "$W/before/stream/patchcloud/"* "$W/pkg/patchcloud/"
 ln -s "$W/before/core" "$W/pkg/patchcloud/core" && ln -s "$W/before/stream" "$W/pkg/patchcloud/stream"
