@@ -1,6 +1,7 @@
 """The memory budget (--max-memory) and the checks of everything a .pcz states, before anything is allocated from it."""
 
 import json
+from pathlib import Path
 import shutil
 import zipfile
 import zlib
@@ -222,3 +223,15 @@ def test_the_tile_check_counts_what_the_job_holds_and_the_tasks_at_once(tmp_path
     with pytest.raises(PatchcloudMemoryError, match=r"holding [\d,]+ points, 2 tasks at once would need"):
         normals(src, tmp_path / "out2.las", tile_size=64, in_memory=False, scheduler="threads", workers=2, quiet=True)
     assert not (tmp_path / "out.pcz").exists() and not (tmp_path / "out2.las").exists()
+
+
+def test_a_picture_counts_its_drawing_against_the_budget(tmp_path):
+    """A picture 3,000 px wide of the embedded tile was accepted under 850 MiB (96 bytes an image pixel counted) and
+    peaked at 1.42 GiB: matplotlib's drawing counts too now (176 bytes a pixel; review N)."""
+    from patchcloud.stream.views.render import PIXEL_BYTES
+
+    sample = Path(__file__).resolve().parents[1] / "data" / "test_data_77055_627760_LA93_IGN69.laz"
+    r = CliRunner().invoke(main, ["render", str(sample), str(tmp_path / "a.png"), "--color", "elevation", "--width", "3000",
+                                  "--max-memory", "850MiB", "-q"])
+    one_line(r, "a picture 3,000 px wide (its image 2,839 x 2,839 pixels)", "would need 1.38 GiB", "850 MiB")
+    assert PIXEL_BYTES >= 170 and not (tmp_path / "a.png").exists()
