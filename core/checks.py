@@ -165,16 +165,8 @@ def check_cluster_sizes(min_points, max_points) -> tuple[int, int | None]:
 
 
 def check_budget(max_error) -> float:
-    """The error budget as a positive float (metres), or a PatchcloudValueError (a string too, as for the radii)."""
-    if isinstance(max_error, (str, bytes, bool, np.bool_)):
-        raise PatchcloudValueError(f"max_error must be a positive length in the coordinates' unit, got {max_error!r}")
-    try:
-        budget = float(max_error)
-    except (TypeError, ValueError):
-        budget = float("nan")
-    if not np.isfinite(budget) or budget <= 0:
-        raise PatchcloudValueError(f"max_error must be a positive length in the coordinates' unit, got {max_error!r}")
-    return budget
+    """The error budget as a positive float (metres), or a PatchcloudValueError: a length, as :func:`check_radius` takes it."""
+    return check_radius("max_error", max_error)
 
 
 def check_indices(at, n: int, name: str = "at") -> np.ndarray:

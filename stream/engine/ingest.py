@@ -305,8 +305,9 @@ def store_selection(store: Store) -> Selection:
     return Selection.from_json(store.attrs.get("selection"))
 
 
-def check_store_selection(url: str, cat: Catalog, tiles: Selection, asked: Selection, job: str) -> None:
-    """Refuse a named store whose tiles hold another selection of these files only because another kind of job made it.
+def check_store_selection(attrs: dict, url: str, tiles: Selection, asked: Selection, job: str) -> None:
+    """Refuse a named store (``url``, of the run's files, its attributes ``attrs``) whose tiles hold another selection
+    only because another kind of job made it.
 
     ``tiles`` is what this job tiles (``compress`` tiles every point and
     models its selection; the other jobs tile the points they select),
@@ -318,12 +319,9 @@ def check_store_selection(url: str, cat: Catalog, tiles: Selection, asked: Selec
     made with a selection this run asks to change (``--classes``,
     ``--keep-noise``) is tiled again, as asked.
     """
-    if not Store.exists(url):
+    if "selection" not in attrs:
         return
-    a = Store.open(url).attrs
-    if not (a.get("catalog") and cat.same_files(a["catalog"]) and "selection" in a):
-        return
-    held = Selection.from_json(a["selection"])
+    held = Selection.from_json(attrs["selection"])
     if held == tiles or not (held == asked or held.everything):
         return
     raise PatchcloudValueError(

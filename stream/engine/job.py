@@ -80,7 +80,7 @@ from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store
 
 __all__ = [
     "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "MAX_WORKERS", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "in_file_frame", "default_store_path", "write_profile",
-    "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "left_out_lines", "left_out_text",
+    "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "units_text", "left_out_lines", "left_out_text",
 ]
 
 #: The most worker processes or threads a run starts (more is a typo: each is a process started on this machine).
@@ -332,17 +332,25 @@ def memory_scope(scheduler: str) -> str:
     return "(one process, in memory)" if scheduler == "in memory" else f"(all processes, scheduler {scheduler})"
 
 
-def units_line(units: dict) -> str:
-    """A summary's line naming the unit every length in it is in, and where the unit came from.
+def units_text(units: dict) -> str:
+    """The unit every length of a summary is in, and where the unit came from: the summary's line and the report's row.
 
-    >>> units_line({"symbol": "ft", "name": "foot", "metres": 0.3048, "source": "CRS"})
-    '  units           ft (foot, 0.3048 m; from the CRS): every length here and every distance option'
+    >>> units_text({"symbol": "ft", "name": "foot", "metres": 0.3048, "source": "CRS"})
+    'ft (foot, 0.3048 m; from the CRS): every length here and every distance option'
     """
     source = {"CRS": "from the CRS", "--units": "from --units", "assumed": "assumed: no CRS",
               "--assume-crs": "from the CRS --assume-crs gives",
               "unreadable": "assumed: its CRS record cannot be read, see patchcloud info"}.get(units.get("source"), "")
-    return (f"  units           {units['symbol']} ({units.get('name', '')}, {units.get('metres', 1.0):g} m; {source}): "
-            "every length here and every distance option")
+    return f"{units['symbol']} ({units.get('name', '')}, {units.get('metres', 1.0):g} m; {source}): every length here and every distance option"
+
+
+def units_line(units: dict) -> str:
+    """A summary's line naming the unit every length in it is in (:func:`units_text`).
+
+    >>> units_line({"symbol": "ft", "name": "foot", "metres": 0.3048, "source": "CRS"})
+    '  units           ft (foot, 0.3048 m; from the CRS): every length here and every distance option'
+    """
+    return f"  units           {units_text(units)}"
 
 
 def left_out_text(left_out: dict, selection: dict | None, points: int, fate: str = "no value, in no neighbourhood") -> str:
@@ -668,7 +676,6 @@ def run_job(job: Job, input, output, run: RunOptions) -> Any:
 def _run_job(job: Job, input, output, run: RunOptions) -> Any:
     """run_job, within :func:`~patchcloud.stream.engine.background.stops_what_it_starts`."""
     catalog, outs, out, url, in_memory = _inputs_and_outputs(job, input, output, run)
-    run = _store_units(run, catalog, url, in_memory)
     job.check(catalog)
     if job.dims():  # an input dimension too narrow for them, before anything runs (it came after the whole run: review K)
         for src in catalog.sources:
@@ -682,9 +689,12 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
         locked.append(url)
     try:
         with RunLock(locked):  # then whether the outputs may be written: a killed run's leftovers are this run's to judge
-            if run.store is not None and not in_memory and job.tiled:
-                check_store_selection(url, catalog, _tiles_selection(job, run), run.selection,
-                                      job.name or type(job).__name__.removesuffix("Job").lower())
+            held = _named_store_attrs(run, catalog, url, in_memory)
+            if held is not None:  # the user's --store, of these files: its unit, and whether its tiles are this job's
+                run = _store_units(run, held)
+                if job.tiled:
+                    check_store_selection(held, url, _tiles_selection(job, run), run.selection,
+                                          job.name or type(job).__name__.removesuffix("Job").lower())
             ours = _left_complete(catalog, outs, url, in_memory)
             outs = _writable(catalog, outs, url, in_memory, run.overwrite, ours, _tiles_selection(job, run).to_json(),
                              run_request(job, run))
@@ -700,14 +710,19 @@ def _run_job(job: Job, input, output, run: RunOptions) -> Any:
         raise
 
 
-def _store_units(run: RunOptions, catalog: Catalog, url: str, in_memory: bool) -> RunOptions:
-    """``run`` with the ``--units`` that ``tile --units`` recorded in its store, for a run on that store that gives none
-    (the same files): its tile size and every length are in that unit, as the tiling's were."""
-    if run.units is not None or run.store is None or in_memory or not Store.exists(url):
-        return run
+def _named_store_attrs(run: RunOptions, catalog: Catalog, url: str, in_memory: bool) -> dict | None:
+    """The attributes of the store the run names (``--store``) where it exists and holds these files, else None."""
+    if run.store is None or in_memory or not Store.exists(url):
+        return None
     a = Store.open(url).attrs
-    if a.get("units_asked") and a.get("catalog") and catalog.same_files(a["catalog"]):
-        return dataclasses.replace(run, units=a["units_asked"])
+    return a if a.get("catalog") and catalog.same_files(a["catalog"]) else None
+
+
+def _store_units(run: RunOptions, held: dict) -> RunOptions:
+    """``run`` with the ``--units`` that ``tile --units`` recorded in its store (attributes ``held``), for a run on that
+    store that gives none: its tile size and every length are in that unit, as the tiling's were."""
+    if run.units is None and held.get("units_asked"):
+        return dataclasses.replace(run, units=held["units_asked"])
     return run
 
 

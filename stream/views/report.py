@@ -48,7 +48,7 @@ from matplotlib.figure import Figure
 
 from patchcloud.core import PatchcloudError, PatchcloudExistsError, PatchcloudIOError, PatchcloudValueError
 
-from patchcloud.stream.engine.job import left_out_text, memory_scope, units_line
+from patchcloud.stream.engine.job import left_out_text, memory_scope, units_text
 from patchcloud.stream.io.las import atomic_output, open_source, read_chunks, same_file
 from patchcloud.stream.views.plots import CMAP, STYLE, new_figure, style_axes
 
@@ -384,7 +384,7 @@ def _unit(summary) -> str:
 
 
 def units_rows(summary) -> list[tuple[str, str]]:
-    """The report's row naming the unit every length in it is in (the summary's ``units`` line); none without one.
+    """The report's row naming the unit every length in it is in (:func:`units_text`, as the summary's line); none without one.
 
     >>> from patchcloud.stream import NormalsSummary
     >>> s = NormalsSummary("in.las", "out.las", 1, 1, 64.0, {}, {}, {}, units={"symbol": "ft", "name": "foot", "metres": 0.3048, "source": "CRS"})
@@ -392,7 +392,7 @@ def units_rows(summary) -> list[tuple[str, str]]:
     [('units', 'ft (foot, 0.3048 m; from the CRS): every length here and every distance option')]
     """
     units = getattr(summary, "units", None)
-    return [("units", units_line(units).split("units", 1)[1].strip())] if units else []
+    return [("units", units_text(units))] if units else []
 
 
 def left_out_rows(summary, fate: str = "no value, in no neighbourhood") -> list[tuple[str, str]]:
