@@ -23,8 +23,8 @@ from .codes import PatchKind
 from .octree import Octree
 
 __all__ = [
-    "DOT_MIN", "MIN_RELIABILITY", "CONCAVE_MIN_POINTS", "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
-    "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "concave_damping", "rule_scores",
+    "DOT_MIN", "MIN_RELIABILITY", "CREASE_COS", "CREASE_AGREEMENT", "CONCAVE_MIN_POINTS", "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
+    "crease_agreement", "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "concave_damping", "rule_scores",
     "component_rule_signs", "point_rule_signs",
 ]
 
@@ -32,6 +32,12 @@ __all__ = [
 DOT_MIN = 0.9
 #: Smallest |agreement| of a link for it to carry orientation.
 MIN_RELIABILITY = 0.5
+#: Two surface patches whose PCA normals are further apart than this (|cos| below it: 60 degrees) meet at a crease
+#: (a wall's foot, a roof's ridge, the rim of a box): :func:`crease_agreement` relates them, not their quadrics.
+CREASE_COS = 0.5
+#: The agreement of a clear crease link: below a smooth surface's links (up to 1), so a crease only orients a group
+#: that no smoother link or stronger rule prior reaches; above :data:`MIN_RELIABILITY` and the ``outward`` rule's 0.6.
+CREASE_AGREEMENT = 0.75
 #: Under the ``up`` rule, a surface patch of at least this many times ``n_min`` points whose quadric sags more than
 #: :data:`CONCAVE_SAG` times its fit RMSE over half its leaf's edge, concave as seen from above, has a weaker prior
 #: (:func:`concave_damping`): the underside of a pipe or a vault.
@@ -97,17 +103,19 @@ class LeafSet(NamedTuple):
     rmse: np.ndarray  #: (P,) quadric fit RMSE
     kind: np.ndarray  #: (P,) PatchKind values
     count: np.ndarray  #: (P,) points
+    eigenvalues: np.ndarray  #: (P, 3) covariance eigenvalues along the frame's axes (unit^2)
 
     @classmethod
     def of_tree(cls, tree: Octree, frames: np.ndarray, coeffs: np.ndarray) -> "LeafSet":
         """The leaves of an octree (root-corner frame) with the given frames and quadrics."""
-        return cls(tree.lower, tree.leaf_edge, tree.centroid, frames, coeffs, tree.fit.rmse, tree.kind, tree.count)
+        return cls(tree.lower, tree.leaf_edge, tree.centroid, frames, coeffs, tree.fit.rmse, tree.kind, tree.count, tree.fit.eigenvalues)
 
     @classmethod
     def of_table(cls, table, corner) -> "LeafSet":
         """The rows of a PatchTable, shifted to the frame whose origin is ``corner``."""
         c = np.asarray(corner, dtype=np.float64)
-        return cls(table.lower - c, table.edge, table.centroid - c, table.frame, table.coeffs, table.rmse, table.kind, table.count)
+        return cls(table.lower - c, table.edge, table.centroid - c, table.frame, table.coeffs, table.rmse, table.kind, table.count,
+                   table.eigenvalues)
 
 
 def link_agreements(
@@ -116,7 +124,11 @@ def link_agreements(
     """Orientation agreement of face-neighbour leaves ``A[i]`` and ``B[j]``.
 
     Between two surface patches: :func:`face_agreement` (face sampling of the
-    two quadrics, paper 2.3).  Between a surface and an edge or sparse leaf,
+    two quadrics, paper 2.3), or :func:`crease_agreement` where their PCA
+    normals are more than 60 degrees apart (:data:`CREASE_COS`): there the
+    quadrics extrapolate across a crease, and a strip's quadric (a wall's
+    foot in the ground's leaf row) curls to whichever side its few rows
+    happen to give.  Between a surface and an edge or sparse leaf,
     or two of those: the dot product of their PCA normals when the two are
     nearly parallel (``|cos| >= DOT_MIN``) and lie on one surface (each
     centroid within half the smaller leaf's edge of the other's PCA plane),
@@ -139,8 +151,62 @@ def link_agreements(
     reach = 0.5 * np.minimum(A.edge[i], B.edge[j])
     apart = (np.abs(np.einsum("ni,ni->n", gap, A.frame[i, :, 2])) > reach) | (np.abs(np.einsum("ni,ni->n", gap, B.frame[j, :, 2])) > reach)
     agreement[~both & apart] = 0.0
-    agreement[both] = face_agreement(A, i[both], B, j[both], d[both])
+    crease = both & (np.abs(agreement) < CREASE_COS)
+    smooth = both & ~crease
+    agreement[smooth] = face_agreement(A, i[smooth], B, j[smooth], d[smooth])
+    agreement[crease] = crease_agreement(A, i[crease], B, j[crease])
     return i, j, agreement
+
+
+def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np.ndarray:
+    """Orientation agreement of two patches that meet at a crease: a convex or concave edge.
+
+    Where two surfaces meet at an edge, each lies on one side of the
+    other's plane, and normals that both point out of the solid (or both
+    into it) put the other patch's centroid on the same side: in front of
+    both (a concave edge: a wall's foot and the ground beside it) or behind
+    both (a convex one: a roof's ridge, the rim of a box).  So the frames'
+    ``e3`` agree as they are when ``e3_A . (c_B - c_A)`` and ``e3_B . (c_A -
+    c_B)`` have the same sign.  The rule holds only where each patch lies
+    clearly on one side of the other's plane: its centroid off that plane by
+    more than half its points' spread across it plus three times the plane's
+    fit RMSE.  A patch that crosses the other's plane (a fence on ground
+    that goes on past it) says nothing.
+
+    Parameters
+    ----------
+    A, i, B, j : the pairs' leaves ``A[i]`` and ``B[j]`` (:class:`LeafSet`, one frame).
+
+    Returns
+    -------
+    (E,) float64: ``+CREASE_AGREEMENT`` where the frames agree as they are,
+    ``-CREASE_AGREEMENT`` where one must turn, 0 where the rule says nothing.
+
+    Examples
+    --------
+    The foot of a wall facing +x and the ground beside it facing +z agree;
+    the same wall facing -x does not:
+
+    >>> def leaves(centroid, e3, spread):
+    ...     frame = np.zeros((1, 3, 3)); frame[0, :, 2] = e3; frame[0, :, :2] = np.eye(3)[:, [k for k in range(3) if not e3[k]]]
+    ...     return LeafSet(np.zeros((1, 3)), np.ones(1), np.array([centroid], float), frame, np.zeros((1, 6)),
+    ...                    np.full(1, 0.005), np.zeros(1, np.uint8), np.full(1, 20), np.array([spread], float))
+    >>> ground = leaves([0.3, 0.5, 0.0], [0, 0, 1], [0.02, 0.02, 0.0])
+    >>> wall = leaves([0.0, 0.5, 0.1], [1, 0, 0], [0.02, 0.003, 0.0])   # spread 0.05 in z: 0.1 above the ground
+    >>> crease_agreement(ground, np.array([0]), wall, np.array([0])).tolist()
+    [0.75]
+    >>> crease_agreement(ground, np.array([0]), wall._replace(frame=-wall.frame), np.array([0])).tolist()
+    [-0.75]
+    """
+    gap = B.centroid[j] - A.centroid[i]
+    na, nb = A.frame[i, :, 2], B.frame[j, :, 2]
+    sa = np.einsum("ni,ni->n", gap, na)  # B's centroid, in front of A's plane when > 0
+    sb = -np.einsum("ni,ni->n", gap, nb)  # A's centroid, in front of B's plane when > 0
+    # each patch's points' spread along the other's normal: sum over its axes k of lambda_k (e_k . n)^2
+    spread_b = np.sqrt(np.einsum("nk,nk->n", B.eigenvalues[j], np.einsum("nik,ni->nk", B.frame[j], na) ** 2))
+    spread_a = np.sqrt(np.einsum("nk,nk->n", A.eigenvalues[i], np.einsum("nik,ni->nk", A.frame[i], nb) ** 2))
+    clear = (np.abs(sa) > 0.5 * spread_b + 3.0 * A.rmse[i]) & (np.abs(sb) > 0.5 * spread_a + 3.0 * B.rmse[j])
+    return np.where(clear, np.where(sa * sb > 0, CREASE_AGREEMENT, -CREASE_AGREEMENT), 0.0)
 
 
 def face_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray, d: np.ndarray, samples: int = 4) -> np.ndarray:

@@ -13,7 +13,7 @@ DOWN = np.diag([1.0, -1.0, -1.0])  # e3 = -z (right-handed)
 def leaves(lower, frames, coeffs, centroid, rmse):
     n = len(frames)
     return LeafSet(np.asarray(lower, float), np.ones(n), np.asarray(centroid, float), np.asarray(frames, float),
-                   np.asarray(coeffs, float), np.asarray(rmse, float), np.zeros(n, np.uint8), np.full(n, 10))
+                   np.asarray(coeffs, float), np.asarray(rmse, float), np.zeros(n, np.uint8), np.full(n, 10), np.zeros((n, 3)))
 
 
 @pytest.mark.parametrize("frame_b, expected", [(UP, 1.0), (DOWN, -1.0)])
@@ -67,7 +67,7 @@ def test_the_kernel_gives_the_numpy_values_bit_for_bit():
     centroid = lower + rng.uniform(0.3, 0.7, (n, 3)) * edge[:, None]  # surfaces through the cubes, curved a little
     coeffs = rng.normal(0, 0.3, (n, 6)) / edge[:, None]
     coeffs[:, 3:] = rng.normal(0, 0.1, (n, 3)) * [1.0, 1.0, 0.0]
-    A = LeafSet(lower, edge, centroid, frames, coeffs, rng.uniform(0, 0.02, n), np.zeros(n, np.uint8), np.full(n, 10))
+    A = LeafSet(lower, edge, centroid, frames, coeffs, rng.uniform(0, 0.02, n), np.zeros(n, np.uint8), np.full(n, 10), np.zeros((n, 3)))
     i, j, d = rng.integers(0, n, 3000), rng.integers(0, n, 3000), rng.integers(0, 6, 3000)
     j = np.where(rng.random(3000) < 0.5, i, j)  # half the pairs a leaf with itself: the samples agree where they vote
     got = face_agreement(A, i, A, j, d)
@@ -80,7 +80,7 @@ def sparse_pair(offset):
     ``offset`` apart along z."""
     def one(lower, z):
         return LeafSet(np.asarray([lower], float), np.ones(1), np.asarray([[lower[0] + 0.5, 0.5, z]]), np.asarray([UP]),
-                       np.zeros((1, 6)), np.full(1, 0.001), np.full(1, 2, np.uint8), np.full(1, 10))
+                       np.zeros((1, 6)), np.full(1, 0.001), np.full(1, 2, np.uint8), np.full(1, 10), np.zeros((1, 3)))
     return one([0, 0, 0], 0.3), one([1, 0, 0], 0.3 + offset)
 
 
