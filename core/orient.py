@@ -23,7 +23,7 @@ from .codes import PatchKind
 from .octree import Octree
 
 __all__ = [
-    "DOT_MIN", "MIN_RELIABILITY", "CREASE_COS", "CREASE_AGREEMENT", "CONCAVE_MIN_POINTS", "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
+    "DOT_MIN", "MIN_RELIABILITY", "CREASE_COS", "CREASE_AGREEMENT", "CREASE_FLATNESS", "CONCAVE_MIN_POINTS", "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
     "crease_agreement", "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "concave_damping", "rule_scores",
     "component_rule_signs", "point_rule_signs",
 ]
@@ -38,6 +38,9 @@ CREASE_COS = 0.5
 #: The agreement of a clear crease link: below a smooth surface's links (up to 1), so a crease only orients a group
 #: that no smoother link or stronger rule prior reaches; above :data:`MIN_RELIABILITY` and the ``outward`` rule's 0.6.
 CREASE_AGREEMENT = 0.75
+#: A patch takes part in a crease link only when it spans an area: its second covariance eigenvalue at least this share
+#: of its first (its points' spread across their main direction at least a tenth of that along it).
+CREASE_FLATNESS = 0.01
 #: Under the ``up`` rule, a surface patch of at least this many times ``n_min`` points whose quadric sags more than
 #: :data:`CONCAVE_SAG` times its fit RMSE over half its leaf's edge, concave as seen from above, has a weaker prior
 #: (:func:`concave_damping`): the underside of a pipe or a vault.
@@ -170,7 +173,12 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     c_B)`` have the same sign.  The rule holds only where each patch lies
     clearly on one side of the other's plane: its centroid off that plane by
     more than half its points' spread across it plus three times the plane's
-    fit RMSE.  A patch that crosses the other's plane (a fence on ground
+    fit RMSE, and only for patches that span an area (:data:`CREASE_FLATNESS`),
+    not lines of points, whose ``e3`` is any direction across the line, and
+    only for patches that face each other across the crease: their centroids
+    no further apart along the line where the two planes meet than either
+    lies off the other's plane (ground beside a building's corner lies behind
+    the next wall's plane without meeting that wall).  A patch that crosses the other's plane (a fence on ground
     that goes on past it) says nothing.
 
     Parameters
@@ -206,6 +214,13 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     spread_b = np.sqrt(np.einsum("nk,nk->n", B.eigenvalues[j], np.einsum("nik,ni->nk", B.frame[j], na) ** 2))
     spread_a = np.sqrt(np.einsum("nk,nk->n", A.eigenvalues[i], np.einsum("nik,ni->nk", A.frame[i], nb) ** 2))
     clear = (np.abs(sa) > 0.5 * spread_b + 3.0 * A.rmse[i]) & (np.abs(sb) > 0.5 * spread_a + 3.0 * B.rmse[j])
+    # the two face each other across their crease: their centroids no further apart along the crease line than
+    # across it (the ground beside a building's corner lies behind the next wall's plane without meeting that wall)
+    t = np.cross(na, nb)
+    along = np.abs(np.einsum("ni,ni->n", gap, t)) / np.linalg.norm(t, axis=1)
+    clear &= along <= np.minimum(np.abs(sa), np.abs(sb))
+    # a line of points (a scan line, a row along a wall's foot) fits any plane through it: its e3 says nothing
+    clear &= (A.eigenvalues[i, 1] >= CREASE_FLATNESS * A.eigenvalues[i, 0]) & (B.eigenvalues[j, 1] >= CREASE_FLATNESS * B.eigenvalues[j, 0])
     return np.where(clear, np.where(sa * sb > 0, CREASE_AGREEMENT, -CREASE_AGREEMENT), 0.0)
 
 

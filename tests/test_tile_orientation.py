@@ -111,3 +111,46 @@ def test_up_orients_a_pipe_outward_its_top_up_whatever_the_tiling(tmp_path):
         side = np.einsum("ij,ij->i", nrm, right) > 0
         first = side if first is None else first
         assert np.array_equal(side, first)  # the same side for every point at both tile sizes
+
+
+def box_scene(seed: int = 0):
+    """A 10 x 10 x 6 m box building (roof and four walls, 0.1 m spacing) on 30 x 30 m of ground (0.2 m), 5 mm noise:
+    points and each point's outward normal."""
+    rng = np.random.default_rng(seed)
+    g = np.mgrid[0:30:0.2, 0:30:0.2].reshape(2, -1).T
+    g = g[~((g[:, 0] > 10) & (g[:, 0] < 20) & (g[:, 1] > 10) & (g[:, 1] < 20))]
+    r = np.mgrid[10:20:0.1, 10:20:0.1].reshape(2, -1).T
+    w = np.mgrid[10:20:0.1, 0:6:0.1].reshape(2, -1).T
+    k = np.full(len(w), 1.0)
+    parts = [
+        (np.column_stack([g, np.zeros(len(g))]), (0, 0, 1)), (np.column_stack([r, np.full(len(r), 6.0)]), (0, 0, 1)),
+        (np.column_stack([w[:, 0], 10 * k, w[:, 1]]), (0, -1, 0)), (np.column_stack([w[:, 0], 20 * k, w[:, 1]]), (0, 1, 0)),
+        (np.column_stack([10 * k, w[:, 0], w[:, 1]]), (-1, 0, 0)), (np.column_stack([20 * k, w[:, 0], w[:, 1]]), (1, 0, 0)),
+    ]
+    pts = np.vstack([p for p, _ in parts])
+    right = np.vstack([np.tile(np.asarray(o, float), (len(p), 1)) for p, o in parts])
+    return pts + rng.normal(0.0, 0.005, pts.shape), right
+
+
+def test_up_orients_a_box_buildings_walls_outward_whatever_the_tiling(tmp_path):
+    # walls face no side under the up rule: they take the side of the ground and roof they meet at creases.  A wall's
+    # foot, a strip of two rows in the ground's leaf row, curled its quadric and linked the wall inward at full
+    # reliability: two of the four walls had about a quarter of their points facing into the building
+    pts, right = box_scene()
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.scales, header.offsets = np.full(3, 0.0005), np.array([500000.0, 5000000.0, 0.0])
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0] + 500000.0, pts[:, 1] + 5000000.0, pts[:, 2] + 100.0
+    src = tmp_path / "box.las"
+    las.write(str(src))
+    wall = np.abs(right[:, 2]) < 0.5
+    first = None
+    for tile_size in (8.0, 64.0):
+        nrm, _, _ = run(src, tmp_path / f"b{tile_size:g}.las", tile_size)
+        side = np.einsum("ij,ij->i", nrm, right) > 0
+        for o in ((0, -1, 0), (0, 1, 0), (-1, 0, 0), (1, 0, 0)):
+            one = np.all(right == o, axis=1)
+            assert side[one].mean() > 0.97, (tile_size, o, side[one].mean())
+        assert side[~wall].mean() > 0.99, tile_size
+        first = side if first is None else first
+        assert np.mean(side == first) > 0.999  # the same side at both tile sizes
