@@ -23,8 +23,8 @@ from .codes import PatchKind
 from .octree import Octree
 
 __all__ = [
-    "DOT_MIN", "MIN_RELIABILITY", "CREASE_COS", "CREASE_AGREEMENT", "CREASE_FLATNESS", "CONCAVE_MIN_POINTS", "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
-    "crease_agreement", "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "concave_damping", "rule_scores",
+    "DOT_MIN", "MIN_RELIABILITY", "CREASE_COS", "CREASE_AGREEMENT", "CREASE_SPAN", "CREASE_THICKNESS", "CONCAVE_MIN_POINTS", "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
+    "crease_agreement", "crease_ready", "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "concave_damping", "rule_scores",
     "component_rule_signs", "point_rule_signs",
 ]
 
@@ -38,9 +38,11 @@ CREASE_COS = 0.5
 #: The agreement of a clear crease link: below a smooth surface's links (up to 1), so a crease only orients a group
 #: that no smoother link or stronger rule prior reaches; above :data:`MIN_RELIABILITY` and the ``outward`` rule's 0.6.
 CREASE_AGREEMENT = 0.75
-#: A patch takes part in a crease link only when it spans an area: its second covariance eigenvalue at least this share
-#: of its first (its points' spread across their main direction at least a tenth of that along it).
-CREASE_FLATNESS = 0.01
+#: A patch takes part in a crease link only when it is a thin sheet (:func:`crease_ready`): its points' spread
+#: across their second direction at least this share of that along the first (not a line of points) ...
+CREASE_SPAN = 0.1
+#: ... and their spread along e3 at most this share of that along the second (not a blob or a cap).
+CREASE_THICKNESS = 0.25
 #: Under the ``up`` rule, a surface patch of at least this many times ``n_min`` points whose quadric sags more than
 #: :data:`CONCAVE_SAG` times its fit RMSE over half its leaf's edge, concave as seen from above, has a weaker prior
 #: (:func:`concave_damping`): the underside of a pipe or a vault.
@@ -161,6 +163,31 @@ def link_agreements(
     return i, j, agreement
 
 
+def crease_ready(eigenvalues: np.ndarray) -> np.ndarray:
+    """Which patches are thin sheets of points, whose PCA plane a crease link (:func:`crease_agreement`) can use.
+
+    A line of points (a scan line, a row along a wall's foot) fits any plane
+    through it, so its ``e3`` is any direction across the line; a blob or a
+    strongly curved cap has no plane.  A sheet spreads along its second axis
+    at least :data:`CREASE_SPAN` times as far as along its first, and along
+    ``e3`` at most :data:`CREASE_THICKNESS` times as far as along its second.
+
+    Parameters
+    ----------
+    eigenvalues : (P, 3) float64
+        Covariance eigenvalues, largest first (unit^2).
+
+    Returns
+    -------
+    (P,) bool
+
+    >>> crease_ready(np.array([[1.0, 0.5, 1e-4], [1.0, 1e-4, 1e-5], [1.0, 0.5, 0.2]])).tolist()
+    [True, False, False]
+    """
+    ev = np.maximum(np.asarray(eigenvalues, dtype=np.float64), 0.0)
+    return (ev[:, 1] >= CREASE_SPAN**2 * ev[:, 0]) & (ev[:, 2] <= CREASE_THICKNESS**2 * ev[:, 1])
+
+
 def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np.ndarray:
     """Orientation agreement of two patches that meet at a crease: a convex or concave edge.
 
@@ -173,8 +200,7 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     c_B)`` have the same sign.  The rule holds only where each patch lies
     clearly on one side of the other's plane: its centroid off that plane by
     more than half its points' spread across it plus three times the plane's
-    fit RMSE, and only for patches that span an area (:data:`CREASE_FLATNESS`),
-    not lines of points, whose ``e3`` is any direction across the line, and
+    fit RMSE, and only for thin sheets of points (:func:`crease_ready`), and
     only for patches that face each other across the crease: their centroids
     no further apart along the line where the two planes meet than either
     lies off the other's plane (ground beside a building's corner lies behind
@@ -219,8 +245,7 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     t = np.cross(na, nb)
     along = np.abs(np.einsum("ni,ni->n", gap, t)) / np.linalg.norm(t, axis=1)
     clear &= along <= np.minimum(np.abs(sa), np.abs(sb))
-    # a line of points (a scan line, a row along a wall's foot) fits any plane through it: its e3 says nothing
-    clear &= (A.eigenvalues[i, 1] >= CREASE_FLATNESS * A.eigenvalues[i, 0]) & (B.eigenvalues[j, 1] >= CREASE_FLATNESS * B.eigenvalues[j, 0])
+    clear &= crease_ready(A.eigenvalues[i]) & crease_ready(B.eigenvalues[j])
     return np.where(clear, np.where(sa * sb > 0, CREASE_AGREEMENT, -CREASE_AGREEMENT), 0.0)
 
 
