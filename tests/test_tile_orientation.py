@@ -113,11 +113,11 @@ def test_up_orients_a_pipe_outward_its_top_up_whatever_the_tiling(tmp_path):
         assert np.array_equal(side, first)  # the same side for every point at both tile sizes
 
 
-def box_scene(seed: int = 0):
-    """A 10 x 10 x 6 m box building (roof and four walls, 0.1 m spacing) on 30 x 30 m of ground (0.2 m), 5 mm noise:
+def box_scene(seed: int = 0, ground_step: float = 0.1):
+    """A 10 x 10 x 6 m box building (roof and four walls) on 30 x 30 m of ground, 0.1 m spacing, 5 mm noise:
     points and each point's outward normal."""
     rng = np.random.default_rng(seed)
-    g = np.mgrid[0:30:0.2, 0:30:0.2].reshape(2, -1).T
+    g = np.mgrid[0:30:ground_step, 0:30:ground_step].reshape(2, -1).T
     g = g[~((g[:, 0] > 10) & (g[:, 0] < 20) & (g[:, 1] > 10) & (g[:, 1] < 20))]
     r = np.mgrid[10:20:0.1, 10:20:0.1].reshape(2, -1).T
     w = np.mgrid[10:20:0.1, 0:6:0.1].reshape(2, -1).T
@@ -135,7 +135,7 @@ def box_scene(seed: int = 0):
 def test_up_orients_a_box_buildings_walls_outward_whatever_the_tiling(tmp_path):
     # walls face no side under the up rule: they take the side of the ground and roof they meet at creases.  A wall's
     # foot, a strip of two rows in the ground's leaf row, curled its quadric and linked the wall inward at full
-    # reliability: two of the four walls had about a quarter of their points facing into the building
+    # reliability: here the -x and -y walls faced into the building, 98 % of their points, at both tile sizes
     pts, right = box_scene()
     header = laspy.LasHeader(point_format=1, version="1.2")
     header.scales, header.offsets = np.full(3, 0.0005), np.array([500000.0, 5000000.0, 0.0])
