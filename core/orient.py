@@ -23,9 +23,10 @@ from .codes import PatchKind
 from .octree import Octree
 
 __all__ = [
-    "DOT_MIN", "MIN_RELIABILITY", "CREASE_COS", "CREASE_AGREEMENT", "CREASE_SPAN", "CREASE_THICKNESS", "CONCAVE_MIN_POINTS", "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement",
-    "crease_agreement", "crease_ready", "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "concave_damping", "rule_scores",
-    "component_rule_signs", "point_rule_signs",
+    "DOT_MIN", "MIN_RELIABILITY", "CREASE_COS", "CREASE_AGREEMENT", "CREASE_SPAN", "CREASE_THICKNESS", "CONCAVE_MIN_POINTS",
+    "CONCAVE_SAG", "CONCAVE_DAMPING", "LeafSet", "face_neighbours", "link_agreements", "face_agreement", "crease_agreement",
+    "crease_ready", "cross_face_pairs", "spanning_forest", "forest_signs", "propagate_signs", "rule_prior", "concave_damping",
+    "rule_scores", "component_rule_signs", "point_rule_signs",
 ]
 
 #: Smallest |cos| between the PCA normals of an edge or sparse leaf and a neighbour for them to link.
@@ -203,9 +204,10 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     fit RMSE, and only for thin sheets of points (:func:`crease_ready`), and
     only for patches that face each other across the crease: their centroids
     no further apart along the line where the two planes meet than either
-    lies off the other's plane (ground beside a building's corner lies behind
-    the next wall's plane without meeting that wall).  A patch that crosses the other's plane (a fence on ground
-    that goes on past it) says nothing.
+    lies off the other's plane (ground beside a building's corner lies
+    behind the next wall's plane without meeting that wall).  A patch that
+    crosses the other's plane (a fence on ground that goes on past it) says
+    nothing.
 
     Parameters
     ----------
@@ -237,13 +239,15 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     sa = np.einsum("ni,ni->n", gap, na)  # B's centroid, in front of A's plane when > 0
     sb = -np.einsum("ni,ni->n", gap, nb)  # A's centroid, in front of B's plane when > 0
     # each patch's points' spread along the other's normal: sum over its axes k of lambda_k (e_k . n)^2
-    spread_b = np.sqrt(np.einsum("nk,nk->n", B.eigenvalues[j], np.einsum("nik,ni->nk", B.frame[j], na) ** 2))
-    spread_a = np.sqrt(np.einsum("nk,nk->n", A.eigenvalues[i], np.einsum("nik,ni->nk", A.frame[i], nb) ** 2))
+    spread_b = np.sqrt(np.einsum("nk,nk->n", np.maximum(B.eigenvalues[j], 0.0), np.einsum("nik,ni->nk", B.frame[j], na) ** 2))
+    spread_a = np.sqrt(np.einsum("nk,nk->n", np.maximum(A.eigenvalues[i], 0.0), np.einsum("nik,ni->nk", A.frame[i], nb) ** 2))
     clear = (np.abs(sa) > 0.5 * spread_b + 3.0 * A.rmse[i]) & (np.abs(sb) > 0.5 * spread_a + 3.0 * B.rmse[j])
     # the two face each other across their crease: their centroids no further apart along the crease line than
     # across it (the ground beside a building's corner lies behind the next wall's plane without meeting that wall)
     t = np.cross(na, nb)
-    along = np.abs(np.einsum("ni,ni->n", gap, t)) / np.linalg.norm(t, axis=1)
+    length = np.linalg.norm(t, axis=1)
+    along = np.abs(np.einsum("ni,ni->n", gap, t)) / np.where(length > 0, length, 1.0)
+    clear &= length > 0  # e3s at a crease are far from parallel; a frame without an e3 says nothing
     clear &= along <= np.minimum(np.abs(sa), np.abs(sb))
     clear &= crease_ready(A.eigenvalues[i]) & crease_ready(B.eigenvalues[j])
     return np.where(clear, np.where(sa * sb > 0, CREASE_AGREEMENT, -CREASE_AGREEMENT), 0.0)
