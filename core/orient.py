@@ -36,9 +36,12 @@ MIN_RELIABILITY = 0.5
 #: Two surface patches whose PCA normals are further apart than this (|cos| below it: 60 degrees) meet at a crease
 #: (a wall's foot, a roof's ridge, the rim of a box): :func:`crease_agreement` relates them, not their quadrics.
 CREASE_COS = 0.5
-#: The agreement of a clear crease link: below a smooth surface's links (up to 1), so a crease only orients a group
-#: that no smoother link or stronger rule prior reaches; above :data:`MIN_RELIABILITY` and the ``outward`` rule's 0.6.
-CREASE_AGREEMENT = 0.75
+#: The agreement of a clear crease link: just above :data:`MIN_RELIABILITY`, below a smooth surface's links (up to 1)
+#: and below the ``up`` prior of any patch that has one (|n_z| >= 0.5), so a crease orients only what nothing else
+#: reaches: walls, roofs steeper than 60 degrees.  A thin sheet has two sides and a scan sees one: where a roof
+#: overhangs a wall (eaves) the two meet in a T, and the crease rule, which reads it as the wall and the eaves'
+#: underside, would turn a 55-degree roof plane down over its up prior (0.57) at 0.75.
+CREASE_AGREEMENT = 0.55
 #: A patch takes part in a crease link only when it is a thin sheet (:func:`crease_ready`): its points' spread
 #: across their second direction at least this share of that along the first (not a line of points) ...
 CREASE_SPAN = 0.1
@@ -200,8 +203,9 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     ``e3`` agree as they are when ``e3_A . (c_B - c_A)`` and ``e3_B . (c_A -
     c_B)`` have the same sign.  The rule holds only where each patch lies
     clearly on one side of the other's plane: its centroid off that plane by
-    more than half its points' spread across it plus three times the plane's
-    fit RMSE, and only for thin sheets of points (:func:`crease_ready`), and
+    more than its points' spread across it (standard deviation) plus three
+    times the plane's fit RMSE (an 8 m leaf of ground round a small building,
+    its centroid inside the walls, says nothing of them), and only for thin sheets of points (:func:`crease_ready`), and
     only for patches that face each other across the crease: their centroids
     no further apart along the line where the two planes meet than either
     lies off the other's plane (ground beside a building's corner lies
@@ -230,9 +234,9 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     >>> ground = leaves([0.3, 0.5, 0.0], [0, 0, 1], [0.02, 0.02, 0.0])
     >>> wall = leaves([0.0, 0.5, 0.1], [1, 0, 0], [0.02, 0.003, 0.0])   # spread 0.05 in z: 0.1 above the ground
     >>> crease_agreement(ground, np.array([0]), wall, np.array([0])).tolist()
-    [0.75]
+    [0.55]
     >>> crease_agreement(ground, np.array([0]), wall._replace(frame=-wall.frame), np.array([0])).tolist()
-    [-0.75]
+    [-0.55]
     """
     gap = B.centroid[j] - A.centroid[i]
     na, nb = A.frame[i, :, 2], B.frame[j, :, 2]
@@ -241,7 +245,7 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     # each patch's points' spread along the other's normal: sum over its axes k of lambda_k (e_k . n)^2
     spread_b = np.sqrt(np.einsum("nk,nk->n", np.maximum(B.eigenvalues[j], 0.0), np.einsum("nik,ni->nk", B.frame[j], na) ** 2))
     spread_a = np.sqrt(np.einsum("nk,nk->n", np.maximum(A.eigenvalues[i], 0.0), np.einsum("nik,ni->nk", A.frame[i], nb) ** 2))
-    clear = (np.abs(sa) > 0.5 * spread_b + 3.0 * A.rmse[i]) & (np.abs(sb) > 0.5 * spread_a + 3.0 * B.rmse[j])
+    clear = (np.abs(sa) > spread_b + 3.0 * A.rmse[i]) & (np.abs(sb) > spread_a + 3.0 * B.rmse[j])
     # the two face each other across their crease: their centroids no further apart along the crease line than
     # across it (the ground beside a building's corner lies behind the next wall's plane without meeting that wall)
     t = np.cross(na, nb)
