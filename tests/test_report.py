@@ -224,6 +224,7 @@ def test_don_and_compress_reports(scene_las, tmp_path):
     assert (t["patch_points"] + t["residual"]).sum() == n
     page = report_compress(c, tmp_path / "c.html", views=False).read_text()
     assert f"<td>{n:,}</td>" in page and f"<td>{c.output_bytes:,} bytes" in page and page.count(IMG) == 2
+    assert "<th>units</th><td>m (" in page and "{&#x27;symbol&#x27;" not in page and "{'symbol'" not in page  # not the raw dict
     assert page.count("<tr>") >= len(t["ijk"]) + 1  # one row per tile, plus the summary's
     assert_self_contained(page)
 

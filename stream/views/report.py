@@ -474,7 +474,7 @@ def compress_rows(summary: "CompressSummary") -> list[tuple[str, str]]:
     s = summary
     n = max(s.points, 1)
     rows = [
-        ("input", s.input), ("output", s.output), ("points", _n(s.points)),
+        ("input", s.input), ("output", s.output), ("points", _n(s.points)), *units_rows(s),
         ("points on patches", _share(s.points - s.residual, s.points)), ("patches", _n(s.patches)),
         ("residual points", _share(s.residual, s.points)),
         *([("tiles", f"{s.tiles:,} of {s.tile_size:g} {_unit(s)}")] if s.tiles else []),
@@ -486,7 +486,7 @@ def compress_rows(summary: "CompressSummary") -> list[tuple[str, str]]:
         ("compression ratio", f"{s.input_bytes / max(s.output_bytes, 1):.2f}"),
     ]
     known = {f.name for f in fields(s)} - {"input", "output", "points", "patches", "residual", "max_error", "input_bytes",
-                                           "output_bytes", "mean_error", "seconds", "peak_memory", "tiles", "tile_size"}
+                                           "output_bytes", "mean_error", "seconds", "peak_memory", "tiles", "tile_size", "units"}
     rows += [(name.replace("_", " "), _count_or_value(getattr(s, name))) for name in sorted(known)]  # fields added later
     return rows + _job_rows(s.seconds, s.points, s.peak_memory, None, None)
 
