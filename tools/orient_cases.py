@@ -13,7 +13,10 @@ Gaussian noise, shifted to UTM-sized coordinates, and run through
   on every face (as a mobile or terrestrial scan sees a bridge); the right
   side of its underside is down (outward);
 - ``pipe R``: a horizontal pipe of radius R, 3 m above the ground, sampled
-  all round; the right side is outward (its lower half facing down).
+  all round; the right side is outward (its lower half facing down);
+- ``gable``: a 7 x 8 m house, 4 m walls, a gable roof of 55 degrees whose
+  eaves overhang the walls by 0.6 m (roof and wall meet in a T there); the
+  right sides are outward, up for the roof planes.
 
 Columns: the share of each surface's points whose normal is within 60
 degrees of the right side (cos > 0.5).  The up rule cannot tell an
@@ -96,6 +99,30 @@ def pipe(radius: float, step: float = 0.05) -> list[tuple[str, np.ndarray, np.nd
     ]
 
 
+def gable(step: float = 0.1, eave: float = 0.6, rise: float = 5.0) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Ground round a house with a gable roof whose eaves overhang its walls: (name, points, right side) per surface."""
+    x0, y0, sx, sy, h = 6.3, 5.7, 7.0, 8.0, 4.0
+    xm, half = x0 + sx / 2, sx / 2
+    g = grid(0, 20, 0, 20, step)
+    g = g[~((g[:, 0] > x0) & (g[:, 0] < x0 + sx) & (g[:, 1] > y0) & (g[:, 1] < y0 + sy))]
+    end = grid(x0, x0 + sx, 0, h + rise, step)
+    end = end[end[:, 1] <= h + rise * (1 - np.abs(end[:, 0] - xm) / half)]  # the gable end walls
+    side = grid(y0, y0 + sy, 0, h, step)
+    r = grid(x0 - eave, x0 + sx + eave, y0 - eave, y0 + sy + eave, step)
+    z = h + rise * (1 - np.abs(r[:, 0] - xm) / half)
+    n, left = np.hypot(rise, half), r[:, 0] < xm
+    parts = [
+        ("ground", np.column_stack([g, np.zeros(len(g))]), (0.0, 0.0, 1.0)),
+        ("gable wall -y", np.column_stack([end[:, 0], np.full(len(end), y0), end[:, 1]]), (0.0, -1.0, 0.0)),
+        ("gable wall +y", np.column_stack([end[:, 0], np.full(len(end), y0 + sy), end[:, 1]]), (0.0, 1.0, 0.0)),
+        ("wall -x", np.column_stack([np.full(len(side), x0), side[:, 0], side[:, 1]]), (-1.0, 0.0, 0.0)),
+        ("wall +x", np.column_stack([np.full(len(side), x0 + sx), side[:, 0], side[:, 1]]), (1.0, 0.0, 0.0)),
+        ("roof plane -x", np.column_stack([r[left], z[left]]), (-rise / n, 0.0, half / n)),
+        ("roof plane +x", np.column_stack([r[~left], z[~left]]), (rise / n, 0.0, half / n)),
+    ]
+    return [(name, p, np.tile(np.asarray(o), (len(p), 1))) for name, p, o in parts]
+
+
 def run(scene: str, parts, noise: float) -> list[str]:
     """One row per surface: the share of its normals within 60 degrees of its right side."""
     from patchcloud.core import estimate_normals
@@ -130,6 +157,7 @@ def main(argv=None) -> None:
     lines += run("deck", deck(), 0.005)
     for r in (1.0, 0.5):
         lines += run(f"pipe R {r:g} m", pipe(r), 0.002)
+    lines += run("gable", gable(), 0.005)
     text = "\n".join(lines)
     print(text)
     if args.out:
