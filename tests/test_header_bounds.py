@@ -117,6 +117,21 @@ def test_a_full_disk_is_one_line_naming_the_file_and_the_kept_store(scene, tmp_p
     assert not (tmp_path / "out.las").exists() and not (tmp_path / "out.las.partial").exists()
 
 
+def test_a_full_disk_while_tiling_is_one_line_naming_the_file_and_the_kept_store(scene, tmp_path, monkeypatch):
+    # `tile` said the store was kept for its own errors and Ctrl-C, but let an OSError through without it (a smaller
+    # twin of the jobs' handling: they now share stream.engine.job.says_what_is_kept)
+    from patchcloud.stream.io.store import Store
+
+    def full(self, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "s.zarr" / "tiles"))
+
+    monkeypatch.setattr(Store, "write", full)
+    r = CliRunner().invoke(main, ["tile", str(scene), str(tmp_path / "s.zarr"), "--scheduler", "synchronous", "--quiet"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "Traceback" not in r.output, r.output
+    assert r.output.startswith(f"error: {tmp_path / 's.zarr' / 'tiles'}: No space left on device (the store {tmp_path / 's.zarr'}, "), r.output
+    assert "is kept: the same command resumes from it" in r.output
+
+
 def test_an_absurd_decompress_density_is_refused_before_writing(scene, tmp_path):
     from patchcloud.stream import compress, decompress
 

@@ -41,6 +41,7 @@ patchcloud.core.errors.PatchcloudValueError: tile_size must be a positive length
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import numbers
 import hashlib
@@ -80,7 +81,7 @@ from patchcloud.stream.io.store import PatchcloudStoreError, Store, remove_store
 
 __all__ = [
     "IN_MEMORY_POINTS", "IN_MEMORY_POINTS_FEW_CORES", "MAX_WORKERS", "FEW_CORES", "in_memory_points", "RunOptions", "Job", "JobContext", "run_job", "split_options", "run_request", "params_key", "in_file_frame", "default_store_path", "write_profile",
-    "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "catalog_units", "units_line", "units_text", "left_out_lines", "left_out_text",
+    "time_and_memory_lines", "memory_scope", "file_lines", "kept_store_note", "says_what_is_kept", "catalog_units", "units_line", "units_text", "left_out_lines", "left_out_text",
 ]
 
 #: The most worker processes or threads a run starts (more is a typo: each is a process started on this machine).
@@ -764,12 +765,25 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
         finally:
             Store.discard(url)
     keep = (run.store is not None) if run.keep_store is None else bool(run.keep_store)
-    try:
+    with says_what_is_kept(url, keep):
         summary = _run_cleaned(job, catalog, outs, out, url, keep, run)
+    if not keep:
+        Store.discard(url)
+    return summary
+
+
+@contextlib.contextmanager
+def says_what_is_kept(url: str, keep: bool = True):
+    """A run on the store ``url`` that fails or is stopped says, in its one line, that the store is kept and the same
+    command resumes from it (:func:`kept_store_note`); an OSError (disk full, permission) becomes a PatchcloudIOError
+    naming its file.  Where nothing would resume (no points, too small tiles, point data that cannot be decoded: the
+    same command would fail again, or read the file anew) the store is removed unless ``keep``, and a damaged store
+    (PatchcloudStoreError) says what to do itself.  The jobs' runs and ``tile`` share it."""
+    try:
+        yield
     except PatchcloudStoreError:
         raise
-    except (NothingToResumeError, CorruptPointsError):  # the same command would fail again, or read the file anew: nothing
-        # to resume (no points, too small tiles; point data that cannot be decoded, a good copy of the file tiled again)
+    except (NothingToResumeError, CorruptPointsError):
         if not keep:
             Store.discard(url)
         raise
@@ -780,9 +794,6 @@ def _run_locked(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: st
         raise PatchcloudIOError(f"{line}{kept_store_note(url)}") from exc
     except KeyboardInterrupt:
         raise KeyboardInterrupt(f"interrupted{kept_store_note(url)}") from None
-    if not keep:
-        Store.discard(url)
-    return summary
 
 
 def _run_cleaned(job: Job, catalog: Catalog, outs: list[Path], out: Path, url: str, keep: bool, run: RunOptions) -> Any:

@@ -5,14 +5,13 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from patchcloud.core import PatchcloudError
-from patchcloud.stream.engine.ingest import NothingToResumeError, ensure_tiled
-from patchcloud.stream.engine.job import RunOptions, kept_store_note
+from patchcloud.stream.engine.ingest import ensure_tiled
+from patchcloud.stream.engine.job import RunOptions, says_what_is_kept
 from patchcloud.stream.engine.runner import Runner
 from patchcloud.stream.io.crs import units_of
-from patchcloud.stream.io.las import CorruptPointsError, check_not_input, open_source
+from patchcloud.stream.io.las import check_not_input, open_source
 from patchcloud.stream.io.lock import RunLock
-from patchcloud.stream.io.store import PatchcloudStoreError, Store
+from patchcloud.stream.io.store import Store
 from patchcloud.stream.engine.background import stops_what_it_starts
 
 __all__ = ["tile"]
@@ -54,14 +53,8 @@ def tile(
             Store.create(store, overwrite=True)
         else:
             Store.check_new(store)  # before any worker starts
-        try:
+        with says_what_is_kept(store):  # as a job says it: the store is kept, the same command resumes from it
             with Runner(run.scheduler, run.workers, quiet=run.quiet, points=src.point_count) as runner:
                 s, _ = ensure_tiled(src, store, run.tile_size, runner, run.quiet, run.chunk, run.selection)
             s.update(units_asked=run.units)  # the unit the tile size was given in (None: the CRS's): the jobs on the store take it
-        except KeyboardInterrupt:  # as a job says it: the store is kept, the same command resumes from it
-            raise KeyboardInterrupt(f"interrupted{kept_store_note(store)}") from None
-        except (NothingToResumeError, CorruptPointsError, PatchcloudStoreError):  # nothing to resume from: as a job says it
-            raise
-        except PatchcloudError as exc:
-            raise type(exc)(f"{exc}{kept_store_note(store)}") from exc
     return s
