@@ -23,7 +23,7 @@ from .render import render_command, render_tiles_command
 from .segment import segment_command
 from .tile import tile_command
 
-__all__ = ["main", "run", "leave"]
+__all__ = ["main", "run", "leave", "install_signal_handlers", "importing", "IMPORT_WAIT"]
 
 
 @click.group(cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
@@ -57,17 +57,60 @@ main.add_command(render_command)
 main.add_command(render_tiles_command)
 
 
+#: How long a Ctrl-C or SIGTERM that comes during an import waits, each time, for the import to end (seconds).
+IMPORT_WAIT = 0.02
+
+
+def importing(frame) -> bool:
+    """Whether a signal handler's ``frame`` is inside an import: a frame of importlib's on its stack.
+
+    >>> import sys
+    >>> importing(sys._getframe())
+    False
+    """
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _after_the_import(frame, handler) -> bool:
+    """Whether the signal is put off until the import under way ends: then ``handler`` runs again (SIGALRM) in
+    :data:`IMPORT_WAIT` seconds.  numba's compiled modules print the traceback of a KeyboardInterrupt raised while
+    they import and turn it into an ImportError, which the command line then took for a bug (seen once in CI: a
+    Ctrl-C as the workers started)."""
+    if not importing(frame):
+        return False
+    signal.signal(signal.SIGALRM, handler)
+    signal.setitimer(signal.ITIMER_REAL, IMPORT_WAIT)
+    return True
+
+
 def _terminated(signum, frame) -> None:
     """SIGTERM handler of the console script: the run stops as on Ctrl-C (one line, its store kept and said, its
     locks released, its workers closed, exit status 130), where Python would end at once and leave them."""
+    if _after_the_import(frame, _terminated):
+        return
     _cleaning_up()
     raise KeyboardInterrupt("terminated")
 
 
 def _interrupted(signum, frame) -> None:
-    """SIGINT handler of the console script: Ctrl-C stops the run as Python's KeyboardInterrupt does."""
+    """SIGINT handler of the console script: Ctrl-C stops the run as Python's KeyboardInterrupt does, once no import
+    is under way."""
+    if _after_the_import(frame, _interrupted):
+        return
     _cleaning_up()
     raise KeyboardInterrupt
+
+
+def install_signal_handlers() -> None:
+    """The console script's handlers: SIGTERM (what SLURM, PBS, Kubernetes and systemd send) stops the run as Ctrl-C
+    does, and Ctrl-C a second time is let be during the clean-up; both wait for an import under way to end."""
+    signal.signal(signal.SIGTERM, _terminated)
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a run started ignoring it (`cmd &` in a script) still does
+        signal.signal(signal.SIGINT, _interrupted)
 
 
 def _cleaning_up() -> None:
@@ -118,9 +161,7 @@ def run() -> None:
     skip_laspy_http()  # 0.02 s of requests, for COPC over HTTP (stream.engine.laspy_start)
     skip_laspy_pyproj()  # pyproj imported where a CRS is read or written, not by laspy's import (same module)
     skip_dask_templates()  # 0.04 s of jinja2 for dask's HTML (stream.engine.dask_start)
-    signal.signal(signal.SIGTERM, _terminated)  # what SLURM, PBS, Kubernetes and systemd send: as Ctrl-C
-    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a run started ignoring it (`cmd &` in a script) still does
-        signal.signal(signal.SIGINT, _interrupted)  # then Ctrl-C again is let be during the clean-up, SIGTERM ends it
+    install_signal_handlers()
     try:
         main()
     except SystemExit as exc:  # click's standalone mode ends every command so, its status given
