@@ -117,7 +117,8 @@ class LeafSet(NamedTuple):
     @classmethod
     def of_tree(cls, tree: Octree, frames: np.ndarray, coeffs: np.ndarray) -> "LeafSet":
         """The leaves of an octree (root-corner frame) with the given frames and quadrics."""
-        return cls(tree.lower, tree.leaf_edge, tree.centroid, frames, coeffs, tree.fit.rmse, tree.kind, tree.count, tree.fit.eigenvalues)
+        return cls(tree.lower, tree.leaf_edge, tree.centroid, frames, coeffs, tree.fit.rmse, tree.kind, tree.count,
+                   tree.fit.eigenvalues)
 
     @classmethod
     def of_table(cls, table, corner) -> "LeafSet":
@@ -205,8 +206,9 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     clearly on one side of the other's plane: its centroid off that plane by
     more than its points' spread across it (standard deviation) plus three
     times the plane's fit RMSE (an 8 m leaf of ground round a small building,
-    its centroid inside the walls, says nothing of them), and only for thin sheets of points (:func:`crease_ready`), and
-    only for patches that face each other across the crease: their centroids
+    its centroid inside the walls, says nothing of them), only for thin
+    sheets of points (:func:`crease_ready`), and only for patches that face
+    each other across the crease: their centroids
     no further apart along the line where the two planes meet than either
     lies off the other's plane (ground beside a building's corner lies
     behind the next wall's plane without meeting that wall).  A patch that
@@ -242,10 +244,7 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     na, nb = A.frame[i, :, 2], B.frame[j, :, 2]
     sa = np.einsum("ni,ni->n", gap, na)  # B's centroid, in front of A's plane when > 0
     sb = -np.einsum("ni,ni->n", gap, nb)  # A's centroid, in front of B's plane when > 0
-    # each patch's points' spread along the other's normal: sum over its axes k of lambda_k (e_k . n)^2
-    spread_b = np.sqrt(np.einsum("nk,nk->n", np.maximum(B.eigenvalues[j], 0.0), np.einsum("nik,ni->nk", B.frame[j], na) ** 2))
-    spread_a = np.sqrt(np.einsum("nk,nk->n", np.maximum(A.eigenvalues[i], 0.0), np.einsum("nik,ni->nk", A.frame[i], nb) ** 2))
-    clear = (np.abs(sa) > spread_b + 3.0 * A.rmse[i]) & (np.abs(sb) > spread_a + 3.0 * B.rmse[j])
+    clear = (np.abs(sa) > _spread_along(B, j, na) + 3.0 * A.rmse[i]) & (np.abs(sb) > _spread_along(A, i, nb) + 3.0 * B.rmse[j])
     # the two face each other across their crease: their centroids no further apart along the crease line than
     # across it (the ground beside a building's corner lies behind the next wall's plane without meeting that wall)
     t = np.cross(na, nb)
@@ -255,6 +254,12 @@ def crease_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray) -> np
     clear &= along <= np.minimum(np.abs(sa), np.abs(sb))
     clear &= crease_ready(A.eigenvalues[i]) & crease_ready(B.eigenvalues[j])
     return np.where(clear, np.where(sa * sb > 0, CREASE_AGREEMENT, -CREASE_AGREEMENT), 0.0)
+
+
+def _spread_along(S: LeafSet, rows: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The standard deviation of the points of leaves ``S[rows]`` along unit directions ``n`` (E, 3): the square root of
+    the sum over their axes k of lambda_k (e_k . n)^2."""
+    return np.sqrt(np.einsum("nk,nk->n", np.maximum(S.eigenvalues[rows], 0.0), np.einsum("nik,ni->nk", S.frame[rows], n) ** 2))
 
 
 def face_agreement(A: LeafSet, i: np.ndarray, B: LeafSet, j: np.ndarray, d: np.ndarray, samples: int = 4) -> np.ndarray:

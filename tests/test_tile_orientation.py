@@ -8,6 +8,7 @@ point as the single-tile run does.
 
 import laspy
 import numpy as np
+import orient_cases  # tools/, on the path (conftest)
 import pytest
 
 from patchcloud.core import Method
@@ -94,12 +95,8 @@ def test_up_orients_a_pipe_outward_its_top_up_whatever_the_tiling(tmp_path):
     # the up rule cannot tell a pipe's underside from its top by its normal: the underside's patches (concave seen from
     # above) and the rough leaves along its lowest line used to decide for the whole pipe, all of it inward (top down)
     pts, right = pipe_scene()
-    header = laspy.LasHeader(point_format=1, version="1.2")
-    header.scales, header.offsets = np.full(3, 0.0005), np.array([500000.0, 5000000.0, 0.0])
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0] + 500000.0, pts[:, 1] + 5000000.0, pts[:, 2]
     src = tmp_path / "pipe.las"
-    las.write(str(src))
+    write_scene(src, pts, 0.0, origin=(500000.0, 5000000.0))
     on_pipe = pts[:, 2] > 1.5
     upper = on_pipe & (right[:, 2] >= 0)
     lower = on_pipe & (right[:, 2] < 0)
@@ -113,36 +110,31 @@ def test_up_orients_a_pipe_outward_its_top_up_whatever_the_tiling(tmp_path):
         assert np.array_equal(side, first)  # the same side for every point at both tile sizes
 
 
-def box_scene(seed: int = 0, ground_step: float = 0.1):
-    """A 10 x 10 x 6 m box building (roof and four walls) on 30 x 30 m of ground, 0.1 m spacing, 5 mm noise:
-    points and each point's outward normal."""
-    rng = np.random.default_rng(seed)
-    g = np.mgrid[0:30:ground_step, 0:30:ground_step].reshape(2, -1).T
-    g = g[~((g[:, 0] > 10) & (g[:, 0] < 20) & (g[:, 1] > 10) & (g[:, 1] < 20))]
-    r = np.mgrid[10:20:0.1, 10:20:0.1].reshape(2, -1).T
-    w = np.mgrid[10:20:0.1, 0:6:0.1].reshape(2, -1).T
-    k = np.full(len(w), 1.0)
-    parts = [
-        (np.column_stack([g, np.zeros(len(g))]), (0, 0, 1)), (np.column_stack([r, np.full(len(r), 6.0)]), (0, 0, 1)),
-        (np.column_stack([w[:, 0], 10 * k, w[:, 1]]), (0, -1, 0)), (np.column_stack([w[:, 0], 20 * k, w[:, 1]]), (0, 1, 0)),
-        (np.column_stack([10 * k, w[:, 0], w[:, 1]]), (-1, 0, 0)), (np.column_stack([20 * k, w[:, 0], w[:, 1]]), (1, 0, 0)),
-    ]
+def write_scene(path, pts, z0, origin=(499712.0, 4997120.0)):
+    """Write ``pts`` (local metres) as a LAS file: x and y shifted by ``origin``, z by ``z0``, on a 0.5 mm grid."""
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.scales, header.offsets = np.full(3, 0.0005), np.array([origin[0], origin[1], 0.0])
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0] + origin[0], pts[:, 1] + origin[1], pts[:, 2] + z0
+    las.write(str(path))
+
+
+def scene(parts, seed=0):
+    """Points (5 mm noise) and each point's outward normal, from (points, outward normal) pairs: one normal for all the
+    part's points, or one per point."""
     pts = np.vstack([p for p, _ in parts])
-    right = np.vstack([np.tile(np.asarray(o, float), (len(p), 1)) for p, o in parts])
-    return pts + rng.normal(0.0, 0.005, pts.shape), right
+    right = np.vstack([np.broadcast_to(np.asarray(o, float), p.shape) for p, o in parts])
+    return pts + np.random.default_rng(seed).normal(0.0, 0.005, pts.shape), right
 
 
 def test_up_orients_a_box_buildings_walls_outward_whatever_the_tiling(tmp_path):
     # walls face no side under the up rule: they take the side of the ground and roof they meet at creases.  A wall's
     # foot, a strip of two rows in the ground's leaf row, curled its quadric and linked the wall inward at full
     # reliability: here the -x and -y walls faced into the building, 98 % of their points, at both tile sizes
-    pts, right = box_scene()
-    header = laspy.LasHeader(point_format=1, version="1.2")
-    header.scales, header.offsets = np.full(3, 0.0005), np.array([500000.0, 5000000.0, 0.0])
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0] + 500000.0, pts[:, 1] + 5000000.0, pts[:, 2] + 100.0
+    # tools/orient_cases.py's box: a 10 x 10 x 6 m building (roof and four walls) on 30 x 30 m of ground, 0.1 m spacing
+    pts, right = scene([(p, r) for _, p, r in orient_cases.box()])
     src = tmp_path / "box.las"
-    las.write(str(src))
+    write_scene(src, pts, 100.0, origin=(500000.0, 5000000.0))
     wall = np.abs(right[:, 2]) < 0.5
     first = None
     for tile_size in (8.0, 64.0):
@@ -156,48 +148,11 @@ def test_up_orients_a_box_buildings_walls_outward_whatever_the_tiling(tmp_path):
         assert np.mean(side == first) > 0.999  # the same side at both tile sizes
 
 
-def write_scene(path, pts, z0=100.0):
-    header = laspy.LasHeader(point_format=1, version="1.2")
-    header.scales, header.offsets = np.full(3, 0.0005), np.array([499712.0, 4997120.0, 0.0])
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0] + 499712.0, pts[:, 1] + 4997120.0, pts[:, 2] + z0
-    las.write(str(path))
-
-
-def scene(parts, seed=0):
-    """Points (5 mm noise) and each point's outward normal, from (points, outward normal) pairs."""
-    pts = np.vstack([p for p, _ in parts])
-    right = np.vstack([np.tile(np.asarray(o, float), (len(p), 1)) for p, o in parts])
-    return pts + np.random.default_rng(seed).normal(0.0, 0.005, pts.shape), right
-
-
-def sheet_grid(a, b, step=0.1):
-    return np.mgrid[a[0]:a[1]:step, b[0]:b[1]:step].reshape(2, -1).T
-
-
 def test_eaves_do_not_turn_a_steep_roof_down(tmp_path):
     # a 55-degree gable roof overhanging its walls by 0.6 m: roof and wall meet in a T, which the crease rule reads as
     # the wall and the eaves' underside; at an agreement of 0.75 it outranked the roof plane's up prior (0.57) and
     # turned that plane down, 98.7 % of its points (found by review)
-    x0, y0, sx, sy, h, rise, eave = 6.3, 5.7, 7.0, 8.0, 4.0, 5.0, 0.6
-    xm, half = x0 + sx / 2, sx / 2
-    g = sheet_grid((0, 20), (0, 20))
-    g = g[~((g[:, 0] > x0) & (g[:, 0] < x0 + sx) & (g[:, 1] > y0) & (g[:, 1] < y0 + sy))]
-    gable = sheet_grid((x0, x0 + sx), (0, h + rise))
-    gable = gable[gable[:, 1] <= h + rise * (1 - np.abs(gable[:, 0] - xm) / half)]
-    side = sheet_grid((y0, y0 + sy), (0, h))
-    r = sheet_grid((x0 - eave, x0 + sx + eave), (y0 - eave, y0 + sy + eave))
-    z = h + rise * (1 - np.abs(r[:, 0] - xm) / half)
-    n, left = np.hypot(rise, half), r[:, 0] < xm
-    pts, right = scene([
-        (np.column_stack([g, np.zeros(len(g))]), (0, 0, 1)),
-        (np.column_stack([gable[:, 0], np.full(len(gable), y0), gable[:, 1]]), (0, -1, 0)),
-        (np.column_stack([gable[:, 0], np.full(len(gable), y0 + sy), gable[:, 1]]), (0, 1, 0)),
-        (np.column_stack([np.full(len(side), x0), side[:, 0], side[:, 1]]), (-1, 0, 0)),
-        (np.column_stack([np.full(len(side), x0 + sx), side[:, 0], side[:, 1]]), (1, 0, 0)),
-        (np.column_stack([r[left], z[left]]), (-rise / n, 0, half / n)),
-        (np.column_stack([r[~left], z[~left]]), (rise / n, 0, half / n)),
-    ])
+    pts, right = scene([(p, r) for _, p, r in orient_cases.gable(eave=0.6, rise=5.0)])  # 7 x 8 m, 4 m walls
     src = tmp_path / "eave.las"
     write_scene(src, pts, 101.3)
     nrm, _, _ = run(src, tmp_path / "eave_out.las", 8.0)
@@ -213,10 +168,10 @@ def test_ground_round_a_small_building_does_not_turn_its_walls_at_any_tile_size(
     # walls, and it turned all four walls inward, at that tile size only (found by review)
     s, foot, h = 4.0, 0.4, 3.0
     x0 = y0 = 12.0 - s / 2 + 0.05
-    g = sheet_grid((0, 24), (0, 24))
+    g = orient_cases.grid(0, 24, 0, 24, 0.1)
     g = g[~((g[:, 0] > x0) & (g[:, 0] < x0 + s) & (g[:, 1] > y0) & (g[:, 1] < y0 + s))]
-    r = sheet_grid((x0, x0 + s), (y0, y0 + s))
-    w = sheet_grid((x0, x0 + s), (foot, h))
+    r = orient_cases.grid(x0, x0 + s, y0, y0 + s, 0.1)
+    w = orient_cases.grid(x0, x0 + s, foot, h, 0.1)
     pts, right = scene([
         (np.column_stack([g, np.zeros(len(g))]), (0, 0, 1)), (np.column_stack([r, np.full(len(r), h)]), (0, 0, 1)),
         (np.column_stack([w[:, 0], np.full(len(w), y0), w[:, 1]]), (0, -1, 0)),
